@@ -1,0 +1,23 @@
+// The private module voicepuppet._core: one bind_<area> per file under bindings/.
+#include <pybind11/pybind11.h>
+
+#include "voicepuppet/types.hpp"
+
+namespace py = pybind11;
+
+void bind_hmm(py::module_& m);
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "voicepuppet's C++ kernels (private: use the voicepuppet package)";
+  m.def("build_info", [] {
+    auto info = voicepuppet::build_info();
+    py::dict d;
+    d["version"] = info.version;
+    d["build_type"] = info.build_type;
+    d["compiler"] = info.compiler;
+    d["eigen"] = info.eigen_version;
+    d["simd"] = info.simd;
+    return d;
+  });
+  bind_hmm(m);
+}
