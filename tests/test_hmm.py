@@ -1,0 +1,194 @@
+"""GaussianHMM against hmmlearn, brute force, textbook numbers and planted truth."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from voicepuppet import _core
+from voicepuppet.hmm import GaussianHMM
+
+hmmlearn_hmm = pytest.importorskip("hmmlearn.hmm", reason="hmmlearn is a test dependency: pip install hmmlearn")
+
+
+def random_model(rng, n, d, covariance="full", sparse=False):
+    m = GaussianHMM(n, covariance)
+    m.startprob_ = rng.dirichlet(np.ones(n))
+    A = rng.dirichlet(np.ones(n), size=n)
+    if sparse:
+        A[rng.random((n, n)) < 0.5] = 0.0
+        A[np.arange(n), np.arange(n)] += 0.2
+        A /= A.sum(axis=1, keepdims=True)
+    m.transmat_ = A
+    m.means_ = rng.normal(0, 3, (n, d))
+    if covariance == "full":
+        B = rng.normal(0, 1, (n, d, d))
+        m.covars_ = B @ B.transpose(0, 2, 1) + 0.5 * np.eye(d)
+    else:
+        m.covars_ = rng.uniform(0.3, 2.0, (n, d))
+    return m
+
+
+def to_hmmlearn(m, **kw):
+    h = hmmlearn_hmm.GaussianHMM(m.n_states, covariance_type=m.covariance, init_params="",
+                                 covars_prior=0.0, min_covar=0.0, **kw)
+    h.startprob_ = m.startprob_.copy()
+    h.transmat_ = m.transmat_.copy()
+    h.means_ = m.means_.copy()
+    h.covars_ = m.covars_.copy()
+    return h
+
+
+def rel(a, b):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
+
+
+@pytest.mark.parametrize("covariance", ["full", "diag"])
+def test_inference_matches_hmmlearn(rng, covariance):
+    m = random_model(rng, 5, 4, covariance)
+    X, _ = m.sample(400, random_state=3)
+    lengths = [150, 50, 200]
+    h = to_hmmlearn(m)
+    assert rel(m.score(X, lengths), h.score(X, lengths)) < 1e-10
+    assert rel(m.log_density(X), h._compute_log_likelihood(X)) < 1e-10
+    assert np.max(np.abs(m.predict_proba(X, lengths) - h.predict_proba(X, lengths))) < 1e-8
+    lp, path = m.decode(X, lengths)
+    hlp, hpath = h.decode(X, lengths, algorithm="viterbi")
+    assert rel(lp, hlp) < 1e-10
+    np.testing.assert_array_equal(path, hpath)
+
+
+@pytest.mark.parametrize("covariance", ["full", "diag"])
+def test_one_em_step_matches_hmmlearn(rng, covariance):
+    m = random_model(rng, 4, 3, covariance)
+    X, _ = m.sample(600, random_state=5)
+    lengths = [300, 300]
+    h = to_hmmlearn(m, n_iter=1, tol=-np.inf)
+    h.fit(X, lengths)
+    ours = GaussianHMM(4, covariance, n_iter=1, tol=-np.inf, min_covar=0.0, init_params="")
+    for attr in ("startprob_", "transmat_", "means_", "covars_"):
+        setattr(ours, attr, getattr(m, attr).copy())
+    ours.fit(X, lengths)
+    for attr in ("startprob_", "transmat_", "means_", "_covars_"):  # hmmlearn's raw covariances
+        assert rel(getattr(ours, attr.lstrip("_")), getattr(h, attr)) < 1e-8, attr
+
+
+def test_viterbi_and_likelihood_against_brute_force(rng):
+    for trial in range(6):
+        n, T = 2 + trial % 3, 1 + trial
+        m = random_model(rng, n, 2, "full", sparse=bool(trial % 2))
+        X, _ = m.sample(T, random_state=trial)
+        log_b = m.log_density(X)
+        best, best_path, total = -np.inf, None, []
+        for path in itertools.product(range(n), repeat=T):
+            with np.errstate(divide="ignore"):
+                lp = np.log(m.startprob_[path[0]]) + log_b[0, path[0]]
+                for t in range(1, T):
+                    lp += np.log(m.transmat_[path[t - 1], path[t]]) + log_b[t, path[t]]
+            total.append(lp)
+            if lp > best:
+                best, best_path = lp, path
+        total = np.array(total)
+        brute_ll = np.log(np.sum(np.exp(total[np.isfinite(total)])))
+        assert m.score(X) == pytest.approx(brute_ll, rel=1e-12)
+        lp, path = m.decode(X)
+        assert lp == pytest.approx(best, rel=1e-12)
+        assert tuple(path) == best_path
+
+
+def test_umbrella_example_through_log_emission_entry():
+    # Wikipedia "Forward-backward algorithm": smoothed P(rain) on days 1..5.
+    A = np.array([[0.7, 0.3], [0.3, 0.7]])
+    p_umbrella = np.array([0.9, 0.2])
+    obs = [1, 1, 0, 1, 1]
+    log_b = np.log(np.array([p_umbrella if o else 1 - p_umbrella for o in obs]))
+    ll, gamma, xi, starts, _ = _core.forward_backward(log_b, np.array([0.5, 0.5]), A, np.array([5]))
+    np.testing.assert_allclose(gamma[:, 0], [0.8673, 0.8204, 0.3075, 0.8204, 0.8673], atol=1e-4)
+    _, path = _core.viterbi(log_b, np.array([0.5, 0.5]), A, np.array([5]))
+    np.testing.assert_array_equal(path, [0, 0, 1, 0, 0])
+    assert xi.sum() == pytest.approx(4.0)
+
+
+def test_em_never_decreases_likelihood_and_recovers_planted_model(rng):
+    truth = random_model(rng, 3, 2, "full")
+    truth.means_ = np.array([[0.0, 0.0], [6.0, 0.0], [0.0, 6.0]])
+    truth.transmat_ = np.array([[0.9, 0.05, 0.05], [0.05, 0.9, 0.05], [0.05, 0.05, 0.9]])
+    X, states = truth.sample(6000, random_state=11)
+    m = GaussianHMM(3, "full", n_iter=100, tol=1e-8, random_state=2).fit(X, [3000, 3000])
+    lls = np.array([h["log_likelihood"] for h in m.history_])
+    assert np.all(np.diff(lls) >= -1e-8 * np.abs(lls[1:]))
+    order = [int(np.argmin(np.linalg.norm(m.means_ - mu, axis=1))) for mu in truth.means_]
+    assert sorted(order) == [0, 1, 2]
+    np.testing.assert_allclose(m.means_[order], truth.means_, atol=0.15)
+    np.testing.assert_allclose(m.transmat_[np.ix_(order, order)], truth.transmat_, atol=0.03)
+    np.testing.assert_allclose(m.covars_[order], truth.covars_, rtol=0.15, atol=0.1)
+    to_true = np.argsort(order)  # fitted state -> planted state
+    assert np.mean(to_true[m.predict(X, [3000, 3000])] == states) > 0.97
+
+
+def test_fit_is_deterministic_for_a_seed(rng):
+    X = rng.normal(size=(500, 3))
+    a = GaussianHMM(4, "full", n_iter=5, random_state=7).fit(X)
+    b = GaussianHMM(4, "full", n_iter=5, random_state=7).fit(X)
+    np.testing.assert_array_equal(a.means_, b.means_)
+    np.testing.assert_array_equal(a.covars_, b.covars_)
+    x1, s1 = a.sample(50, random_state=3)
+    x2, s2 = a.sample(50, random_state=3)
+    np.testing.assert_array_equal(x1, x2)
+    np.testing.assert_array_equal(s1, s2)
+
+
+def test_sampling_matches_the_model_statistics(rng):
+    m = random_model(rng, 2, 2, "full")
+    m.transmat_ = np.array([[0.95, 0.05], [0.1, 0.9]])
+    X, s = m.sample(40000, random_state=1)
+    counts = np.zeros((2, 2))
+    np.add.at(counts, (s[:-1], s[1:]), 1)
+    np.testing.assert_allclose(counts / counts.sum(1, keepdims=True), m.transmat_, atol=0.01)
+    for k in range(2):
+        np.testing.assert_allclose(np.cov(X[s == k].T), m.covars_[k], rtol=0.08, atol=0.05)
+
+
+def test_no_underflow_on_long_peaked_sequences(rng):
+    m = random_model(rng, 4, 10, "full", sparse=True)
+    X, _ = m.sample(5000, random_state=0)
+    X = X * 30.0  # emissions of ~ -1e5 nats: linear-space densities would underflow
+    ll_scaled = _core.forward_backward(m.log_density(X), m.startprob_, m.transmat_, np.array([5000]))[0]
+    ll_log = _core.forward_backward(m.log_density(X), m.startprob_, m.transmat_, np.array([5000]),
+                                    implementation="log")[0]
+    assert np.isfinite(ll_scaled)
+    assert ll_scaled == pytest.approx(ll_log, rel=1e-12)
+
+
+@pytest.mark.parametrize("bad, message", [
+    (lambda m, X: m.score(X[:, :2]), "dimensions"),
+    (lambda m, X: m.score(np.where(np.arange(X.size).reshape(X.shape) == 7, np.nan, X)), "NaN"),
+    (lambda m, X: m.score(X, lengths=[10, 10]), "lengths sum to 20"),
+    (lambda m, X: m.score(X, lengths=[100, 0]), "positive"),
+    (lambda m, X: m.score(X[:0]), "zero frames"),
+    (lambda m, X: m.score(X[:, 0]), "2-D"),
+])
+def test_bad_input_gives_clear_value_errors(rng, bad, message):
+    m = random_model(rng, 3, 3, "full")
+    X, _ = m.sample(100, random_state=0)
+    with pytest.raises(ValueError, match=message):
+        bad(m, X)
+
+
+def test_bad_parameters_are_named(rng):
+    m = random_model(rng, 3, 3, "full")
+    X, _ = m.sample(20, random_state=0)
+    m.transmat_ = m.transmat_ * 1.1
+    with pytest.raises(ValueError, match="transmat_ rows must sum to 1"):
+        m.score(X)
+    m = random_model(rng, 3, 3, "full")
+    m.covars_[1] = np.diag([1.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match=r"covars\[1\] is not positive definite"):
+        m.score(X)
+    with pytest.raises(ValueError, match="covariance"):
+        GaussianHMM(3, "spherical")
+    with pytest.raises(ValueError, match="frames cannot initialise"):
+        GaussianHMM(30).fit(X)
+    with pytest.raises(ValueError, match="singular"):
+        GaussianHMM(2, min_covar=0.0).fit(np.column_stack([X[:, 0], X[:, 0]]))
