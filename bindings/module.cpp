@@ -6,6 +6,8 @@
 namespace py = pybind11;
 
 void bind_hmm(py::module_& m);
+void bind_tracker(py::module_& m);
+void bind_trajectory(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "voicepuppet's C++ kernels (private: use the voicepuppet package)";
@@ -20,4 +22,6 @@ PYBIND11_MODULE(_core, m) {
     return d;
   });
   bind_hmm(m);
+  bind_tracker(m);
+  bind_trajectory(m);
 }

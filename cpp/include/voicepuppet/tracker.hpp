@@ -1,0 +1,147 @@
+#pragma once
+/// @file tracker.hpp
+/// The spring-mesh SSD facial tracker of Voice Puppetry §4.1: one sub-pixel SSD texture tracker
+/// per landmark (inverse-compositional Lucas–Kanade, translation only, on an image pyramid),
+/// all of them coupled by springs along the edges of a mesh and relaxed jointly: one
+/// Gauss–Newton system over all 2·P coordinates per iteration, so a tracker that loses its
+/// texture (occlusion, blur) is carried by its neighbours and re-locks when the texture returns.
+///
+/// Drift: every frame is first tracked against each point's current template, then refined
+/// against its first-frame template; the current template is replaced only when both answers
+/// agree (the guarded update of Matthews, Ishikawa & Baker, "The template update problem", 2004).
+///
+/// Residuals are brightness-normalised (the sampled patch is scaled to the template's mean and
+/// contrast), and each point's data term is weighted by its normalised cross-correlation with
+/// the template, so lighting drift does not move points and occluded points hand over to the
+/// springs. Springs are scalar-length springs: energy k·(|p_j − p_i| − L)², with L and k
+/// re-estimated from the mean and variance of the tracked distances (`estimate_springs`).
+///
+/// Images come in as plain 8-bit grey buffers (`GreyImage`); `tracker_opencv.hpp` adapts a
+/// `cv::Mat` for C++ callers who use OpenCV. Coordinates are pixels, (x, y), the centre of the
+/// top-left pixel at (0, 0).
+
+#include "voicepuppet/types.hpp"
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+namespace voicepuppet {
+
+/// A read-only view of an 8-bit grey image: `height` rows of `width` bytes, rows `stride`
+/// bytes apart (stride >= width). The tracker never keeps the pointer past a call.
+struct GreyImage {
+  const std::uint8_t* data = nullptr;
+  Index width = 0;
+  Index height = 0;
+  Index stride = 0;
+};
+
+/// #E by 2 vertex index pairs (i < j), one per spring.
+using EdgeMatrix = Eigen::Matrix<Index, Eigen::Dynamic, 2, Eigen::RowMajor>;
+/// Row-major boolean matrix (e.g. #T by #P lost flags).
+using RowMatrixXb = Eigen::Matrix<bool, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using VectorXb = Eigen::Matrix<bool, Eigen::Dynamic, 1>;
+
+/// The springs between trackers.
+struct SpringMesh {
+  EdgeMatrix edges;      ///< #E by 2 point indices
+  VectorXd rest_length;  ///< #E rest lengths L_e in pixels (> 0)
+  VectorXd stiffness;    ///< #E stiffnesses k_e in 1/px² (>= 0), energy k_e·(|p_j − p_i| − L_e)²
+};
+
+/// Edges of the Delaunay triangulation of 2D points (Bowyer–Watson, O(P²), fine for the few
+/// dozen points of a face mesh), each as (i, j) with i < j, sorted lexicographically.
+/// @param[in] points  #P by 2 (x, y), P >= 3, finite, pairwise distinct, not all collinear
+/// @throws std::invalid_argument on a wrong shape, fewer than 3 points, non-finite or
+///         duplicate points, or points that are all on one line (no triangle exists).
+EdgeMatrix delaunay_edges(const MatrixRef& points);
+
+/// Springs along `edges` whose rest lengths are the distances between `points` and whose
+/// stiffness is 1 / (relative_sigma · L_e)²: the initial mesh, before any re-estimation.
+/// @param[in] points          #P by 2 (x, y)
+/// @param[in] edges           #E by 2 indices into points, i != j
+/// @param[in] relative_sigma  assumed standard deviation of each length, as a fraction of it (> 0)
+/// @throws std::invalid_argument on bad shapes, indices, coincident endpoints or sigma.
+SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
+                               double relative_sigma = 0.05);
+
+/// Re-estimates spring rest lengths and stiffnesses from a tracked pass (paper §4.1): for each
+/// edge, L_e = mean and k_e = 1 / max(var, min_sigma²) of the distance between its endpoints over
+/// the frames where neither endpoint is lost. Edges seen in fewer than 2 frames keep their
+/// previous values.
+/// @param[in] tracks     #T by 2·#P positions, row t = (x0, y0, x1, y1, ...) of frame t
+/// @param[in] lost       #T by #P lost flags (true: exclude from the statistics)
+/// @param[in] previous   the mesh used for the pass (its edges are kept)
+/// @param[in] min_sigma  floor on the distance standard deviation in pixels (> 0)
+/// @throws std::invalid_argument on shape mismatches, non-finite tracks or a bad floor.
+SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
+                            const SpringMesh& previous, double min_sigma = 0.5);
+
+/// Tuning of `SpringMeshTracker`. Defaults suit faces at 100–700 px across.
+struct TrackerOptions {
+  Index patch_radius = 6;        ///< patch is (2r+1)² pixels at every pyramid level (>= 1)
+  Index levels = 3;              ///< pyramid levels (>= 1; fewer are used on small frames)
+  Index max_iterations = 12;     ///< Gauss–Newton iterations per level (>= 1)
+  double tolerance = 0.02;       ///< stop the finest level when no point moves more (px, > 0);
+                                 ///< coarser levels stop at max(tolerance, 0.1) level pixels
+  double intensity_sigma = 8.0;  ///< grey-level noise of the SSD residual (> 0)
+  double spring_weight = 1.0;    ///< multiplies every spring stiffness (>= 0)
+  double ncc_floor = 0.5;        ///< data weight is 0 at or below this template correlation
+  double ncc_full = 0.85;        ///< ... and 1 at or above this one (ncc_floor < ncc_full <= 1)
+  double lost_confidence = 0.5;  ///< a point is lost when its confidence is below this
+  double drift_tolerance = 1.0;  ///< px: current- and first-template answers must agree this well
+                                 ///< for the current template to be replaced (> 0)
+  double damping = 1e-3;         ///< 1/px² Levenberg damping toward the previous iterate (> 0)
+};
+
+/// One frame's answer.
+struct TrackerFrame {
+  RowMatrixXd points;   ///< #P by 2 positions (x, y) in pixels
+  VectorXd confidence;  ///< #P in [0, 1]: correlation of the patch with the template it matched
+  VectorXb lost;        ///< #P: outside the image or confidence below `lost_confidence`
+  Index iterations = 0; ///< Gauss–Newton iterations spent on this frame (all levels, both stages)
+};
+
+/// The tracker: construct it on the first frame with the initial points and the springs, then
+/// call `track` on every following frame in order.
+class SpringMeshTracker {
+ public:
+  /// @param[in] first    the first frame (where `points` are given)
+  /// @param[in] points   #P by 2 initial positions, P >= 3, inside the image
+  /// @param[in] mesh     springs between the points (e.g. `springs_from_points(points,
+  ///                     delaunay_edges(points))`)
+  /// @param[in] options  tuning, see `TrackerOptions`
+  /// @throws std::invalid_argument on an empty or inconsistent image, fewer than 3 points,
+  ///         a point outside the image, a bad mesh or bad options.
+  SpringMeshTracker(const GreyImage& first, const MatrixRef& points, const SpringMesh& mesh,
+                    const TrackerOptions& options = {});
+  ~SpringMeshTracker();
+  SpringMeshTracker(SpringMeshTracker&&) noexcept;
+  SpringMeshTracker& operator=(SpringMeshTracker&&) noexcept;
+
+  /// Tracks the next frame (same size as the first) from the previous positions.
+  /// @throws std::invalid_argument when the frame is empty or its size differs from the first.
+  TrackerFrame track(const GreyImage& frame);
+
+  /// Current positions (#P by 2).
+  const RowMatrixXd& points() const;
+  /// Number of points, frame width and height.
+  Index n_points() const;
+  Index width() const;
+  Index height() const;
+  /// Pyramid levels actually used (the requested number, limited by the frame size).
+  Index levels() const;
+  const SpringMesh& mesh() const;
+  const TrackerOptions& options() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Checks an image view: non-null data, positive size, stride >= width.
+/// @throws std::invalid_argument naming `name`.
+void check_grey_image(const GreyImage& image, const char* name);
+
+}  // namespace voicepuppet

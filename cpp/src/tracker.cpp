@@ -1,0 +1,658 @@
+// The spring-mesh SSD facial tracker (Voice Puppetry §4.1). See tracker.hpp for the method.
+#include "voicepuppet/tracker.hpp"
+
+#include <Eigen/Cholesky>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <utility>
+
+namespace voicepuppet {
+
+void check_grey_image(const GreyImage& image, const char* name) {
+  if (image.data == nullptr) {
+    fail_argument(name, " has no pixel data (null pointer); pass a decoded 8-bit grey frame");
+  }
+  if (image.width < 1 || image.height < 1) {
+    fail_argument(name, " must have a positive size, got ", image.width, " x ", image.height,
+                  " (width x height); the frame is empty");
+  }
+  if (image.stride < image.width) {
+    fail_argument(name, " stride must be at least its width (", image.width, " bytes), got ",
+                  image.stride, "; pass the row pitch of the 8-bit grey buffer");
+  }
+}
+
+// ------------------------------------------------------------------------------- Delaunay
+
+namespace {
+
+struct Triangle {
+  std::array<Index, 3> v;
+  double cx, cy, r2;  // circumcircle
+};
+
+bool circumcircle(const RowMatrixXd& p, Index a, Index b, Index c, Triangle& t) {
+  const double ax = p(a, 0), ay = p(a, 1), bx = p(b, 0), by = p(b, 1), cx = p(c, 0),
+               cy = p(c, 1);
+  const double d = 2.0 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by));
+  if (std::abs(d) < 1e-300) return false;
+  const double a2 = ax * ax + ay * ay, b2 = bx * bx + by * by, c2 = cx * cx + cy * cy;
+  t.v = {a, b, c};
+  t.cx = (a2 * (by - cy) + b2 * (cy - ay) + c2 * (ay - by)) / d;
+  t.cy = (a2 * (cx - bx) + b2 * (ax - cx) + c2 * (bx - ax)) / d;
+  t.r2 = (ax - t.cx) * (ax - t.cx) + (ay - t.cy) * (ay - t.cy);
+  return true;
+}
+
+}  // namespace
+
+EdgeMatrix delaunay_edges(const MatrixRef& points) {
+  if (points.cols() != 2) {
+    fail_argument("points must have shape (P, 2) (x, y per row), got ", shape_of(points));
+  }
+  const Index n = points.rows();
+  if (n < 3) {
+    fail_argument("points must hold at least 3 points for a triangulation, got ", n,
+                  "; a spring mesh needs at least one triangle");
+  }
+  require_finite(points, "points");
+  // Normalise to the unit box so the tolerances below are scale-free.
+  const double lox = points.col(0).minCoeff(), loy = points.col(1).minCoeff();
+  const double extent = std::max(points.col(0).maxCoeff() - lox, points.col(1).maxCoeff() - loy);
+  if (!(extent > 0)) fail_argument("points are all identical; give distinct landmark positions");
+  RowMatrixXd p(n + 3, 2);
+  for (Index i = 0; i < n; ++i) {
+    p(i, 0) = (points(i, 0) - lox) / extent;
+    p(i, 1) = (points(i, 1) - loy) / extent;
+  }
+  for (Index i = 0; i < n; ++i) {
+    for (Index j = i + 1; j < n; ++j) {
+      if ((p.row(i) - p.row(j)).squaredNorm() < 1e-24) {
+        fail_argument("points ", i, " and ", j, " coincide at (", points(i, 0), ", ",
+                      points(i, 1), "); remove duplicate landmarks");
+      }
+    }
+  }
+  // Super-triangle enclosing a disk of radius R around the unit box.
+  const double R = 1e3;
+  p.row(n) << 0.5, 0.5 + 2 * R;
+  p.row(n + 1) << 0.5 - std::sqrt(3.0) * R, 0.5 - R;
+  p.row(n + 2) << 0.5 + std::sqrt(3.0) * R, 0.5 - R;
+  std::vector<Triangle> tris(1);
+  circumcircle(p, n, n + 1, n + 2, tris[0]);
+
+  std::vector<std::pair<Index, Index>> boundary;
+  std::vector<Triangle> kept;
+  for (Index k = 0; k < n; ++k) {
+    const double x = p(k, 0), y = p(k, 1);
+    boundary.clear();
+    kept.clear();
+    std::vector<Triangle> bad;
+    for (const Triangle& t : tris) {
+      const double d2 = (x - t.cx) * (x - t.cx) + (y - t.cy) * (y - t.cy);
+      (d2 < t.r2 * (1 + 1e-12) ? bad : kept).push_back(t);
+    }
+    // Boundary of the cavity: edges of bad triangles not shared by two of them.
+    for (const Triangle& t : bad) {
+      for (int e = 0; e < 3; ++e) {
+        Index a = t.v[e], b = t.v[(e + 1) % 3];
+        if (a > b) std::swap(a, b);
+        auto it = std::find(boundary.begin(), boundary.end(), std::make_pair(a, b));
+        if (it != boundary.end()) {
+          boundary.erase(it);
+        } else {
+          boundary.emplace_back(a, b);
+        }
+      }
+    }
+    for (const auto& [a, b] : boundary) {
+      Triangle t;
+      if (circumcircle(p, a, b, k, t)) kept.push_back(t);
+    }
+    tris.swap(kept);
+  }
+  std::vector<std::pair<Index, Index>> edges;
+  for (const Triangle& t : tris) {
+    if (t.v[0] >= n || t.v[1] >= n || t.v[2] >= n) continue;
+    for (int e = 0; e < 3; ++e) {
+      Index a = t.v[e], b = t.v[(e + 1) % 3];
+      if (a > b) std::swap(a, b);
+      edges.emplace_back(a, b);
+    }
+  }
+  if (edges.empty()) {
+    fail_argument("points are all on one line, so they have no triangulation; "
+                  "give points that span an area, or pass the spring edges explicitly");
+  }
+  std::sort(edges.begin(), edges.end());
+  edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
+  EdgeMatrix out(static_cast<Index>(edges.size()), 2);
+  for (Index e = 0; e < out.rows(); ++e) {
+    out(e, 0) = edges[e].first;
+    out(e, 1) = edges[e].second;
+  }
+  return out;
+}
+
+// ------------------------------------------------------------------------------- springs
+
+namespace {
+
+void check_points(const MatrixRef& points, const char* name) {
+  if (points.cols() != 2) {
+    fail_argument(name, " must have shape (P, 2) (x, y per row), got ", shape_of(points));
+  }
+  require_finite(points, name);
+}
+
+void check_edges(const EdgeMatrix& edges, Index n_points) {
+  for (Index e = 0; e < edges.rows(); ++e) {
+    const Index a = edges(e, 0), b = edges(e, 1);
+    if (a < 0 || b < 0 || a >= n_points || b >= n_points) {
+      fail_argument("edges row ", e, " = (", a, ", ", b, ") indexes outside the ", n_points,
+                    " points; indices must be in [0, ", n_points - 1, "]");
+    }
+    if (a == b) fail_argument("edges row ", e, " joins point ", a, " to itself; remove it");
+  }
+}
+
+void check_mesh(const SpringMesh& mesh, Index n_points) {
+  check_edges(mesh.edges, n_points);
+  const Index ne = mesh.edges.rows();
+  if (mesh.rest_length.size() != ne || mesh.stiffness.size() != ne) {
+    fail_argument("mesh must have one rest length and one stiffness per edge (", ne,
+                  " edges), got ", mesh.rest_length.size(), " and ", mesh.stiffness.size());
+  }
+  for (Index e = 0; e < ne; ++e) {
+    if (!(std::isfinite(mesh.rest_length[e]) && mesh.rest_length[e] > 0)) {
+      fail_argument("mesh rest_length[", e, "] must be a positive length in pixels, got ",
+                    mesh.rest_length[e]);
+    }
+    if (!(std::isfinite(mesh.stiffness[e]) && mesh.stiffness[e] >= 0)) {
+      fail_argument("mesh stiffness[", e, "] must be finite and >= 0, got ", mesh.stiffness[e]);
+    }
+  }
+}
+
+}  // namespace
+
+SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
+                               double relative_sigma) {
+  check_points(points, "points");
+  check_edges(edges, points.rows());
+  if (!(std::isfinite(relative_sigma) && relative_sigma > 0)) {
+    fail_argument("relative_sigma must be a positive fraction of each spring length, got ",
+                  relative_sigma);
+  }
+  SpringMesh mesh;
+  mesh.edges = edges;
+  mesh.rest_length.resize(edges.rows());
+  mesh.stiffness.resize(edges.rows());
+  for (Index e = 0; e < edges.rows(); ++e) {
+    const double len = (points.row(edges(e, 1)) - points.row(edges(e, 0))).norm();
+    if (!(len > 0)) {
+      fail_argument("edges row ", e, " joins points ", edges(e, 0), " and ", edges(e, 1),
+                    ", which coincide; remove duplicate landmarks");
+    }
+    mesh.rest_length[e] = len;
+    mesh.stiffness[e] = 1.0 / ((relative_sigma * len) * (relative_sigma * len));
+  }
+  return mesh;
+}
+
+SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
+                            const SpringMesh& previous, double min_sigma) {
+  const Index T = tracks.rows();
+  if (tracks.cols() % 2 != 0 || tracks.cols() < 6) {
+    fail_argument("tracks must have shape (T, 2*P) with P >= 3 (x0, y0, x1, y1, ... per frame), "
+                  "got ", shape_of(tracks));
+  }
+  const Index P = tracks.cols() / 2;
+  if (lost.rows() != T || lost.cols() != P) {
+    fail_argument("lost must have shape (", T, ", ", P, ") (one flag per frame and point), got ",
+                  shape_of(lost));
+  }
+  require_finite(tracks, "tracks");
+  check_mesh(previous, P);
+  if (!(std::isfinite(min_sigma) && min_sigma > 0)) {
+    fail_argument("min_sigma must be a positive length in pixels, got ", min_sigma);
+  }
+  SpringMesh mesh = previous;
+  for (Index e = 0; e < mesh.edges.rows(); ++e) {
+    const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
+    // Welford's running mean and variance.
+    double mean = 0, m2 = 0;
+    Index count = 0;
+    for (Index t = 0; t < T; ++t) {
+      if (lost(t, a) || lost(t, b)) continue;
+      const double dx = tracks(t, 2 * b) - tracks(t, 2 * a);
+      const double dy = tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1);
+      const double d = std::sqrt(dx * dx + dy * dy);
+      ++count;
+      const double delta = d - mean;
+      mean += delta / static_cast<double>(count);
+      m2 += delta * (d - mean);
+    }
+    if (count < 2 || !(mean > 0)) continue;
+    const double var = m2 / static_cast<double>(count - 1);
+    mesh.rest_length[e] = mean;
+    mesh.stiffness[e] = 1.0 / std::max(var, min_sigma * min_sigma);
+  }
+  return mesh;
+}
+
+// ------------------------------------------------------------------------------- tracker
+
+namespace {
+
+// One pyramid level: an 8-bit image, either borrowed (level 0) or owned.
+struct Level {
+  const std::uint8_t* data = nullptr;
+  Index width = 0, height = 0, stride = 0;
+  std::vector<std::uint8_t> owned;
+};
+
+// 2x2 box average and decimation: pixel (x, y) of level l+1 sits at (2x + 0.5, 2y + 0.5) of l.
+void downsample(const Level& src, Level& dst) {
+  dst.width = src.width / 2;
+  dst.height = src.height / 2;
+  dst.stride = dst.width;
+  dst.owned.resize(static_cast<size_t>(dst.width * dst.height));
+  for (Index y = 0; y < dst.height; ++y) {
+    const std::uint8_t* r0 = src.data + (2 * y) * src.stride;
+    const std::uint8_t* r1 = r0 + src.stride;
+    std::uint8_t* out = dst.owned.data() + y * dst.stride;
+    for (Index x = 0; x < dst.width; ++x) {
+      out[x] = static_cast<std::uint8_t>((r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1] + 2) >> 2);
+    }
+  }
+  dst.data = dst.owned.data();
+}
+
+// Bilinear samples of the (2q+1)² grid centred at (cx, cy); returns the fraction of samples
+// inside the image (outside ones take the nearest border pixel).
+double sample_patch(const Level& im, double cx, double cy, int q, float* out) {
+  const int m = 2 * q + 1;
+  const double fxf = std::floor(cx), fyf = std::floor(cy);
+  const float fx = static_cast<float>(cx - fxf), fy = static_cast<float>(cy - fyf);
+  const float w00 = (1 - fx) * (1 - fy), w01 = fx * (1 - fy), w10 = (1 - fx) * fy, w11 = fx * fy;
+  const Index x0 = static_cast<Index>(fxf) - q, y0 = static_cast<Index>(fyf) - q;
+  if (x0 >= 0 && y0 >= 0 && x0 + m < im.width && y0 + m < im.height) {
+    for (int j = 0; j < m; ++j) {
+      const std::uint8_t* r0 = im.data + (y0 + j) * im.stride + x0;
+      const std::uint8_t* r1 = r0 + im.stride;
+      float* o = out + j * m;
+      for (int i = 0; i < m; ++i) {
+        o[i] = w00 * r0[i] + w01 * r0[i + 1] + w10 * r1[i] + w11 * r1[i + 1];
+      }
+    }
+    return 1.0;
+  }
+  Index inside = 0;
+  auto px = [&](Index x, Index y) -> float {
+    x = std::clamp<Index>(x, 0, im.width - 1);
+    y = std::clamp<Index>(y, 0, im.height - 1);
+    return im.data[y * im.stride + x];
+  };
+  for (int j = 0; j < m; ++j) {
+    const Index y = y0 + j;
+    for (int i = 0; i < m; ++i) {
+      const Index x = x0 + i;
+      const double sx = static_cast<double>(x) + fx, sy = static_cast<double>(y) + fy;
+      if (sx >= 0 && sy >= 0 && sx <= static_cast<double>(im.width - 1) &&
+          sy <= static_cast<double>(im.height - 1)) {
+        ++inside;
+      }
+      out[j * m + i] =
+          w00 * px(x, y) + w01 * px(x + 1, y) + w10 * px(x, y + 1) + w11 * px(x + 1, y + 1);
+    }
+  }
+  return static_cast<double>(inside) / static_cast<double>(m * m);
+}
+
+// A template patch at one pyramid level: zero-mean values and gradients, contrast, Hessian.
+struct Template {
+  std::vector<float> t, gx, gy;
+  double sigma = 0;  // RMS of t (contrast)
+  double hxx = 0, hxy = 0, hyy = 0;
+};
+
+// Result of comparing the image around a point with a template.
+struct Match {
+  double ncc = 0;     // zero-mean normalised cross-correlation
+  double bx = 0, by = 0;  // sum of gradient * residual
+  double inside = 0;  // fraction of the patch inside the image
+  bool textured = false;
+};
+
+constexpr double kMinContrast = 0.5;  // grey levels RMS below which a patch is flat
+
+}  // namespace
+
+struct SpringMeshTracker::Impl {
+  TrackerOptions opt;
+  SpringMesh mesh;
+  Index P = 0, width = 0, height = 0, n_levels = 1;
+  int r = 0, n_pix = 0;
+  RowMatrixXd pts;
+  std::vector<Level> pyr;
+  // templates[(l * P + i)] for the first frame and for the current (guarded) template.
+  std::vector<Template> first, current;
+  // Work buffers.
+  std::vector<float> patch, big;
+  RowMatrixXd A;
+  VectorXd rhs, delta;
+  Eigen::LLT<Eigen::MatrixXd> llt;
+  Eigen::MatrixXd Adense;
+
+  static double level_coord(double p0, Index l) {
+    return (p0 + 0.5) / static_cast<double>(Index(1) << l) - 0.5;
+  }
+
+  void build_pyramid(const GreyImage& im) {
+    pyr.resize(static_cast<size_t>(n_levels));
+    pyr[0].data = im.data;
+    pyr[0].width = im.width;
+    pyr[0].height = im.height;
+    pyr[0].stride = im.stride;
+    for (Index l = 1; l < n_levels; ++l) downsample(pyr[l - 1], pyr[l]);
+  }
+
+  // Builds template `tpl` from the current pyramid at level l around level-0 position (x, y).
+  // Returns the fraction of the patch inside the image.
+  double make_template(Index l, double x, double y, Template& tpl) {
+    const int q = r + 1, m = 2 * q + 1, n = 2 * r + 1;
+    const double inside =
+        sample_patch(pyr[l], level_coord(x, l), level_coord(y, l), q, big.data());
+    tpl.t.resize(n_pix);
+    tpl.gx.resize(n_pix);
+    tpl.gy.resize(n_pix);
+    double mt = 0, mgx = 0, mgy = 0;
+    for (int j = 0; j < n; ++j) {
+      for (int i = 0; i < n; ++i) {
+        const int c = (j + 1) * m + (i + 1), k = j * n + i;
+        tpl.t[k] = big[c];
+        tpl.gx[k] = 0.5f * (big[c + 1] - big[c - 1]);
+        tpl.gy[k] = 0.5f * (big[c + m] - big[c - m]);
+        mt += tpl.t[k];
+        mgx += tpl.gx[k];
+        mgy += tpl.gy[k];
+      }
+    }
+    mt /= n_pix;
+    mgx /= n_pix;
+    mgy /= n_pix;
+    double vt = 0, hxx = 0, hxy = 0, hyy = 0;
+    for (int k = 0; k < n_pix; ++k) {
+      tpl.t[k] = static_cast<float>(tpl.t[k] - mt);
+      tpl.gx[k] = static_cast<float>(tpl.gx[k] - mgx);
+      tpl.gy[k] = static_cast<float>(tpl.gy[k] - mgy);
+      vt += double(tpl.t[k]) * tpl.t[k];
+      hxx += double(tpl.gx[k]) * tpl.gx[k];
+      hxy += double(tpl.gx[k]) * tpl.gy[k];
+      hyy += double(tpl.gy[k]) * tpl.gy[k];
+    }
+    tpl.sigma = std::sqrt(vt / n_pix);
+    tpl.hxx = hxx;
+    tpl.hxy = hxy;
+    tpl.hyy = hyy;
+    return inside;
+  }
+
+  // Compares the image at level l around level-0 position (x, y) with template `tpl`.
+  Match match(Index l, double x, double y, const Template& tpl) {
+    Match mt;
+    mt.inside = sample_patch(pyr[l], level_coord(x, l), level_coord(y, l), r, patch.data());
+    const float* I = patch.data();
+    double s = 0, s2 = 0;
+    for (int k = 0; k < n_pix; ++k) {
+      s += I[k];
+      s2 += double(I[k]) * I[k];
+    }
+    const double mean = s / n_pix;
+    const double var = std::max(0.0, s2 / n_pix - mean * mean);
+    const double sigma_i = std::sqrt(var);
+    if (sigma_i < kMinContrast || tpl.sigma < kMinContrast) return mt;
+    mt.textured = true;
+    const float mf = static_cast<float>(mean);
+    const float gain = static_cast<float>(tpl.sigma / sigma_i);
+    float cross = 0, bx = 0, by = 0;
+    for (int k = 0; k < n_pix; ++k) {
+      const float d = I[k] - mf;
+      cross += d * tpl.t[k];
+      const float e = gain * d - tpl.t[k];
+      bx += tpl.gx[k] * e;
+      by += tpl.gy[k] * e;
+    }
+    mt.ncc = cross / (n_pix * sigma_i * tpl.sigma);
+    mt.bx = bx;
+    mt.by = by;
+    return mt;
+  }
+
+  double data_weight(const Match& m) const {
+    if (!m.textured || m.inside < 0.5) return 0.0;
+    const double w = (m.ncc - opt.ncc_floor) / (opt.ncc_full - opt.ncc_floor);
+    return std::clamp(w, 0.0, 1.0);
+  }
+
+  // Joint Gauss–Newton relaxation over levels [l_hi .. l_lo] against `tpls`; updates pts.
+  Index relax(Index l_hi, Index l_lo, const std::vector<Template>& tpls) {
+    const Index n = 2 * P;
+    const double inv_s2 = 1.0 / (opt.intensity_sigma * opt.intensity_sigma);
+    Index iterations = 0;
+    for (Index l = l_hi; l >= l_lo; --l) {
+      const double scale = 1.0 / static_cast<double>(Index(1) << l);
+      for (Index it = 0; it < opt.max_iterations; ++it) {
+        ++iterations;
+        Adense.setZero();
+        rhs.setZero();
+        for (Index i = 0; i < P; ++i) {
+          const Template& tpl = tpls[static_cast<size_t>(l * P + i)];
+          const Match m = match(l, pts(i, 0), pts(i, 1), tpl);
+          const double c = data_weight(m) * inv_s2;
+          if (c > 0) {
+            Adense(2 * i, 2 * i) += c * tpl.hxx * scale * scale;
+            Adense(2 * i, 2 * i + 1) += c * tpl.hxy * scale * scale;
+            Adense(2 * i + 1, 2 * i) += c * tpl.hxy * scale * scale;
+            Adense(2 * i + 1, 2 * i + 1) += c * tpl.hyy * scale * scale;
+            rhs[2 * i] -= c * m.bx * scale;
+            rhs[2 * i + 1] -= c * m.by * scale;
+          }
+        }
+        for (Index e = 0; e < mesh.edges.rows(); ++e) {
+          const double k = mesh.stiffness[e] * opt.spring_weight;
+          if (k <= 0) continue;
+          const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
+          const double dx = pts(b, 0) - pts(a, 0), dy = pts(b, 1) - pts(a, 1);
+          const double len = std::sqrt(dx * dx + dy * dy);
+          if (len < 1e-9) continue;
+          const double ux = dx / len, uy = dy / len, res = len - mesh.rest_length[e];
+          const double kxx = k * ux * ux, kxy = k * ux * uy, kyy = k * uy * uy;
+          for (const Index v : {a, b}) {
+            Adense(2 * v, 2 * v) += kxx;
+            Adense(2 * v, 2 * v + 1) += kxy;
+            Adense(2 * v + 1, 2 * v) += kxy;
+            Adense(2 * v + 1, 2 * v + 1) += kyy;
+          }
+          Adense(2 * a, 2 * b) -= kxx;
+          Adense(2 * a, 2 * b + 1) -= kxy;
+          Adense(2 * a + 1, 2 * b) -= kxy;
+          Adense(2 * a + 1, 2 * b + 1) -= kyy;
+          Adense(2 * b, 2 * a) -= kxx;
+          Adense(2 * b, 2 * a + 1) -= kxy;
+          Adense(2 * b + 1, 2 * a) -= kxy;
+          Adense(2 * b + 1, 2 * a + 1) -= kyy;
+          rhs[2 * a] += k * res * ux;
+          rhs[2 * a + 1] += k * res * uy;
+          rhs[2 * b] -= k * res * ux;
+          rhs[2 * b + 1] -= k * res * uy;
+        }
+        Adense.diagonal().array() += opt.damping;
+        llt.compute(Adense);
+        if (llt.info() != Eigen::Success) {
+          fail_numeric("spring-mesh tracker: the Gauss-Newton system is not positive definite; "
+                       "check the options (damping must be > 0, stiffness finite)");
+        }
+        delta = llt.solve(rhs);
+        double max_step = 0;
+        for (Index v = 0; v < n; ++v) {
+          // Trust region: at most 2 level pixels per iteration, so a bad linearisation of one
+          // patch cannot throw a point across the face.
+          const double limit = 2.0 / scale;
+          double d = delta[v];
+          if (!std::isfinite(d)) d = 0;
+          d = std::clamp(d, -limit, limit);
+          pts(v / 2, v % 2) += d;
+          max_step = std::max(max_step, std::abs(d) * scale);
+        }
+        // Coarse levels only need to land within the next level's reach.
+        if (max_step < (l > l_lo ? std::max(opt.tolerance, 0.1) : opt.tolerance)) break;
+      }
+    }
+    return iterations;
+  }
+};
+
+namespace {
+
+void check_options(const TrackerOptions& o) {
+  if (o.patch_radius < 1 || o.patch_radius > 64) {
+    fail_argument("options.patch_radius must be in [1, 64] pixels, got ", o.patch_radius);
+  }
+  if (o.levels < 1 || o.levels > 8) fail_argument("options.levels must be in [1, 8], got ", o.levels);
+  if (o.max_iterations < 1) {
+    fail_argument("options.max_iterations must be >= 1, got ", o.max_iterations);
+  }
+  auto positive = [](double v, const char* name) {
+    if (!(std::isfinite(v) && v > 0)) fail_argument("options.", name, " must be > 0, got ", v);
+  };
+  positive(o.tolerance, "tolerance");
+  positive(o.intensity_sigma, "intensity_sigma");
+  positive(o.drift_tolerance, "drift_tolerance");
+  positive(o.damping, "damping");
+  if (!(std::isfinite(o.spring_weight) && o.spring_weight >= 0)) {
+    fail_argument("options.spring_weight must be finite and >= 0, got ", o.spring_weight);
+  }
+  if (!(o.ncc_floor >= -1 && o.ncc_floor < o.ncc_full && o.ncc_full <= 1)) {
+    fail_argument("options need -1 <= ncc_floor < ncc_full <= 1, got ncc_floor = ", o.ncc_floor,
+                  ", ncc_full = ", o.ncc_full);
+  }
+  if (!(o.lost_confidence >= 0 && o.lost_confidence <= 1)) {
+    fail_argument("options.lost_confidence must be in [0, 1], got ", o.lost_confidence);
+  }
+}
+
+}  // namespace
+
+SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& points,
+                                     const SpringMesh& mesh, const TrackerOptions& options)
+    : impl_(std::make_unique<Impl>()) {
+  check_grey_image(first, "first frame");
+  check_points(points, "points");
+  if (points.rows() < 3) {
+    fail_argument("points must hold at least 3 landmarks for a spring mesh, got ", points.rows());
+  }
+  check_options(options);
+  for (Index i = 0; i < points.rows(); ++i) {
+    const double x = points(i, 0), y = points(i, 1);
+    if (x < 0 || y < 0 || x > static_cast<double>(first.width - 1) ||
+        y > static_cast<double>(first.height - 1)) {
+      fail_argument("points row ", i, " = (", x, ", ", y, ") is outside the ", first.width, " x ",
+                    first.height, " first frame; initial points must lie inside the image "
+                    "(x in [0, ", first.width - 1, "], y in [0, ", first.height - 1, "])");
+    }
+  }
+  check_mesh(mesh, points.rows());
+  Impl& s = *impl_;
+  s.opt = options;
+  s.mesh = mesh;
+  s.P = points.rows();
+  s.width = first.width;
+  s.height = first.height;
+  s.r = static_cast<int>(options.patch_radius);
+  s.n_pix = (2 * s.r + 1) * (2 * s.r + 1);
+  s.pts = points;
+  // Use a level only if it is at least two patches wide and high.
+  s.n_levels = 1;
+  while (s.n_levels < options.levels &&
+         std::min(first.width, first.height) >> s.n_levels >= 2 * (2 * s.r + 3)) {
+    ++s.n_levels;
+  }
+  s.patch.resize(static_cast<size_t>(s.n_pix));
+  s.big.resize(static_cast<size_t>((2 * s.r + 3) * (2 * s.r + 3)));
+  s.Adense.resize(2 * s.P, 2 * s.P);
+  s.rhs.resize(2 * s.P);
+  s.build_pyramid(first);
+  s.first.resize(static_cast<size_t>(s.n_levels * s.P));
+  for (Index l = 0; l < s.n_levels; ++l) {
+    for (Index i = 0; i < s.P; ++i) {
+      s.make_template(l, s.pts(i, 0), s.pts(i, 1), s.first[static_cast<size_t>(l * s.P + i)]);
+    }
+  }
+  s.current = s.first;
+}
+
+SpringMeshTracker::~SpringMeshTracker() = default;
+SpringMeshTracker::SpringMeshTracker(SpringMeshTracker&&) noexcept = default;
+SpringMeshTracker& SpringMeshTracker::operator=(SpringMeshTracker&&) noexcept = default;
+
+TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
+  check_grey_image(frame, "frame");
+  Impl& s = *impl_;
+  if (frame.width != s.width || frame.height != s.height) {
+    fail_argument("frame is ", frame.width, " x ", frame.height, " but the tracker was started on a ",
+                  s.width, " x ", s.height, " frame; every frame of a sequence must have one size");
+  }
+  s.build_pyramid(frame);
+  TrackerFrame out;
+  // Stage A: coarse to fine against the current templates.
+  out.iterations = s.relax(s.n_levels - 1, 0, s.current);
+  const RowMatrixXd stage_a = s.pts;
+  // Stage B: drift correction against the first-frame templates, at the finest level.
+  out.iterations += s.relax(0, 0, s.first);
+  out.points.resize(s.P, 2);
+  out.confidence.resize(s.P);
+  out.lost.resize(s.P);
+  Template fresh;
+  for (Index i = 0; i < s.P; ++i) {
+    const Match mb = s.match(0, s.pts(i, 0), s.pts(i, 1), s.first[static_cast<size_t>(i)]);
+    const double drift = (s.pts.row(i) - stage_a.row(i)).norm();
+    const bool accept = mb.textured && mb.inside >= 1.0 && drift <= s.opt.drift_tolerance &&
+                        mb.ncc >= s.opt.lost_confidence;
+    double conf;
+    double inside;
+    if (accept) {
+      conf = mb.ncc;
+      inside = mb.inside;
+      for (Index l = 0; l < s.n_levels; ++l) {
+        s.make_template(l, s.pts(i, 0), s.pts(i, 1), s.current[static_cast<size_t>(l * s.P + i)]);
+      }
+    } else {
+      s.pts.row(i) = stage_a.row(i);
+      const Match ma = s.match(0, s.pts(i, 0), s.pts(i, 1), s.current[static_cast<size_t>(i)]);
+      conf = ma.textured ? ma.ncc : 0.0;
+      inside = ma.inside;
+    }
+    conf = std::clamp(conf, 0.0, 1.0);
+    const double x = s.pts(i, 0), y = s.pts(i, 1);
+    const bool outside = x < 0 || y < 0 || x > static_cast<double>(s.width - 1) ||
+                         y > static_cast<double>(s.height - 1) || inside < 0.5;
+    out.confidence[i] = outside ? 0.0 : conf;
+    out.lost[i] = outside || conf < s.opt.lost_confidence;
+  }
+  out.points = s.pts;
+  return out;
+}
+
+const RowMatrixXd& SpringMeshTracker::points() const { return impl_->pts; }
+Index SpringMeshTracker::n_points() const { return impl_->P; }
+Index SpringMeshTracker::width() const { return impl_->width; }
+Index SpringMeshTracker::height() const { return impl_->height; }
+Index SpringMeshTracker::levels() const { return impl_->n_levels; }
+const SpringMesh& SpringMeshTracker::mesh() const { return impl_->mesh; }
+const TrackerOptions& SpringMeshTracker::options() const { return impl_->opt; }
+
+}  // namespace voicepuppet

@@ -1,0 +1,280 @@
+// Tests of the spring-mesh SSD tracker against planted truth: analytic textures shifted by known
+// sub-pixel offsets, closed-form spring statistics, and counting identities of triangulations.
+#include <doctest/doctest.h>
+
+#include "voicepuppet/tracker.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <random>
+#include <set>
+#include <utility>
+#include <vector>
+
+using namespace voicepuppet;
+
+namespace {
+
+// A smooth, non-periodic texture: a sum of sinusoids with fixed "random" frequencies and phases.
+struct Texture {
+  std::vector<std::array<double, 4>> waves;  // kx, ky, phase, amplitude
+  explicit Texture(unsigned seed) {
+    std::mt19937 rng(seed);
+    // Wavenumbers log-uniform in [0.04, 0.5] rad/px, like the 1/f spectrum of natural images.
+    std::uniform_real_distribution<double> logk(std::log(0.04), std::log(0.5)),
+        angle(0, 6.283185307179586);
+    for (int k = 0; k < 12; ++k) {
+      const double kk = std::exp(logk(rng)), a = angle(rng);
+      waves.push_back({kk * std::cos(a), kk * std::sin(a), angle(rng), 9.0});
+    }
+  }
+  double operator()(double x, double y) const {
+    double v = 128;
+    for (const auto& w : waves) v += w[3] * std::sin(w[0] * x + w[1] * y + w[2]);
+    return v;
+  }
+};
+
+struct Frame {
+  std::vector<std::uint8_t> pix;
+  Index w, h;
+  GreyImage view() const { return GreyImage{pix.data(), w, h, w}; }
+};
+
+// Renders texture(x - dx, y - dy) * gain + bias: content moved by (+dx, +dy).
+Frame render(const Texture& tex, Index w, Index h, double dx, double dy, double gain = 1,
+             double bias = 0) {
+  Frame f{std::vector<std::uint8_t>(static_cast<size_t>(w * h)), w, h};
+  for (Index y = 0; y < h; ++y) {
+    for (Index x = 0; x < w; ++x) {
+      const double v = gain * tex(double(x) - dx, double(y) - dy) + bias;
+      f.pix[static_cast<size_t>(y * w + x)] =
+          static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 255.0)));
+    }
+  }
+  return f;
+}
+
+RowMatrixXd grid_points(int nx, int ny, double x0, double y0, double step) {
+  RowMatrixXd p(nx * ny, 2);
+  for (int j = 0; j < ny; ++j) {
+    for (int i = 0; i < nx; ++i) {
+      p(j * nx + i, 0) = x0 + i * step + 0.3 * j;  // slight shear: general position
+      p(j * nx + i, 1) = y0 + j * step + 0.2 * i;
+    }
+  }
+  return p;
+}
+
+}  // namespace
+
+TEST_CASE("delaunay_edges: square with its centre gives 4 sides and 4 spokes") {
+  RowMatrixXd p(5, 2);
+  p << 0, 0, 10, 0, 10, 10, 0, 10, 5, 5;
+  const EdgeMatrix e = delaunay_edges(p);
+  std::set<std::pair<Index, Index>> got;
+  for (Index k = 0; k < e.rows(); ++k) got.insert({e(k, 0), e(k, 1)});
+  const std::set<std::pair<Index, Index>> want = {{0, 1}, {1, 2}, {2, 3}, {0, 3},
+                                                  {0, 4}, {1, 4}, {2, 4}, {3, 4}};
+  CHECK(got == want);
+}
+
+TEST_CASE("delaunay_edges: random points satisfy E = 3n - 3 - h and the empty-circle property") {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(0, 640);
+  for (int trial = 0; trial < 5; ++trial) {
+    const Index n = 26 + 10 * trial;
+    RowMatrixXd p(n, 2);
+    for (Index i = 0; i < n; ++i) p.row(i) << u(rng), u(rng);
+    const EdgeMatrix e = delaunay_edges(p);
+    // Hull size by gift wrapping (points in general position).
+    Index h = 0;
+    {
+      Index start = 0;
+      for (Index i = 1; i < n; ++i) if (p(i, 0) < p(start, 0)) start = i;
+      Index cur = start;
+      do {
+        ++h;
+        Index next = (cur + 1) % n;
+        for (Index i = 0; i < n; ++i) {
+          const double cr = (p(next, 0) - p(cur, 0)) * (p(i, 1) - p(cur, 1)) -
+                            (p(next, 1) - p(cur, 1)) * (p(i, 0) - p(cur, 0));
+          if (cr < 0) next = i;
+        }
+        cur = next;
+      } while (cur != start && h <= n);
+    }
+    CHECK(e.rows() == 3 * n - 3 - h);
+    // Every edge has an empty circle through its endpoints (the edge's Delaunay property):
+    // test via the triangles formed with common neighbours.
+    std::set<std::pair<Index, Index>> es;
+    for (Index k = 0; k < e.rows(); ++k) es.insert({e(k, 0), e(k, 1)});
+    auto has = [&](Index a, Index b) { return es.count({std::min(a, b), std::max(a, b)}) > 0; };
+    for (const auto& [a, b] : es) {
+      for (Index c = 0; c < n; ++c) {
+        if (c == a || c == b || !has(a, c) || !has(b, c)) continue;
+        // Triangle (a, b, c) of the mesh: no point strictly inside its circumcircle, unless the
+        // three edges do not bound a face (a point inside the triangle itself).
+        const double ax = p(a, 0), ay = p(a, 1), bx = p(b, 0), by = p(b, 1), cx = p(c, 0), cy = p(c, 1);
+        const double d = 2 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by));
+        const double ux = ((ax * ax + ay * ay) * (by - cy) + (bx * bx + by * by) * (cy - ay) +
+                           (cx * cx + cy * cy) * (ay - by)) / d;
+        const double uy = ((ax * ax + ay * ay) * (cx - bx) + (bx * bx + by * by) * (ax - cx) +
+                           (cx * cx + cy * cy) * (bx - ax)) / d;
+        const double r2 = (ax - ux) * (ax - ux) + (ay - uy) * (ay - uy);
+        bool face = true;
+        for (Index q = 0; q < n && face; ++q) {
+          if (q == a || q == b || q == c) continue;
+          const double s1 = (bx - ax) * (p(q, 1) - ay) - (by - ay) * (p(q, 0) - ax);
+          const double s2 = (cx - bx) * (p(q, 1) - by) - (cy - by) * (p(q, 0) - bx);
+          const double s3 = (ax - cx) * (p(q, 1) - cy) - (ay - cy) * (p(q, 0) - cx);
+          if ((s1 > 0 && s2 > 0 && s3 > 0) || (s1 < 0 && s2 < 0 && s3 < 0)) face = false;
+        }
+        if (!face) continue;
+        for (Index q = 0; q < n; ++q) {
+          if (q == a || q == b || q == c) continue;
+          const double d2 = (p(q, 0) - ux) * (p(q, 0) - ux) + (p(q, 1) - uy) * (p(q, 1) - uy);
+          CHECK(d2 >= r2 * (1 - 1e-9));
+        }
+      }
+    }
+  }
+}
+
+TEST_CASE("delaunay_edges: bad input is refused with a reason") {
+  RowMatrixXd two(2, 2);
+  two << 0, 0, 1, 1;
+  CHECK_THROWS_AS(delaunay_edges(two), std::invalid_argument);
+  RowMatrixXd line(4, 2);
+  line << 0, 0, 1, 1, 2, 2, 3, 3;
+  CHECK_THROWS_WITH_AS(delaunay_edges(line), doctest::Contains("one line"), std::invalid_argument);
+  RowMatrixXd dup(4, 2);
+  dup << 0, 0, 5, 0, 0, 5, 5, 0;
+  CHECK_THROWS_WITH_AS(delaunay_edges(dup), doctest::Contains("coincide"), std::invalid_argument);
+}
+
+TEST_CASE("springs_from_points and estimate_springs: closed-form lengths, means and variances") {
+  RowMatrixXd p(3, 2);
+  p << 0, 0, 3, 0, 0, 4;
+  EdgeMatrix e(3, 2);
+  e << 0, 1, 0, 2, 1, 2;
+  const SpringMesh m = springs_from_points(p, e, 0.1);
+  CHECK(m.rest_length[0] == doctest::Approx(3));
+  CHECK(m.rest_length[2] == doctest::Approx(5));
+  CHECK(m.stiffness[2] == doctest::Approx(1.0 / 0.25));
+  // Frames scale the triangle by 1, 2, 3 and a 4th frame (scale 100) has point 2 lost.
+  RowMatrixXd tracks(4, 6);
+  RowMatrixXb lost = RowMatrixXb::Zero(4, 3);
+  for (int t = 0; t < 4; ++t) {
+    const double s = t < 3 ? t + 1 : 100;
+    tracks.row(t) << 0, 0, 3 * s, 0, 0, 4 * s;
+  }
+  lost(3, 2) = true;
+  const SpringMesh r = estimate_springs(tracks, lost, m, 0.5);
+  CHECK(r.rest_length[0] == doctest::Approx((3 + 6 + 9 + 300) / 4.0));
+  CHECK(r.rest_length[1] == doctest::Approx(8));   // frames 0..2 only: 4, 8, 12
+  CHECK(r.stiffness[1] == doctest::Approx(1.0 / 16));  // sample variance of 4, 8, 12
+  CHECK(r.rest_length[2] == doctest::Approx(10));
+  // Constant distances hit the variance floor.
+  RowMatrixXd still(3, 6);
+  for (int t = 0; t < 3; ++t) still.row(t) << 0, 0, 3, 0, 0, 4;
+  const SpringMesh f = estimate_springs(still, RowMatrixXb::Zero(3, 3), m, 0.5);
+  CHECK(f.stiffness[0] == doctest::Approx(4.0));
+  CHECK_THROWS_AS(estimate_springs(still, RowMatrixXb::Zero(2, 3), m, 0.5), std::invalid_argument);
+}
+
+TEST_CASE("tracker: a sub-pixel shift of a textured image is recovered to 0.06 px") {
+  const Texture tex(3);
+  const Frame f0 = render(tex, 200, 160, 0, 0);
+  const RowMatrixXd p0 = grid_points(4, 3, 50, 40, 30);
+  const SpringMesh mesh = springs_from_points(p0, delaunay_edges(p0));
+  for (const auto& [dx, dy] : std::vector<std::pair<double, double>>{{0.37, -0.81}, {-0.6, 0.25}}) {
+    SpringMeshTracker tracker(f0.view(), p0, mesh);
+    const TrackerFrame r = tracker.track(render(tex, 200, 160, dx, dy).view());
+    for (Index i = 0; i < p0.rows(); ++i) {
+      CHECK(std::abs(r.points(i, 1) - p0(i, 1) - dy) < 0.06);
+      CHECK(std::abs(r.points(i, 0) - p0(i, 0) - dx) < 0.06);
+      CHECK(!r.lost[i]);
+      CHECK(r.confidence[i] > 0.95);
+    }
+  }
+}
+
+TEST_CASE("tracker: a 9 px jump with a brightness change is caught by the pyramid") {
+  const Texture tex(11);
+  const Frame f0 = render(tex, 240, 200, 0, 0);
+  const RowMatrixXd p0 = grid_points(4, 4, 60, 50, 30);
+  SpringMeshTracker tracker(f0.view(), p0, springs_from_points(p0, delaunay_edges(p0)));
+  CHECK(tracker.levels() == 3);
+  const TrackerFrame r = tracker.track(render(tex, 240, 200, 9.2, -6.7, 0.7, 30).view());
+  for (Index i = 0; i < p0.rows(); ++i) {
+    CHECK(std::abs(r.points(i, 0) - p0(i, 0) - 9.2) < 0.05);
+    CHECK(std::abs(r.points(i, 1) - p0(i, 1) + 6.7) < 0.05);
+  }
+}
+
+TEST_CASE("tracker: an occluded point is carried by its springs and flagged lost") {
+  const Texture tex(5);
+  const Frame f0 = render(tex, 220, 180, 0, 0);
+  const RowMatrixXd p0 = grid_points(4, 3, 50, 45, 35);
+  SpringMeshTracker tracker(f0.view(), p0, springs_from_points(p0, delaunay_edges(p0)));
+  const Index hidden = 5;
+  TrackerFrame r;
+  double dx = 0, dy = 0;
+  for (int t = 1; t <= 6; ++t) {
+    dx = 1.3 * t;
+    dy = -0.7 * t;
+    Frame f = render(tex, 220, 180, dx, dy);
+    // A flat grey card over the hidden point from frame 2 to 4.
+    if (t >= 2 && t <= 4) {
+      const Index cx = std::lround(p0(hidden, 0) + dx), cy = std::lround(p0(hidden, 1) + dy);
+      for (Index y = cy - 10; y <= cy + 10; ++y) {
+        for (Index x = cx - 10; x <= cx + 10; ++x) f.pix[static_cast<size_t>(y * f.w + x)] = 90;
+      }
+    }
+    r = tracker.track(f.view());
+    const double ex = r.points(hidden, 0) - p0(hidden, 0) - dx;
+    const double ey = r.points(hidden, 1) - p0(hidden, 1) - dy;
+    CHECK(std::hypot(ex, ey) < (t >= 2 && t <= 4 ? 1.0 : 0.05));
+    CHECK(r.lost[hidden] == (t >= 2 && t <= 4));
+  }
+}
+
+TEST_CASE("tracker: points leaving the frame are flagged lost, never a crash") {
+  const Texture tex(9);
+  const Frame f0 = render(tex, 160, 120, 0, 0);
+  const RowMatrixXd p0 = grid_points(3, 3, 30, 30, 25);
+  SpringMeshTracker tracker(f0.view(), p0, springs_from_points(p0, delaunay_edges(p0)));
+  TrackerFrame r;
+  for (int t = 1; t <= 40; ++t) r = tracker.track(render(tex, 160, 120, -3.0 * t, 0).view());
+  CHECK(r.points.allFinite());
+  CHECK(r.lost.count() == p0.rows());
+}
+
+TEST_CASE("tracker: bad input is refused with a reason") {
+  const Texture tex(1);
+  const Frame f0 = render(tex, 100, 80, 0, 0);
+  RowMatrixXd p(3, 2);
+  p << 20, 20, 60, 25, 40, 60;
+  const SpringMesh mesh = springs_from_points(p, delaunay_edges(p));
+  RowMatrixXd outside = p;
+  outside(1, 0) = 130;
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), outside, mesh),
+                       doctest::Contains("outside"), std::invalid_argument);
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p.topRows(2), mesh),
+                       doctest::Contains("at least 3"), std::invalid_argument);
+  CHECK_THROWS_AS(SpringMeshTracker(GreyImage{}, p, mesh), std::invalid_argument);
+  TrackerOptions bad;
+  bad.ncc_floor = 0.9;
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("ncc_floor"),
+                       std::invalid_argument);
+  SpringMeshTracker tracker(f0.view(), p, mesh);
+  const Frame small = render(tex, 90, 80, 0, 0);
+  CHECK_THROWS_WITH_AS(tracker.track(small.view()), doctest::Contains("one size"),
+                       std::invalid_argument);
+  SpringMesh broken = mesh;
+  broken.edges(0, 1) = 7;
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, broken), doctest::Contains("outside"),
+                       std::invalid_argument);
+}
