@@ -1,0 +1,53 @@
+"""The voicepuppet command: --version, info, bench (JSON schema of DESIGN.md)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from voicepuppet import __version__
+from voicepuppet.cli import main
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "voicepuppet.cli", *args], capture_output=True, text=True,
+                          env=dict(os.environ), timeout=300)
+
+
+def test_version():
+    r = run_cli("--version")
+    assert r.returncode == 0
+    assert r.stdout.strip() == f"voicepuppet {__version__}"
+
+
+def test_info_reports_the_compiled_core(capsys):
+    assert main(["info"]) == 0
+    out = capsys.readouterr().out
+    for key in ("core_version", "core_build_type", "core_compiler", "core_eigen"):
+        assert key in out
+    assert "Release" in out
+
+
+def test_bench_hmm_quick_writes_the_documented_schema(tmp_path):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "hmm", "--quick", "--repeats", "1", "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["suite"] == "hmm"
+    assert "core" in doc["machine"]
+    names = [c["name"] for c in doc["cases"]]
+    assert names[:3] == ["score", "decode", "fit"]
+    for c in doc["cases"][:3]:
+        assert set(c) >= {"name", "size", "ours_s", "peer", "peer_s", "ratio", "agree"}
+        assert c["peer"] == "hmmlearn"
+        assert c["ratio"] == pytest.approx(c["peer_s"] / c["ours_s"])
+        assert c["agree"] < 1e-6  # same answers as the peer
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_unknown_verb_and_suite_fail_cleanly():
+    r = run_cli("dance")
+    assert r.returncode == 2 and "invalid choice" in r.stderr
+    r = run_cli("bench", "nosuch")
+    assert r.returncode == 2 and "invalid choice" in r.stderr
