@@ -328,6 +328,7 @@ struct Match {
 };
 
 constexpr double kMinContrast = 0.5;  // grey levels RMS below which a patch is flat
+constexpr double kCoarseFloor = 0.2;  // coarse-level correlation below which a point is ignored
 
 }  // namespace
 
@@ -337,6 +338,7 @@ struct SpringMeshTracker::Impl {
   Index P = 0, width = 0, height = 0, n_levels = 1;
   int r = 0, n_pix = 0;
   RowMatrixXd pts;
+  std::vector<double> prev_weight;  // data weight of each point at the end of the last frame
   std::vector<Level> pyr;
   // templates[(l * P + i)] for the first frame and for the current (guarded) template.
   std::vector<Template> first, current;
@@ -452,7 +454,13 @@ struct SpringMeshTracker::Impl {
         for (Index i = 0; i < P; ++i) {
           const Template& tpl = tpls[static_cast<size_t>(l * P + i)];
           const Match m = match(l, pts(i, 0), pts(i, 1), tpl);
-          const double c = data_weight(m) * inv_s2;
+          // Above the finest level a point that was reliable in the previous frame keeps its
+          // full weight: a large motion lowers the coarse correlation before it is caught.
+          double w = data_weight(m);
+          if (l > 0 && m.textured && m.inside >= 0.5 && m.ncc > kCoarseFloor) {
+            w = std::max(w, prev_weight[static_cast<size_t>(i)]);
+          }
+          const double c = w * inv_s2;
           if (c > 0) {
             Adense(2 * i, 2 * i) += c * tpl.hxx * scale * scale;
             Adense(2 * i, 2 * i + 1) += c * tpl.hxy * scale * scale;
@@ -593,6 +601,7 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
     }
   }
   s.current = s.first;
+  s.prev_weight.assign(static_cast<size_t>(s.P), 1.0);
 }
 
 SpringMeshTracker::~SpringMeshTracker() = default;
@@ -621,7 +630,7 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
     const Match mb = s.match(0, s.pts(i, 0), s.pts(i, 1), s.first[static_cast<size_t>(i)]);
     const double drift = (s.pts.row(i) - stage_a.row(i)).norm();
     const bool accept = mb.textured && mb.inside >= 1.0 && drift <= s.opt.drift_tolerance &&
-                        mb.ncc >= s.opt.lost_confidence;
+                        mb.ncc >= s.opt.ncc_full;
     double conf;
     double inside;
     if (accept) {
@@ -631,8 +640,10 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
         s.make_template(l, s.pts(i, 0), s.pts(i, 1), s.current[static_cast<size_t>(l * s.P + i)]);
       }
     } else {
+      // Keep the current-template answer; its confidence is still judged against the
+      // first-frame template, so a current template that drifted cannot vouch for itself.
       s.pts.row(i) = stage_a.row(i);
-      const Match ma = s.match(0, s.pts(i, 0), s.pts(i, 1), s.current[static_cast<size_t>(i)]);
+      const Match ma = s.match(0, s.pts(i, 0), s.pts(i, 1), s.first[static_cast<size_t>(i)]);
       conf = ma.textured ? ma.ncc : 0.0;
       inside = ma.inside;
     }
@@ -641,6 +652,8 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
     const bool outside = x < 0 || y < 0 || x > static_cast<double>(s.width - 1) ||
                          y > static_cast<double>(s.height - 1) || inside < 0.5;
     out.confidence[i] = outside ? 0.0 : conf;
+    s.prev_weight[static_cast<size_t>(i)] =
+        std::clamp((out.confidence[i] - s.opt.ncc_floor) / (s.opt.ncc_full - s.opt.ncc_floor), 0.0, 1.0);
     out.lost[i] = outside || conf < s.opt.lost_confidence;
   }
   out.points = s.pts;
