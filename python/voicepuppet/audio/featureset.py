@@ -1,0 +1,406 @@
+"""Feature sets: which features, with which settings, and how they are standardised.
+
+A :class:`FeatureSet` names the features and their settings; :func:`extract` computes them at an
+output frame rate into a :class:`Features` table (one row per video frame, named columns);
+:class:`Standardizer` holds per-column mean and standard deviation, fitted once on training audio
+and applied unchanged to novel audio, saved and loaded as plain arrays (a puppet file carries
+them).
+
+Features (column names in brackets):
+
+- ``lpc``: LPC coefficients ``a_1 .. a_p`` (``lpc1..``), autocorrelation method, pre-emphasis.
+- ``lpc_cepstra``: cepstra ``c_1 .. c_n`` of the LPC model (``lpcc1..``).
+- ``rasta_plp``: RASTA-PLP cepstra ``c_k .. c_n`` (``rplp0..``; ``c_0`` only if asked).
+- ``mfcc``: 13 MFCCs of the log mel power (``mfcc0..``); ``mfcc_deltas``: their regression
+  deltas (``dmfcc0..``).
+- ``formants``: F1..F3 in Hz (``f1, f2, f3``), LPC roots with bandwidth limits and continuity.
+- ``bands``: energies (dB) in the sonorant bands (``band0..``).
+- ``f0``: F0 in Hz, interpolated through unvoiced frames (``f0``); ``voicing``: probability.
+- ``log_energy``: frame energy in dB (``log_energy``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .framing import check_fps, frame_times, n_frames
+from .loading import Audio, load_audio, prepare
+
+FEATURES = ("lpc", "lpc_cepstra", "rasta_plp", "mfcc", "mfcc_deltas", "formants", "bands", "f0",
+            "voicing", "log_energy")
+
+#: Settings every feature set starts from (override per set or per call).
+DEFAULT_OPTIONS = {
+    "window_s": None,        # spectral and LPC window (s); None: max(25 ms, 1 / fps), so the
+                             # Hann windows of consecutive frames cover all of the audio
+    "lpc_order": 12,         # LPC order for lpc / lpc_cepstra (at 16 kHz)
+    "lpc_preemph": 0.97,
+    "n_lpc_cepstra": 12,     # c_1 .. c_n
+    "rasta_order": 8,        # PLP all-pole model order
+    "n_rasta": 9,            # number of RASTA-PLP cepstra kept
+    "rasta_c0": True,        # keep c_0 (log gain) of RASTA-PLP
+    "n_mfcc": 13,
+    "n_mels": 40,
+    "delta_width": 2,
+    "formant_ceiling": 5500.0,
+    "formant_max_bandwidth": 1000.0,
+    "pitch_floor": 75.0,
+    "pitch_ceiling": 600.0,
+}
+
+#: Named feature sets. "puppet" is Brand's mix (section 4.1): LPC and RASTA-PLP cepstra,
+#: formants, sonorant band energies and energy.
+FEATURE_SETS = {
+    "puppet": {"features": ("lpc_cepstra", "rasta_plp", "formants", "bands", "log_energy"),
+               "options": {"n_lpc_cepstra": 8, "n_rasta": 9, "rasta_c0": False}},
+    "mfcc": {"features": ("mfcc",), "options": {}},
+    "mfcc_deltas": {"features": ("mfcc", "mfcc_deltas"), "options": {}},
+    "prosody": {"features": ("f0", "voicing", "formants", "log_energy"), "options": {}},
+    "all": {"features": FEATURES, "options": {}},
+}
+
+DEFAULT_SET = "puppet"
+
+
+@dataclass(frozen=True)
+class FeatureSet:
+    """Which features to compute and with which settings.
+
+    Parameters
+    ----------
+    features : tuple of str
+        Names from ``FEATURES``, in output column order.
+    options : dict
+        Overrides of ``DEFAULT_OPTIONS``.
+    name : str
+        A label stored with the features (a named set, or "custom").
+    """
+
+    features: tuple
+    options: dict = field(default_factory=dict)
+    name: str = "custom"
+
+    def __post_init__(self):
+        feats = tuple(self.features)
+        if not feats:
+            raise ValueError(f"feature set needs at least one feature; choose from "
+                             f"{', '.join(FEATURES)}")
+        for f in feats:
+            if f not in FEATURES:
+                raise ValueError(f"unknown feature {f!r}; choose from {', '.join(FEATURES)}")
+        if len(set(feats)) != len(feats):
+            raise ValueError(f"feature set lists a feature twice: {feats}")
+        for k in self.options:
+            if k not in DEFAULT_OPTIONS:
+                raise ValueError(f"unknown feature option {k!r}; known: "
+                                 f"{', '.join(DEFAULT_OPTIONS)}")
+        object.__setattr__(self, "features", feats)
+        object.__setattr__(self, "options", dict(self.options))
+
+    @classmethod
+    def named(cls, name: str, **overrides) -> "FeatureSet":
+        """One of ``FEATURE_SETS`` (``"puppet"``, ``"mfcc"``, ...) with optional overrides."""
+        if name not in FEATURE_SETS:
+            raise ValueError(f"unknown feature set {name!r}; choose from "
+                             f"{', '.join(FEATURE_SETS)}")
+        spec = FEATURE_SETS[name]
+        return cls(spec["features"], {**spec["options"], **overrides}, name)
+
+    def settings(self) -> dict:
+        """All options in force (defaults merged with this set's overrides)."""
+        return {**DEFAULT_OPTIONS, **self.options}
+
+    def to_json(self) -> str:
+        return json.dumps({"name": self.name, "features": list(self.features),
+                           "options": self.options}, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "FeatureSet":
+        d = json.loads(text)
+        return cls(tuple(d["features"]), d.get("options", {}), d.get("name", "custom"))
+
+
+def as_feature_set(spec) -> FeatureSet:
+    """A FeatureSet from a FeatureSet, a set name, or a list / comma-separated string of features."""
+    if isinstance(spec, FeatureSet):
+        return spec
+    if spec is None:
+        return FeatureSet.named(DEFAULT_SET)
+    if isinstance(spec, str):
+        if spec in FEATURE_SETS:
+            return FeatureSet.named(spec)
+        return FeatureSet(tuple(s.strip() for s in spec.split(",") if s.strip()))
+    return FeatureSet(tuple(spec))
+
+
+@dataclass(frozen=True)
+class Features:
+    """Audio features at a video frame rate.
+
+    Attributes
+    ----------
+    values : ndarray, shape (T, D)
+        One row per video frame (frame ``k`` centred at ``k / fps``), finite.
+    names : tuple of str, length D
+        Column names.
+    fps : float
+    feature_set : FeatureSet
+    duration : float
+        Seconds of audio analysed.
+    voiced : ndarray of bool, shape (T,) or None
+        Frames called voiced by the F0 tracker (when ``f0`` or ``voicing`` was computed).
+    """
+
+    values: np.ndarray
+    names: tuple
+    fps: float
+    feature_set: FeatureSet
+    duration: float
+    voiced: np.ndarray | None = None
+
+    @property
+    def times(self) -> np.ndarray:
+        return frame_times(self.values.shape[0], self.fps)
+
+    def __len__(self) -> int:
+        return self.values.shape[0]
+
+    def column(self, name: str) -> np.ndarray:
+        """Values of one column, shape (T,)."""
+        return self.values[:, self._index(name)]
+
+    def group(self, feature: str) -> np.ndarray:
+        """Columns of one feature (e.g. ``"mfcc"``), shape (T, d)."""
+        cols = [i for i, n in enumerate(self.names) if _feature_of(n) == feature]
+        if not cols:
+            raise ValueError(f"feature {feature!r} not in this table; it has "
+                             f"{', '.join(self.feature_set.features)}")
+        return self.values[:, cols]
+
+    def _index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ValueError(f"no column {name!r}; columns are {', '.join(self.names)}") from None
+
+    def save(self, path) -> None:
+        """Write ``.npz``: ``features`` (T, D), ``names``, ``times``, ``fps``, ``duration``,
+        ``feature_set`` (JSON), ``voiced`` (if known). Atomic (temporary file, then rename)."""
+        path = os.fspath(path)
+        if not path.endswith(".npz"):
+            raise ValueError(f"features: output must end in .npz, got {path!r}")
+        tmp = path[:-4] + ".tmp.npz"
+        payload = {"features": self.values, "names": np.array(self.names), "times": self.times,
+                   "fps": np.float64(self.fps), "duration": np.float64(self.duration),
+                   "feature_set": np.array(self.feature_set.to_json())}
+        if self.voiced is not None:
+            payload["voiced"] = self.voiced
+        try:
+            np.savez(tmp, **payload)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+
+    @classmethod
+    def load(cls, path) -> "Features":
+        path = os.fspath(path)
+        with np.load(path, allow_pickle=False) as z:
+            missing = {"features", "names", "fps", "duration", "feature_set"} - set(z.files)
+            if missing:
+                raise ValueError(f"features: {path!r} is not a features file (missing "
+                                 f"{', '.join(sorted(missing))})")
+            return cls(np.array(z["features"]), tuple(str(n) for n in z["names"]),
+                       float(z["fps"]), FeatureSet.from_json(str(z["feature_set"])),
+                       float(z["duration"]), np.array(z["voiced"]) if "voiced" in z.files else None)
+
+
+_PREFIX = {"lpc": "lpc", "lpcc": "lpc_cepstra", "rplp": "rasta_plp", "mfcc": "mfcc",
+           "dmfcc": "mfcc_deltas", "band": "bands"}
+
+
+def _feature_of(col: str) -> str:
+    if col in ("f1", "f2", "f3", "f4", "f5"):
+        return "formants"
+    if col in ("f0", "voicing", "log_energy"):
+        return col
+    head = col.rstrip("0123456789")
+    return _PREFIX.get(head, head)
+
+
+def extract(source, fps: float = 29.97, features=None, **options) -> Features:
+    """Compute a feature set at video frame times.
+
+    Parameters
+    ----------
+    source : Audio, str or os.PathLike
+        Prepared audio or a file to load (audio or video; resampled to 16 kHz).
+    fps : float
+        Output frame rate (default NTSC 29.97); frame ``k`` is centred at ``k / fps``.
+    features : FeatureSet, str or list of str, optional
+        A set (default ``"puppet"``), a set name, or feature names.
+    **options
+        Overrides of ``DEFAULT_OPTIONS`` for this call.
+
+    Returns
+    -------
+    Features
+        ``values`` (ceil(duration * fps), D), all finite.
+    """
+    from . import lpc as lpc_mod
+    from . import pitch as pitch_mod
+    from . import spectral
+
+    fps = check_fps(fps)
+    fset = as_feature_set(features)
+    if options:
+        fset = FeatureSet(fset.features, {**fset.options, **options}, fset.name)
+    opt = fset.settings()
+    audio = source if isinstance(source, Audio) else load_audio(source)
+    x, rate = audio.samples, audio.rate
+    T = n_frames(x.shape[0], rate, fps)
+    want = set(fset.features)
+    window_s = float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
+    cols: dict[str, tuple[list[str], np.ndarray]] = {}
+
+    spec_want = want & {"mfcc", "mfcc_deltas", "rasta_plp", "bands", "log_energy"}
+    if spec_want:
+        kinds = {("mfcc" if k == "mfcc_deltas" else k) for k in spec_want}
+        sp = spectral.spectral_features(x, rate, fps, T, want=kinds, window_s=window_s,
+                                        n_mfcc=opt["n_mfcc"], n_mels=opt["n_mels"],
+                                        rasta_order=opt["rasta_order"],
+                                        rasta_ceps=opt["n_rasta"])
+        if "mfcc" in sp:
+            m = sp["mfcc"]
+            cols["mfcc"] = ([f"mfcc{i}" for i in range(m.shape[1])], m)
+            if "mfcc_deltas" in want:
+                cols["mfcc_deltas"] = ([f"dmfcc{i}" for i in range(m.shape[1])],
+                                       spectral.deltas(m, opt["delta_width"]))
+        if "rasta_plp" in sp:
+            r = sp["rasta_plp"]
+            first = 0 if opt["rasta_c0"] else 1
+            cols["rasta_plp"] = ([f"rplp{i}" for i in range(first, r.shape[1])], r[:, first:])
+        if "bands" in sp:
+            b = sp["bands"]
+            cols["bands"] = ([f"band{i}" for i in range(b.shape[1])], b)
+        if "log_energy" in sp:
+            cols["log_energy"] = (["log_energy"], sp["log_energy"][:, None])
+    if want & {"lpc", "lpc_cepstra"}:
+        order = int(opt["lpc_order"])
+        a, err = lpc_mod.lpc_frames(x, rate, fps, T, order=order, window_s=window_s,
+                                    preemph=opt["lpc_preemph"])
+        if "lpc" in want:
+            cols["lpc"] = ([f"lpc{i}" for i in range(1, order + 1)], a[:, 1:])
+        if "lpc_cepstra" in want:
+            n = int(opt["n_lpc_cepstra"])
+            c = lpc_mod.lpc_to_cepstrum(a, err, n + 1)[:, 1:]
+            cols["lpc_cepstra"] = ([f"lpcc{i}" for i in range(1, n + 1)], c)
+    if "formants" in want:
+        f = lpc_mod.formant_frames(x, rate, fps, T, ceiling=opt["formant_ceiling"],
+                                   max_bandwidth=opt["formant_max_bandwidth"])
+        cols["formants"] = ([f"f{i}" for i in range(1, f.shape[1] + 1)], f)
+    voiced = None
+    if want & {"f0", "voicing"}:
+        f0, prob = pitch_mod.pitch_frames(x, rate, fps, T, floor=opt["pitch_floor"],
+                                          ceiling=opt["pitch_ceiling"])
+        voiced = np.isfinite(f0)
+        if "f0" in want:
+            cols["f0"] = (["f0"], pitch_mod.fill_unvoiced(f0)[:, None])
+        if "voicing" in want:
+            cols["voicing"] = (["voicing"], prob[:, None])
+
+    names: list[str] = []
+    blocks = []
+    for feat in fset.features:
+        n, v = cols[feat]
+        names += n
+        blocks.append(np.asarray(v, dtype=np.float64).reshape(T, -1))
+    values = np.ascontiguousarray(np.hstack(blocks))
+    if not np.all(np.isfinite(values)):  # a bug, not bad input: every path floors its logs
+        bad = [names[j] for j in np.nonzero(~np.all(np.isfinite(values), axis=0))[0]]
+        raise RuntimeError(f"features: non-finite values in {bad}")
+    return Features(values, tuple(names), fps, fset, audio.duration, voiced)
+
+
+@dataclass(frozen=True)
+class Standardizer:
+    """Per-column standardisation ``(x - mean) / std`` fitted on training features.
+
+    Stored as plain arrays (``to_arrays`` / ``from_arrays``) so that a puppet file carries them
+    and novel audio is scaled exactly like the training audio.
+    """
+
+    mean: np.ndarray
+    std: np.ndarray
+    names: tuple = ()
+
+    #: Floor on std, relative to the largest column std (and absolute 1e-12): constant columns
+    #: (e.g. F0 of a whisper) do not blow up.
+    REL_FLOOR = 1e-6
+
+    @classmethod
+    def fit(cls, features) -> "Standardizer":
+        """Fit on a :class:`Features` table, a list of them (pooled), or an array (T, D)."""
+        if isinstance(features, Features):
+            features = [features]
+        if isinstance(features, (list, tuple)) and features and isinstance(features[0], Features):
+            names = features[0].names
+            for f in features[1:]:
+                if f.names != names:
+                    raise ValueError("standardizer: feature tables have different columns; "
+                                     "extract them with the same feature set")
+            X = np.vstack([f.values for f in features])
+        else:
+            X, names = np.asarray(features, dtype=np.float64), ()
+        if X.ndim != 2 or X.shape[0] < 2:
+            raise ValueError(f"standardizer: need at least 2 frames of shape (T, D), got {X.shape}")
+        if not np.all(np.isfinite(X)):
+            raise ValueError("standardizer: features contain NaN or inf")
+        mean = X.mean(axis=0)
+        std = X.std(axis=0)
+        std = np.maximum(std, max(cls.REL_FLOOR * float(std.max()), 1e-12))
+        return cls(mean, std, tuple(names))
+
+    def transform(self, features) -> np.ndarray:
+        """Standardised values, shape (T, D)."""
+        if isinstance(features, Features):
+            if self.names and features.names != self.names:
+                raise ValueError(f"standardizer: columns differ from the ones it was fitted on "
+                                 f"({len(features.names)} vs {len(self.names)}); extract novel "
+                                 "audio with the training feature set")
+            X = features.values
+        else:
+            X = np.asarray(features, dtype=np.float64)
+        if X.ndim != 2 or X.shape[1] != self.mean.shape[0]:
+            raise ValueError(f"standardizer: expected (T, {self.mean.shape[0]}) features, got "
+                             f"{X.shape}")
+        return (X - self.mean) / self.std
+
+    def inverse_transform(self, Z) -> np.ndarray:
+        return np.asarray(Z, dtype=np.float64) * self.std + self.mean
+
+    def to_arrays(self) -> dict:
+        """``{"mean": (D,), "std": (D,), "names": (D,) str}`` plain numpy arrays."""
+        return {"mean": self.mean.copy(), "std": self.std.copy(), "names": np.array(self.names)}
+
+    @classmethod
+    def from_arrays(cls, mean, std, names=()) -> "Standardizer":
+        mean = np.asarray(mean, dtype=np.float64)
+        std = np.asarray(std, dtype=np.float64)
+        if mean.ndim != 1 or mean.shape != std.shape:
+            raise ValueError(f"standardizer: mean and std must be 1-D of equal length, got "
+                             f"{mean.shape} and {std.shape}")
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(std)) and np.all(std > 0)):
+            raise ValueError("standardizer: mean must be finite and std finite and positive")
+        names = tuple(str(n) for n in np.asarray(names).ravel())
+        if names and len(names) != mean.shape[0]:
+            raise ValueError(f"standardizer: {len(names)} names for {mean.shape[0]} columns")
+        return cls(mean, std, names)
+
+
+__all__ = ["FEATURES", "FEATURE_SETS", "DEFAULT_SET", "DEFAULT_OPTIONS", "FeatureSet", "Features",
+           "Standardizer", "extract", "as_feature_set", "prepare", "load_audio"]

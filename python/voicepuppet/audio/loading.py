@@ -1,0 +1,234 @@
+"""Loading audio: files (wav, flac, ogg, mp3, ...) and the audio track of videos (mp4, mov, mkv, avi).
+
+Audio files are read with soundfile (libsndfile); anything libsndfile does not know (video
+containers, AAC, ...) is decoded with PyAV (FFmpeg). The result is mixed to mono, resampled with a
+polyphase filter (``scipy.signal.resample_poly``) and has its DC offset removed.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from dataclasses import dataclass
+from fractions import Fraction
+
+import numpy as np
+
+#: Lowest sample rate accepted: below it the formant and band features have no meaning.
+MIN_RATE = 8000
+#: Default analysis rate: 16 kHz keeps everything up to 8 kHz, enough for speech features.
+DEFAULT_RATE = 16000
+
+VIDEO_EXTENSIONS = {".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v", ".mpg", ".mpeg"}
+
+
+class AudioWarning(UserWarning):
+    """A documented degradation of the input (silence, clipping): features stay finite."""
+
+
+@dataclass(frozen=True)
+class Audio:
+    """Mono audio ready for analysis.
+
+    Attributes
+    ----------
+    samples : ndarray, shape (n,)
+        float64 samples in [-1, 1] (full scale), mono, DC removed.
+    rate : int
+        Sample rate of ``samples`` in Hz.
+    source_rate : int
+        Sample rate of the file before resampling.
+    channels : int
+        Number of channels in the file before the mono mix.
+    path : str or None
+        Where it came from.
+    """
+
+    samples: np.ndarray
+    rate: int
+    source_rate: int
+    channels: int
+    path: str | None = None
+
+    @property
+    def duration(self) -> float:
+        """Length in seconds."""
+        return self.samples.shape[0] / float(self.rate)
+
+    def __repr__(self) -> str:  # short: never print a million samples
+        return (f"Audio(duration={self.duration:.3f} s, rate={self.rate}, "
+                f"source_rate={self.source_rate}, channels={self.channels}, path={self.path!r})")
+
+
+def _read_soundfile(path: str):
+    import soundfile as sf
+
+    try:
+        data, rate = sf.read(path, dtype="float64", always_2d=True)
+    except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
+        return None, None, exc
+    return data, int(rate), None
+
+
+def _read_pyav(path: str):
+    import av
+
+    try:
+        container = av.open(path)
+    except (av.error.FFmpegError, OSError) as exc:
+        raise ValueError(f"audio: cannot open {path!r} as audio or video ({exc}); expected a wav, "
+                         "flac, ogg, mp3 file or a video (mp4, mov, mkv, avi) with an audio "
+                         "track") from exc
+    with container:
+        streams = [s for s in container.streams if s.type == "audio"]
+        if not streams:
+            raise ValueError(f"audio: {path!r} has no audio track; give a video with sound or "
+                             "the audio as a separate file")
+        stream = streams[0]
+        rate = stream.codec_context.sample_rate or stream.rate
+        channels = stream.codec_context.channels if hasattr(stream.codec_context, "channels") \
+            else len(stream.codec_context.layout.channels)
+        # Resample to planar float64 so every codec's sample format comes out the same.
+        resampler = av.AudioResampler(format="dblp", layout=None, rate=None)
+        chunks = []
+        try:
+            for frame in container.decode(stream):
+                for out in resampler.resample(frame):
+                    chunks.append(out.to_ndarray())
+            for out in resampler.resample(None):
+                chunks.append(out.to_ndarray())
+        except (av.error.FFmpegError, ValueError) as exc:
+            raise ValueError(f"audio: cannot decode the audio track of {path!r} "
+                             f"(codec {stream.codec_context.name!r}: {exc}); convert it to wav, "
+                             "e.g. ffmpeg -i IN -vn -ac 1 out.wav") from exc
+    if not chunks:
+        return np.zeros((0, max(1, channels))), int(rate)
+    data = np.concatenate(chunks, axis=1).T  # (n, channels)
+    return np.ascontiguousarray(data, dtype=np.float64), int(rate)
+
+
+def _resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
+    from scipy.signal import resample_poly
+
+    if rate_in == rate_out:
+        return x
+    frac = Fraction(int(rate_out), int(rate_in))
+    return resample_poly(x, frac.numerator, frac.denominator)
+
+
+def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc: bool = True,
+            path: str | None = None) -> Audio:
+    """Turn raw samples into analysis-ready :class:`Audio`.
+
+    Parameters
+    ----------
+    samples : array_like, shape (n,) or (n, channels)
+        Samples in full scale [-1, 1] (integers are not rescaled: convert first).
+    rate : int
+        Sample rate of ``samples`` in Hz (at least ``MIN_RATE``).
+    target_rate : int or None
+        Resample to this rate (polyphase filter); None keeps ``rate``.
+    remove_dc : bool
+        Subtract the mean (the DC offset of the recording).
+
+    Raises
+    ------
+    ValueError
+        Empty input, NaN or infinite samples, a rate below ``MIN_RATE``.
+
+    Warns
+    -----
+    AudioWarning
+        Pure silence (features stay finite: a floor replaces log(0)); clipped audio (more than
+        0.1 % of samples at full scale).
+    """
+    where = f" in {path!r}" if path else ""
+    x = np.asarray(samples)
+    if x.dtype.kind not in "fiu":
+        raise ValueError(f"audio: samples must be numbers, got dtype {x.dtype}{where}")
+    x = x.astype(np.float64, copy=False)
+    if x.ndim == 1:
+        x = x[:, None]
+    if x.ndim != 2:
+        raise ValueError(f"audio: samples must have shape (n,) or (n, channels), got {x.shape}")
+    channels = x.shape[1]
+    if x.shape[0] == 0 or channels == 0:
+        raise ValueError(f"audio: no samples{where} (empty audio); give a recording with sound")
+    if not np.all(np.isfinite(x)):
+        bad = int(np.count_nonzero(~np.isfinite(x)))
+        raise ValueError(f"audio: {bad} NaN or infinite samples{where}; repair or re-encode the "
+                         "file (e.g. ffmpeg -i IN out.wav)")
+    try:
+        rate_f = float(rate)
+    except (TypeError, ValueError):
+        raise ValueError(f"audio: rate must be a number in Hz, got {rate!r}") from None
+    if not math.isfinite(rate_f) or rate_f != int(rate_f):
+        raise ValueError(f"audio: rate must be a whole number of Hz, got {rate!r}")
+    rate = int(rate_f)
+    if rate < MIN_RATE:
+        raise ValueError(f"audio: sample rate {rate} Hz{where} is below the minimum {MIN_RATE} Hz; "
+                         "speech features need at least telephone bandwidth (re-record or give "
+                         "the original file)")
+    if target_rate is not None and int(target_rate) < MIN_RATE:
+        raise ValueError(f"audio: target_rate must be at least {MIN_RATE} Hz, got {target_rate}")
+    peak = np.max(np.abs(x))
+    if peak >= 1.0 - 1e-6:
+        clipped = float(np.mean(np.abs(x) >= peak * (1.0 - 1e-6)))
+        if clipped > 1e-3:
+            warnings.warn(f"audio{where}: {100 * clipped:.2f}% of samples are at full scale "
+                          "(clipped); formants and LPC features will be distorted",
+                          AudioWarning, stacklevel=2)
+    mono = x.mean(axis=1) if channels > 1 else x[:, 0].copy()
+    out_rate = rate if target_rate is None else int(target_rate)
+    mono = _resample(mono, rate, out_rate)
+    if remove_dc:
+        mono = mono - mono.mean()
+    if not np.any(np.abs(mono) > 1e-7):
+        warnings.warn(f"audio{where}: the recording is silent; features are finite (energy at "
+                      "its floor, F0 unvoiced) but carry no information", AudioWarning,
+                      stacklevel=2)
+    return Audio(samples=np.ascontiguousarray(mono), rate=out_rate, source_rate=rate,
+                 channels=channels, path=path)
+
+
+def load_audio(path, *, rate: int | None = DEFAULT_RATE, remove_dc: bool = True) -> Audio:
+    """Load an audio file or the audio track of a video, mono, resampled, DC removed.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        wav, flac, ogg, mp3 (soundfile) or anything FFmpeg decodes, including the first audio
+        track of mp4, mov, mkv and avi videos (PyAV).
+    rate : int or None
+        Output sample rate in Hz (default 16000); None keeps the file's rate.
+    remove_dc : bool
+        Subtract the DC offset.
+
+    Returns
+    -------
+    Audio
+        ``samples`` (n,), ``rate``, ``duration``, ``source_rate``, ``channels``.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist.
+    ValueError
+        Not a decodable audio file, a video without an audio track, an unsupported codec, empty
+        audio, NaN samples or a sample rate below 8 kHz.
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"audio: no such file {path!r}")
+    if os.path.isdir(path):
+        raise ValueError(f"audio: {path!r} is a directory; give an audio or video file")
+    if os.path.getsize(path) == 0:
+        raise ValueError(f"audio: {path!r} is an empty file (0 bytes); give a recording with sound")
+    data = None
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in VIDEO_EXTENSIONS:
+        data, file_rate, _ = _read_soundfile(path)
+    if data is None:
+        data, file_rate = _read_pyav(path)
+    return prepare(data, file_rate, target_rate=rate, remove_dc=remove_dc, path=path)

@@ -1,0 +1,227 @@
+"""Short-time spectra and the features built on them: MFCC, RASTA-PLP, band energies, energy.
+
+All analysis windows are centred on video frame times (see ``framing``); power spectra are
+``|rfft(window * frame)|^2``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .framing import centred_window, frame_centres, hann, iter_frames
+from .lpc import levinson, lpc_to_cepstrum
+
+#: Power floor (amin of librosa.power_to_db): -100 dB.
+POWER_FLOOR = 1e-10
+
+#: Bands (Hz) of the sonorant band energies: voice bar and nasal murmur, the F1 region, the F2
+#: region and the F3 region (where vowels, nasals, liquids and glides put their energy).
+SONORANT_BANDS = ((80.0, 400.0), (400.0, 1000.0), (1000.0, 2500.0), (2500.0, 4000.0))
+
+
+# --------------------------------------------------------------------------- mel / MFCC
+def hz_to_mel(f):
+    """Slaney's mel scale (librosa's default, ``htk=False``): linear below 1 kHz, log above."""
+    f = np.asarray(f, dtype=np.float64)
+    f_sp = 200.0 / 3.0
+    min_log_mel = 1000.0 / f_sp
+    logstep = math.log(6.4) / 27.0
+    return np.where(f >= 1000.0, min_log_mel + np.log(np.maximum(f, 1e-300) / 1000.0) / logstep,
+                    f / f_sp)
+
+
+def mel_to_hz(m):
+    m = np.asarray(m, dtype=np.float64)
+    f_sp = 200.0 / 3.0
+    min_log_mel = 1000.0 / f_sp
+    logstep = math.log(6.4) / 27.0
+    return np.where(m >= min_log_mel, 1000.0 * np.exp(logstep * (m - min_log_mel)), f_sp * m)
+
+
+def mel_filterbank(rate: float, n_fft: int, n_mels: int = 40, fmin: float = 0.0,
+                   fmax: float | None = None) -> np.ndarray:
+    """Triangular mel filters, area-normalised (Slaney), shape (n_mels, n_fft // 2 + 1)."""
+    fmax = rate / 2.0 if fmax is None else float(fmax)
+    if not 0 <= fmin < fmax <= rate / 2.0:
+        raise ValueError(f"mel: need 0 <= fmin < fmax <= rate/2, got fmin={fmin}, fmax={fmax}, "
+                         f"rate={rate}")
+    fft_f = np.linspace(0.0, rate / 2.0, n_fft // 2 + 1)
+    mel_f = mel_to_hz(np.linspace(hz_to_mel(fmin), hz_to_mel(fmax), n_mels + 2))
+    fdiff = np.diff(mel_f)
+    ramps = mel_f[:, None] - fft_f[None, :]
+    lower = -ramps[:-2] / fdiff[:-1, None]
+    upper = ramps[2:] / fdiff[1:, None]
+    w = np.maximum(0.0, np.minimum(lower, upper))
+    w *= (2.0 / (mel_f[2:] - mel_f[:-2]))[:, None]
+    return w
+
+
+def dct_ortho(x: np.ndarray, n: int) -> np.ndarray:
+    """First ``n`` orthonormal DCT-II coefficients along the last axis."""
+    from scipy.fft import dct
+
+    return dct(x, type=2, norm="ortho", axis=-1)[..., :n]
+
+
+def deltas(x: np.ndarray, width: int = 2) -> np.ndarray:
+    """Regression deltas (HTK): ``d_t = sum_n n (x_{t+n} - x_{t-n}) / (2 sum n^2)``, edges
+    replicated. Equals ``librosa.feature.delta(x.T, width=2 * width + 1, mode="nearest").T``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    T = x.shape[0]
+    xp = np.concatenate([np.repeat(x[:1], width, axis=0), x, np.repeat(x[-1:], width, axis=0)])
+    num = np.zeros_like(x)
+    for n in range(1, width + 1):
+        num += n * (xp[width + n:width + n + T] - xp[width - n:width - n + T])
+    return num / (2.0 * sum(n * n for n in range(1, width + 1)))
+
+
+# --------------------------------------------------------------------------- bark / RASTA-PLP
+def hz_to_bark(f):
+    """Schroeder's Bark scale ``6 asinh(f / 600)`` (the one of PLP)."""
+    return 6.0 * np.arcsinh(np.asarray(f, dtype=np.float64) / 600.0)
+
+
+def bark_to_hz(z):
+    return 600.0 * np.sinh(np.asarray(z, dtype=np.float64) / 6.0)
+
+
+def bark_filterbank(rate: float, n_fft: int) -> tuple[np.ndarray, np.ndarray]:
+    """PLP critical-band filters (Hermansky 1990), one per Bark from 0 to Nyquist.
+
+    The masking curve is flat within +/-0.5 Bark, rises 25 dB/Bark below and falls 10 dB/Bark
+    above. Returns ``(weights (n_bands, n_fft // 2 + 1), centres_hz (n_bands,))``.
+    """
+    nyq_bark = float(hz_to_bark(rate / 2.0))
+    n_bands = int(math.ceil(nyq_bark)) + 1
+    step = nyq_bark / (n_bands - 1)
+    bins = hz_to_bark(np.linspace(0.0, rate / 2.0, n_fft // 2 + 1))
+    mids = np.arange(n_bands) * step
+    lof = bins[None, :] - mids[:, None] - 0.5
+    hif = bins[None, :] - mids[:, None] + 0.5
+    w = 10.0 ** np.minimum(0.0, np.minimum(hif, -2.5 * lof))
+    return w, bark_to_hz(mids)
+
+
+def equal_loudness(f_hz: np.ndarray) -> np.ndarray:
+    """Equal-loudness weighting of PLP (Hermansky 1990) in Hz, as in rastamat's ``postaud``:
+    ``E(f) = (f^2 / (f^2 + 400^2))^2 (f^2 + 1200^2) / (f^2 + 3100^2)``.
+    """
+    fsq = np.asarray(f_hz, dtype=np.float64) ** 2
+    ftmp = fsq + 1.6e5
+    return (fsq / ftmp) ** 2 * ((fsq + 1.44e6) / (fsq + 9.61e6))
+
+
+def rasta_filter(log_bands: np.ndarray, frame_rate: float, pole: float = 0.94) -> np.ndarray:
+    """RASTA band-pass filter along time (Hermansky & Morgan 1994).
+
+    ``H(z) = 0.1 (2 + z^-1 - z^-3 - 2 z^-4) / (1 - p z^-1)`` at 100 frames/s; at another frame
+    rate the pole is rescaled to keep its time constant (``p^(100 / frame_rate)``). The filter
+    starts in the steady state of the first frame, so a constant (a fixed channel gain or
+    spectral tilt) gives exactly zero output from the first frame on.
+    """
+    from scipy.signal import lfilter, lfilter_zi
+
+    b = np.array([0.2, 0.1, 0.0, -0.1, -0.2])
+    p = pole ** (100.0 / frame_rate)
+    a = np.array([1.0, -p])
+    zi = lfilter_zi(b, a)[:, None] * log_bands[:1, :]
+    y, _ = lfilter(b, a, log_bands, axis=0, zi=zi)
+    return y
+
+
+def plp_from_bands(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps: int
+                   ) -> np.ndarray:
+    """Equal loudness, cube-root compression and an all-pole fit -> cepstra (T, n_ceps)."""
+    z = bands * equal_loudness(centres_hz)[None, :]
+    z = np.cbrt(np.maximum(z, 0.0))
+    z[:, 0] = z[:, 1]
+    z[:, -1] = z[:, -2]
+    # The auditory spectrum is a power spectrum sampled from 0 to Nyquist: its inverse DFT
+    # (mirrored, real) is an autocorrelation sequence.
+    full = np.concatenate([z, z[:, -2:0:-1]], axis=1)
+    r = np.fft.ifft(full, axis=1).real[:, :order + 1]
+    a, err = levinson(r, order)
+    return lpc_to_cepstrum(a, err, n_ceps)
+
+
+# --------------------------------------------------------------------------- one analysis pass
+def spectral_features(x: np.ndarray, rate: float, fps: float, n_out: int, *,
+                      want: set, window_s: float = 0.025, n_fft: int | None = None,
+                      n_mfcc: int = 13, n_mels: int = 40, fmin: float = 0.0,
+                      fmax: float | None = None, rasta_order: int = 8, rasta_ceps: int = 9,
+                      rasta_rate: float = 100.0, bands=SONORANT_BANDS) -> dict:
+    """One STFT pass for the spectral features requested in ``want``.
+
+    ``want`` is a subset of ``{"mfcc", "rasta_plp", "bands", "log_energy"}``. RASTA filtering
+    needs a frame rate near 100/s: its spectra are computed on a grid ``m`` times finer than the
+    video frames (``m = round(rasta_rate / fps)``, at least 1) whose every ``m``-th frame is a
+    video frame time, and subsampled after filtering.
+
+    Returns
+    -------
+    dict
+        ``mfcc`` (n_out, n_mfcc) cepstra of the log (dB) mel power; ``rasta_plp``
+        (n_out, rasta_ceps); ``bands`` (n_out, len(bands)) in dB; ``log_energy`` (n_out,) in dB.
+    """
+    length = int(round(window_s * rate))
+    if n_fft is None:
+        n_fft = 1 << int(math.ceil(math.log2(max(length, 2))))
+    if length > n_fft:
+        raise ValueError(f"window of {length} samples exceeds n_fft={n_fft}")
+    win = centred_window(hann(length), n_fft)
+    win_energy = float(np.sum(win * win))
+    freqs = np.fft.rfftfreq(n_fft, 1.0 / rate)
+    # Parseval weights: one-sided power -> mean square of the windowed frame / window energy.
+    parseval = np.full(freqs.shape[0], 2.0)
+    parseval[0] = 1.0
+    if n_fft % 2 == 0:
+        parseval[-1] = 1.0
+    parseval /= n_fft * win_energy
+
+    m = max(1, int(round(rasta_rate / fps))) if "rasta_plp" in want else 1
+    fine = frame_centres(n_out * m, rate, fps * m)
+    out: dict = {}
+    if "mfcc" in want:
+        melfb = mel_filterbank(rate, n_fft, n_mels, fmin, fmax)
+        mel = np.empty((n_out, n_mels))
+    if "bands" in want:
+        band_w = np.zeros((len(bands), freqs.shape[0]))
+        for i, (lo, hi) in enumerate(bands):
+            if not 0 <= lo < hi:
+                raise ValueError(f"bands must be (low, high) with 0 <= low < high, got {(lo, hi)}")
+            band_w[i] = ((freqs >= lo) & (freqs < hi)) * parseval
+        bandE = np.empty((n_out, len(bands)))
+    if "log_energy" in want:
+        energy = np.empty(n_out)
+    if "rasta_plp" in want:
+        barkfb, centres_hz = bark_filterbank(rate, n_fft)
+        bark = np.empty((n_out * m, barkfb.shape[0]))
+    block = 2048 * m
+    for sl, frames in iter_frames(x, fine, n_fft, win, block=block):
+        spec = np.fft.rfft(frames, axis=1)
+        P = spec.real ** 2 + spec.imag ** 2
+        if "rasta_plp" in want:
+            bark[sl] = P @ barkfb.T
+        # video-frame rows of this block (block is a multiple of m, so rows 0, m, 2m, ...)
+        Pv = P[::m]
+        osl = slice(sl.start // m, sl.start // m + Pv.shape[0])
+        if "mfcc" in want:
+            mel[osl] = Pv @ melfb.T
+        if "bands" in want:
+            bandE[osl] = Pv @ band_w.T
+        if "log_energy" in want:
+            energy[osl] = Pv @ parseval
+    if "mfcc" in want:
+        out["mfcc"] = dct_ortho(10.0 * np.log10(np.maximum(mel, POWER_FLOOR)), n_mfcc)
+    if "bands" in want:
+        out["bands"] = 10.0 * np.log10(bandE + POWER_FLOOR)
+    if "log_energy" in want:
+        out["log_energy"] = 10.0 * np.log10(energy + POWER_FLOOR)
+    if "rasta_plp" in want:
+        logb = np.log(bark + POWER_FLOOR)
+        filt = rasta_filter(logb, fps * m)[::m]
+        out["rasta_plp"] = plp_from_bands(np.exp(filt), centres_hz, rasta_order, rasta_ceps)
+    return out

@@ -1,0 +1,48 @@
+"""``voicepuppet features AUDIO_OR_VIDEO -o feats.npz --fps 29.97``: the audio front end.
+
+Writes an ``.npz`` with ``features`` (T, D), ``names`` (D,), ``times`` (T,), ``fps``,
+``duration``, ``feature_set`` (JSON) and ``voiced`` (T,) when F0 was computed.
+"""
+
+from __future__ import annotations
+
+
+def _run(args) -> int:
+    from voicepuppet import audio
+    from voicepuppet.cli import UserError
+
+    if args.features and args.set:
+        raise UserError("give either --set or --features, not both")
+    spec = args.features or args.set or audio.DEFAULT_SET
+    fset = audio.as_feature_set(spec)
+    if args.deltas and "mfcc_deltas" not in fset.features:
+        feats = fset.features + (() if "mfcc" in fset.features else ("mfcc",)) + ("mfcc_deltas",)
+        fset = audio.FeatureSet(feats, fset.options, fset.name)
+    if not args.output.endswith(".npz"):
+        raise UserError(f"output must end in .npz, got {args.output!r}")
+    sound = audio.load_audio(args.input, rate=args.rate)
+    feats = audio.extract(sound, fps=args.fps, features=fset)
+    feats.save(args.output)
+    print(f"{args.input}: {sound.duration:.2f} s at {sound.source_rate} Hz "
+          f"({sound.channels} ch) -> {len(feats)} frames x {len(feats.names)} features "
+          f"at {feats.fps:g} fps [{fset.name}: {', '.join(fset.features)}] -> {args.output}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    from voicepuppet.audio import FEATURE_SETS, FEATURES
+
+    p = sub.add_parser("features", help="audio features at a video frame rate",
+                       description="Compute audio features (LPC, RASTA-PLP, MFCC, formants, band "
+                                   "energies, F0, energy) centred on video frame times.")
+    p.add_argument("input", help="audio file (wav, flac, ogg, mp3) or video with sound "
+                                 "(mp4, mov, mkv, avi)")
+    p.add_argument("-o", "--output", required=True, help="output .npz")
+    p.add_argument("--fps", type=float, default=29.97, help="output frame rate (default 29.97)")
+    p.add_argument("--set", choices=sorted(FEATURE_SETS),
+                   help="named feature set (default: puppet)")
+    p.add_argument("--features", help=f"comma-separated features from: {', '.join(FEATURES)}")
+    p.add_argument("--deltas", action="store_true", help="add MFCC deltas")
+    p.add_argument("--rate", type=int, default=16000,
+                   help="analysis sample rate in Hz (default 16000)")
+    p.set_defaults(func=_run)
