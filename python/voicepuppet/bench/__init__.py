@@ -20,6 +20,7 @@ from typing import Callable
 # suite name -> module implementing run(quick, repeats)
 SUITES = {
     "hmm": "voicepuppet.bench.hmm",
+    "audio": "voicepuppet.bench.audio",
 }
 
 
