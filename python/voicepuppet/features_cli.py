@@ -21,7 +21,7 @@ def _run(args) -> int:
     if not args.output.endswith(".npz"):
         raise UserError(f"output must end in .npz, got {args.output!r}")
     sound = audio.load_audio(args.input, rate=args.rate)
-    feats = audio.extract(sound, fps=args.fps, features=fset)
+    feats = audio.extract(sound, fps=args.fps, features=fset, progress=True)
     feats.save(args.output)
     print(f"{args.input}: {sound.duration:.2f} s at {sound.source_rate} Hz "
           f"({sound.channels} ch) -> {len(feats)} frames x {len(feats.names)} features "

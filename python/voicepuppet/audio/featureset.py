@@ -232,7 +232,8 @@ def _feature_of(col: str) -> str:
     return _PREFIX.get(head, head)
 
 
-def extract(source, fps: float = 29.97, features=None, **options) -> Features:
+def extract(source, fps: float = 29.97, features=None, *, progress: bool = False,
+            **options) -> Features:
     """Compute a feature set at video frame times.
 
     Parameters
@@ -243,6 +244,8 @@ def extract(source, fps: float = 29.97, features=None, **options) -> Features:
         Output frame rate (default NTSC 29.97); frame ``k`` is centred at ``k / fps``.
     features : FeatureSet, str or list of str, optional
         A set (default ``"puppet"``), a set name, or feature names.
+    progress : bool
+        Show a tqdm progress bar over the analysis stages.
     **options
         Overrides of ``DEFAULT_OPTIONS`` for this call.
 
@@ -254,6 +257,7 @@ def extract(source, fps: float = 29.97, features=None, **options) -> Features:
     from . import lpc as lpc_mod
     from . import pitch as pitch_mod
     from . import spectral
+    from tqdm import tqdm
 
     fps = check_fps(fps)
     fset = as_feature_set(features)
@@ -268,7 +272,12 @@ def extract(source, fps: float = 29.97, features=None, **options) -> Features:
     cols: dict[str, tuple[list[str], np.ndarray]] = {}
 
     spec_want = want & {"mfcc", "mfcc_deltas", "rasta_plp", "bands", "log_energy"}
+    stages = [bool(spec_want), bool(want & {"lpc", "lpc_cepstra"}), "formants" in want,
+              bool(want & {"f0", "voicing"})]
+    bar = tqdm(total=sum(stages), desc="features", unit="stage", disable=not progress,
+               leave=False)
     if spec_want:
+        bar.set_postfix_str("spectra")
         kinds = {("mfcc" if k == "mfcc_deltas" else k) for k in spec_want}
         sp = spectral.spectral_features(x, rate, fps, T, want=kinds, window_s=window_s,
                                         n_mfcc=opt["n_mfcc"], n_mels=opt["n_mels"],
@@ -289,7 +298,9 @@ def extract(source, fps: float = 29.97, features=None, **options) -> Features:
             cols["bands"] = ([f"band{i}" for i in range(b.shape[1])], b)
         if "log_energy" in sp:
             cols["log_energy"] = (["log_energy"], sp["log_energy"][:, None])
+        bar.update()
     if want & {"lpc", "lpc_cepstra"}:
+        bar.set_postfix_str("lpc")
         order = int(opt["lpc_order"])
         a, err = lpc_mod.lpc_frames(x, rate, fps, T, order=order, window_s=window_s,
                                     preemph=opt["lpc_preemph"])
@@ -299,12 +310,16 @@ def extract(source, fps: float = 29.97, features=None, **options) -> Features:
             n = int(opt["n_lpc_cepstra"])
             c = lpc_mod.lpc_to_cepstrum(a, err, n + 1)[:, 1:]
             cols["lpc_cepstra"] = ([f"lpcc{i}" for i in range(1, n + 1)], c)
+        bar.update()
     if "formants" in want:
+        bar.set_postfix_str("formants")
         f = lpc_mod.formant_frames(x, rate, fps, T, ceiling=opt["formant_ceiling"],
                                    max_bandwidth=opt["formant_max_bandwidth"])
         cols["formants"] = ([f"f{i}" for i in range(1, f.shape[1] + 1)], f)
+        bar.update()
     voiced = None
     if want & {"f0", "voicing"}:
+        bar.set_postfix_str("f0")
         f0, prob = pitch_mod.pitch_frames(x, rate, fps, T, floor=opt["pitch_floor"],
                                           ceiling=opt["pitch_ceiling"])
         voiced = np.isfinite(f0)
@@ -312,6 +327,8 @@ def extract(source, fps: float = 29.97, features=None, **options) -> Features:
             cols["f0"] = (["f0"], pitch_mod.fill_unvoiced(f0)[:, None])
         if "voicing" in want:
             cols["voicing"] = (["voicing"], prob[:, None])
+        bar.update()
+    bar.close()
 
     names: list[str] = []
     blocks = []
