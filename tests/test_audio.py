@@ -405,3 +405,43 @@ def test_cli_features(tmp_path, capsys):
     assert main(["features", str(tmp_path / "nope.wav"), "-o", str(out)]) == 2
     assert "no such file" in capsys.readouterr().err
     assert main(["features", str(wav), "-o", str(tmp_path / "x.txt")]) == 2
+
+
+def _ffmpeg_video(tmp_path, name, audio_args, offset=None):
+    """A 3 s video made by the ffmpeg tool (as a user's file would be) whose sound is two clicks,
+    at 1.0 s and 2.0 s of the audio."""
+    import shutil
+    import subprocess
+
+    ffmpeg = shutil.which("ffmpeg")
+    assert ffmpeg, "the ffmpeg tool is needed (Debian package ffmpeg, installed by .ci/setup)"
+    x = np.zeros(3 * RATE)
+    x[RATE], x[2 * RATE] = 0.9, -0.9
+    wav = tmp_path / "clicks.wav"
+    sf.write(wav, x, RATE)
+    out = tmp_path / name
+    cmd = [ffmpeg, "-loglevel", "error", "-y", "-f", "lavfi", "-i",
+           "color=c=gray:s=64x48:r=25:d=3"]
+    cmd += (["-itsoffset", str(offset)] if offset else []) + ["-i", str(wav), "-c:v", "mpeg4"]
+    subprocess.run(cmd + audio_args + [str(out)], check=True)
+    return out
+
+
+@pytest.mark.parametrize("name,audio_args,offset", [
+    ("aac.mp4", ["-c:a", "aac"], None),
+    ("vorbis.mkv", ["-c:a", "libvorbis"], None),
+    ("pcm.mov", ["-c:a", "pcm_s16le"], None),
+    ("late_audio.mp4", ["-c:a", "aac"], 0.37),
+])
+def test_video_audio_stays_in_sync(tmp_path, name, audio_args, offset):
+    """Encoder priming and a delayed audio track do not shift the sound against the video:
+    each click lands in the video frame nearest its time, at 29.97 and 25 fps."""
+    a = audio.load_audio(_ffmpeg_video(tmp_path, name, audio_args, offset))
+    shift = offset or 0.0
+    for fps in (29.97, 25.0):
+        e = audio.extract(a, fps=fps, features=["log_energy"]).column("log_energy")
+        for t in (1.0 + shift, 2.0 + shift):
+            k = int(round(t * fps))
+            assert k - 2 + int(np.argmax(e[k - 2:k + 3])) == k, (name, fps, t)
+    peaks = np.sort(np.argsort(-np.abs(a.samples))[:2])
+    np.testing.assert_allclose(peaks / RATE, [1.0 + shift, 2.0 + shift], atol=2e-3)

@@ -92,8 +92,18 @@ def _read_pyav(path: str):
         # Resample to planar float64 so every codec's sample format comes out the same.
         resampler = av.AudioResampler(format="dblp", layout=None, rate=None)
         chunks = []
+        # Keep audio in sync with the video: time 0 is the start of the first video stream,
+        # so audio that starts later is preceded by silence and audio before it is dropped.
+        video_start = 0.0
+        for s in container.streams:
+            if s.type == "video" and s.start_time is not None and s.time_base is not None:
+                video_start = float(s.start_time * s.time_base)
+                break
+        first_time = None
         try:
             for frame in container.decode(stream):
+                if first_time is None:
+                    first_time = float(frame.time) if frame.time is not None else video_start
                 for out in resampler.resample(frame):
                     chunks.append(out.to_ndarray())
             for out in resampler.resample(None):
@@ -105,6 +115,11 @@ def _read_pyav(path: str):
     if not chunks:
         return np.zeros((0, max(1, channels))), int(rate)
     data = np.concatenate(chunks, axis=1).T  # (n, channels)
+    shift = int(round(((first_time or video_start) - video_start) * rate))
+    if shift > 0:
+        data = np.concatenate([np.zeros((shift, data.shape[1])), data])
+    elif shift < 0:
+        data = data[-shift:]
     return np.ascontiguousarray(data, dtype=np.float64), int(rate)
 
 
