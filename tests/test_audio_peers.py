@@ -40,7 +40,7 @@ def test_mfcc_matches_librosa(speech):
     a, _ = speech
     x, sr = a.samples, a.rate
     T = audio.n_frames(x.shape[0], sr, FPS)
-    ours = audio.extract(a, fps=FPS, features="mfcc", window_s=0.025).group("mfcc")
+    ours = audio.extract(a, fps=FPS, features="mfcc", window_s=0.025, n_fft=512).group("mfcc")
     M = librosa.feature.melspectrogram(y=x, sr=sr, n_fft=512, hop_length=160, win_length=400,
                                        window="hann", center=True, pad_mode="constant",
                                        power=2.0, n_mels=40)

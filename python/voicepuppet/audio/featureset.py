@@ -37,6 +37,7 @@ FEATURES = ("lpc", "lpc_cepstra", "rasta_plp", "mfcc", "mfcc_deltas", "formants"
 DEFAULT_OPTIONS = {
     "window_s": None,        # spectral and LPC window (s); None: max(25 ms, 1 / fps), so the
                              # Hann windows of consecutive frames cover all of the audio
+    "n_fft": None,           # FFT length of the spectra; None: the next fast length >= window
     "lpc_order": 12,         # LPC order for lpc / lpc_cepstra (at 16 kHz)
     "lpc_preemph": 0.97,
     "n_lpc_cepstra": 12,     # c_1 .. c_n
@@ -280,8 +281,8 @@ def extract(source, fps: float = 29.97, features=None, *, progress: bool = False
         bar.set_postfix_str("spectra")
         kinds = {("mfcc" if k == "mfcc_deltas" else k) for k in spec_want}
         sp = spectral.spectral_features(x, rate, fps, T, want=kinds, window_s=window_s,
-                                        n_mfcc=opt["n_mfcc"], n_mels=opt["n_mels"],
-                                        rasta_order=opt["rasta_order"],
+                                        n_fft=opt["n_fft"], n_mfcc=opt["n_mfcc"],
+                                        n_mels=opt["n_mels"], rasta_order=opt["rasta_order"],
                                         rasta_ceps=opt["n_rasta"])
         if "mfcc" in sp:
             m = sp["mfcc"]

@@ -43,25 +43,37 @@ def frame_centres(n: int, rate: float, fps: float) -> np.ndarray:
 
 
 def iter_frames(x: np.ndarray, centres: np.ndarray, length: int, window: np.ndarray | None = None,
-                block: int = BLOCK_FRAMES):
+                block: int = BLOCK_FRAMES, preemph: float = 0.0):
     """Yield ``(slice, frames)`` blocks of windowed frames centred on ``centres``.
 
-    Frame ``i`` holds ``x[c_i - length // 2 : c_i - length // 2 + length]`` (zeros outside ``x``)
-    times ``window``; ``frames`` has shape (len(block), length).
+    Frame ``i`` holds ``y[c_i - length // 2 : c_i - length // 2 + length]`` (zeros outside ``x``)
+    times ``window``, where ``y[n] = x[n] - preemph * x[n - 1]`` (pre-emphasis applied per frame,
+    equal to pre-emphasising the whole signal); ``frames`` has shape (len(block), length).
     """
     length = int(length)
     half = length // 2
-    pad = length + 1
+    pad = length + 2
     xp = np.concatenate([np.zeros(pad), np.asarray(x, dtype=np.float64), np.zeros(pad)])
-    starts = np.clip(centres - half + pad, 0, xp.shape[0] - length)
+    starts = np.clip(centres - half + pad, 1, xp.shape[0] - length)
     # Row gather from a strided view (no index matrix): 3x faster than xp[starts + offsets].
-    view = np.lib.stride_tricks.sliding_window_view(xp, length)
+    view = np.lib.stride_tricks.sliding_window_view(xp, length + (1 if preemph else 0))
     for b0 in range(0, centres.shape[0], block):
         sl = slice(b0, min(b0 + block, centres.shape[0]))
-        frames = view[starts[sl]]
+        if preemph:
+            raw = view[starts[sl] - 1]
+            frames = raw[:, 1:] - preemph * raw[:, :-1]
+        else:
+            frames = view[starts[sl]]
         if window is not None:
             frames *= window
         yield sl, frames
+
+
+def fast_len(n: int) -> int:
+    """Smallest FFT length >= ``n`` that pocketfft handles fast (2, 3, 5 smooth)."""
+    from scipy.fft import next_fast_len
+
+    return int(next_fast_len(int(n), real=True))
 
 
 def hann(n: int) -> np.ndarray:

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from .framing import hamming, iter_frames, frame_centres
+from .framing import fast_len, frame_centres, hamming, iter_frames
 
 #: Relative white-noise correction added to lag 0 (-90 dB): keeps Levinson-Durbin well posed.
 WHITE_NOISE_CORRECTION = 1e-9
@@ -62,10 +62,11 @@ def levinson(r: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
 
 def autocorrelation(frames: np.ndarray, max_lag: int) -> np.ndarray:
     """Autocorrelation ``r[:, 0 .. max_lag]`` of each row (zero-padded FFT, no wrap-around)."""
-    n = frames.shape[1]
-    n_fft = 1 << int(math.ceil(math.log2(n + max_lag + 1)))
-    spec = np.fft.rfft(frames, n_fft, axis=1)
-    return np.fft.irfft(spec.real ** 2 + spec.imag ** 2, n_fft, axis=1)[:, :max_lag + 1]
+    from scipy.fft import irfft, rfft
+
+    n_fft = fast_len(frames.shape[1] + max_lag + 1)
+    spec = rfft(frames, n_fft, axis=1)
+    return irfft(spec.real ** 2 + spec.imag ** 2, n_fft, axis=1)[:, :max_lag + 1]
 
 
 def pre_emphasis(x: np.ndarray, coef: float) -> np.ndarray:
@@ -104,11 +105,10 @@ def lpc_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, order: int
         raise ValueError(f"lpc: order must be >= 1, got {order}")
     length = max(order + 1, int(round(window_s * rate)))
     w = hamming(length) if window == "hamming" else gaussian_window(length)
-    y = pre_emphasis(x, preemph) if preemph else np.asarray(x, dtype=np.float64)
     centres = frame_centres(n_out, rate, fps)
     a = np.empty((n_out, order + 1))
     err = np.empty(n_out)
-    for sl, frames in iter_frames(y, centres, length, w):
+    for sl, frames in iter_frames(x, centres, length, w, preemph=preemph):
         a[sl], err[sl] = levinson(autocorrelation(frames, order), order)
     return a, err
 

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from .framing import centred_window, frame_centres, hann, iter_frames
+from .framing import centred_window, fast_len, frame_centres, hann, iter_frames
 from .lpc import levinson, lpc_to_cepstrum
 
 #: Power floor (amin of librosa.power_to_db): -100 dB.
@@ -166,9 +166,11 @@ def spectral_features(x: np.ndarray, rate: float, fps: float, n_out: int, *,
         ``mfcc`` (n_out, n_mfcc) cepstra of the log (dB) mel power; ``rasta_plp``
         (n_out, rasta_ceps); ``bands`` (n_out, len(bands)) in dB; ``log_energy`` (n_out,) in dB.
     """
+    from scipy.fft import rfft
+
     length = int(round(window_s * rate))
     if n_fft is None:
-        n_fft = 1 << int(math.ceil(math.log2(max(length, 2))))
+        n_fft = fast_len(max(length, 2))
     if length > n_fft:
         raise ValueError(f"window of {length} samples exceeds n_fft={n_fft}")
     win = centred_window(hann(length), n_fft)
@@ -201,7 +203,7 @@ def spectral_features(x: np.ndarray, rate: float, fps: float, n_out: int, *,
         bark = np.empty((n_out * m, barkfb.shape[0]))
     block = 2048 * m
     for sl, frames in iter_frames(x, fine, n_fft, win, block=block):
-        spec = np.fft.rfft(frames, axis=1)
+        spec = rfft(frames, axis=1)
         P = spec.real ** 2 + spec.imag ** 2
         if "rasta_plp" in want:
             bark[sl] = P @ barkfb.T

@@ -64,7 +64,7 @@ def run(quick: bool = False, repeats: int = 3) -> list[dict]:
     x, sr = a.samples, a.rate
 
     def ours_mfcc():
-        return audio.extract(a, fps=100.0, features="mfcc", window_s=0.025).values
+        return audio.extract(a, fps=100.0, features="mfcc", window_s=0.025, n_fft=512).values
 
     def librosa_mfcc():
         M = librosa.feature.melspectrogram(y=x, sr=sr, n_fft=512, hop_length=160,
