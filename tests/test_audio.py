@@ -445,3 +445,16 @@ def test_video_audio_stays_in_sync(tmp_path, name, audio_args, offset):
             assert k - 2 + int(np.argmax(e[k - 2:k + 3])) == k, (name, fps, t)
     peaks = np.sort(np.argsort(-np.abs(a.samples))[:2])
     np.testing.assert_allclose(peaks / RATE, [1.0 + shift, 2.0 + shift], atol=2e-3)
+
+
+def test_telephone_rate_8khz():
+    """At the lowest accepted rate (8 kHz, kept as is) the formant ceiling drops to Nyquist and
+    the known vowel is still recovered."""
+    formants = (700.0, 1220.0, 2600.0)
+    x, _ = source_filter_vowel(formants, (80.0, 90.0, 120.0), f0=110.0, duration=1.0, rate=8000)
+    a = audio.prepare(x, 8000, target_rate=None)
+    f = audio.extract(a, fps=29.97, features="all")
+    assert np.all(np.isfinite(f.values))
+    mid = slice(5, len(f) - 5)
+    np.testing.assert_allclose(np.median(f.group("formants")[mid], axis=0), formants, rtol=0.05)
+    np.testing.assert_allclose(f.column("f0")[mid], 110.0, rtol=0.01)
