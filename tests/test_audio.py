@@ -458,3 +458,17 @@ def test_telephone_rate_8khz():
     mid = slice(5, len(f) - 5)
     np.testing.assert_allclose(np.median(f.group("formants")[mid], axis=0), formants, rtol=0.05)
     np.testing.assert_allclose(f.column("f0")[mid], 110.0, rtol=0.01)
+
+
+def test_unsupported_codec(tmp_path):
+    """A WAV container declaring a codec nobody decodes (format tag 0x1234)."""
+    import struct
+
+    data = np.zeros(1600, dtype="<i2").tobytes()
+    fmt = struct.pack("<HHIIHH", 0x1234, 1, 16000, 32000, 2, 16)
+    body = b"WAVE" + b"fmt " + struct.pack("<I", len(fmt)) + fmt + b"data" + \
+        struct.pack("<I", len(data)) + data
+    p = tmp_path / "odd_codec.wav"
+    p.write_bytes(b"RIFF" + struct.pack("<I", len(body)) + body)
+    with pytest.raises(ValueError, match="codec .* not supported"):
+        audio.load_audio(p)

@@ -86,9 +86,12 @@ def _read_pyav(path: str):
             raise ValueError(f"audio: {path!r} has no audio track; give a video with sound or "
                              "the audio as a separate file")
         stream = streams[0]
-        rate = stream.codec_context.sample_rate or stream.rate
-        channels = stream.codec_context.channels if hasattr(stream.codec_context, "channels") \
-            else len(stream.codec_context.layout.channels)
+        ctx = stream.codec_context
+        if ctx is None:  # FFmpeg knows the container but has no decoder for this codec
+            raise ValueError(f"audio: the audio codec of {path!r} is not supported (no decoder "
+                             "in FFmpeg); convert it to wav or flac with the tool that made it")
+        rate = ctx.sample_rate or stream.rate
+        channels = ctx.channels if hasattr(ctx, "channels") else len(ctx.layout.channels)
         # Resample to planar float64 so every codec's sample format comes out the same.
         resampler = av.AudioResampler(format="dblp", layout=None, rate=None)
         chunks = []
@@ -110,7 +113,7 @@ def _read_pyav(path: str):
                 chunks.append(out.to_ndarray())
         except (av.error.FFmpegError, ValueError) as exc:
             raise ValueError(f"audio: cannot decode the audio track of {path!r} "
-                             f"(codec {stream.codec_context.name!r}: {exc}); convert it to wav, "
+                             f"(codec {ctx.name!r}: {exc}); convert it to wav, "
                              "e.g. ffmpeg -i IN -vn -ac 1 out.wav") from exc
     if not chunks:
         return np.zeros((0, max(1, channels))), int(rate)
