@@ -472,3 +472,11 @@ def test_unsupported_codec(tmp_path):
     p.write_bytes(b"RIFF" + struct.pack("<I", len(body)) + body)
     with pytest.raises(ValueError, match="codec .* not supported"):
         audio.load_audio(p)
+
+
+def test_integer_pcm_is_scaled_to_full_scale():
+    x = (0.5 * np.sin(np.arange(RATE) * 0.1) * 32767).astype(np.int16)
+    a = audio.prepare(x, RATE, remove_dc=False)
+    assert np.max(np.abs(a.samples)) == pytest.approx(0.5, abs=1e-3)
+    u = (128 + 64 * np.sin(np.arange(RATE) * 0.1)).astype(np.uint8)
+    assert np.max(np.abs(audio.prepare(u, RATE).samples)) == pytest.approx(0.5, abs=0.02)

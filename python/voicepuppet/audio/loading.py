@@ -142,7 +142,8 @@ def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc:
     Parameters
     ----------
     samples : array_like, shape (n,) or (n, channels)
-        Samples in full scale [-1, 1] (integers are not rescaled: convert first).
+        Samples in full scale [-1, 1]; integer PCM (int16, int32, uint8) is scaled by its
+        type's range.
     rate : int
         Sample rate of ``samples`` in Hz (at least ``MIN_RATE``).
     target_rate : int or None
@@ -165,6 +166,11 @@ def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc:
     x = np.asarray(samples)
     if x.dtype.kind not in "fiu":
         raise ValueError(f"audio: samples must be numbers, got dtype {x.dtype}{where}")
+    if x.dtype.kind == "i":  # PCM integers: full scale is the type's range
+        x = x.astype(np.float64) / float(2 ** (8 * x.dtype.itemsize - 1))
+    elif x.dtype.kind == "u":
+        half = float(2 ** (8 * x.dtype.itemsize - 1))
+        x = (x.astype(np.float64) - half) / half
     x = x.astype(np.float64, copy=False)
     if x.ndim == 1:
         x = x[:, None]
