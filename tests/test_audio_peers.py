@@ -10,7 +10,7 @@ import parselmouth
 import pytest
 
 from voicepuppet import audio
-from voicepuppet.audio import lpc, pitch, samples, spectral
+from voicepuppet.audio import lpc, pitch, samples
 from voicepuppet.audio.framing import frame_centres, hamming, iter_frames
 
 FPS = 100.0  # Praat's and librosa's usual 10 ms step: frame k at k * 10 ms on both sides

@@ -126,7 +126,8 @@ class FeatureSet:
 
 
 def as_feature_set(spec) -> FeatureSet:
-    """A FeatureSet from a FeatureSet, a set name, or a list / comma-separated string of features."""
+    """A FeatureSet from a FeatureSet, a set name, or a list or comma-separated string of
+    feature names."""
     if isinstance(spec, FeatureSet):
         return spec
     if spec is None:

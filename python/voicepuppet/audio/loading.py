@@ -1,4 +1,5 @@
-"""Loading audio: files (wav, flac, ogg, mp3, ...) and the audio track of videos (mp4, mov, mkv, avi).
+"""Loading audio: files (wav, flac, ogg, mp3, ...) and the audio track of videos (mp4, mov,
+mkv, avi).
 
 Audio files are read with soundfile (libsndfile); anything libsndfile does not know (video
 containers, AAC, ...) is decoded with PyAV (FFmpeg). The result is mixed to mono, resampled with a

