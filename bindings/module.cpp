@@ -8,6 +8,7 @@ namespace py = pybind11;
 void bind_hmm(py::module_& m);
 void bind_tracker(py::module_& m);
 void bind_trajectory(py::module_& m);
+void bind_entropic(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "voicepuppet's C++ kernels (private: use the voicepuppet package)";
@@ -24,4 +25,5 @@ PYBIND11_MODULE(_core, m) {
   bind_hmm(m);
   bind_tracker(m);
   bind_trajectory(m);
+  bind_entropic(m);
 }
