@@ -14,6 +14,7 @@ import sys
 # Order is the order shown in --help.
 VERB_MODULES = [
     "voicepuppet.info",
+    "voicepuppet.tracking",
     "voicepuppet.features_cli",
     "voicepuppet.bench",
 ]

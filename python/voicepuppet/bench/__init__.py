@@ -21,6 +21,8 @@ from typing import Callable
 SUITES = {
     "hmm": "voicepuppet.bench.hmm",
     "audio": "voicepuppet.bench.audio",
+    "tracker": "voicepuppet.bench.tracker",
+    "trajectory": "voicepuppet.bench.trajectory",
 }
 
 

@@ -1,0 +1,416 @@
+"""Facial landmark tracking: the spring-mesh SSD tracker of Voice Puppetry §4.1.
+
+A mesh of sub-pixel SSD trackers (one per landmark) coupled by springs, relaxed jointly in each
+frame by the C++ kernel (``cpp/include/voicepuppet/tracker.hpp``). Spring lengths and
+stiffnesses are re-estimated from the mean and variance of the tracked distances, and the
+sequence is tracked again, ``passes`` times in all (the paper's "few repetitions").
+
+Command line: ``voicepuppet track VIDEO -o landmarks.npz [--init points.json|auto]
+[--overlay out.mp4]``. File formats are those of DESIGN.md ("Files users exchange").
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+from voicepuppet import _core
+
+__all__ = [
+    "TrackResult", "track_frames", "track_video", "delaunay_edges", "load_init_points",
+    "auto_init", "save_landmarks", "load_landmarks", "DLIB_MODEL_PATHS",
+]
+
+# Where Debian's libdlib-data puts dlib's 68-point model (override with VOICEPUPPET_DLIB_MODEL).
+DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
+
+_OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
+                 "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
+                 "damping")
+
+
+@dataclass
+class TrackResult:
+    """Landmarks tracked through a sequence.
+
+    Attributes
+    ----------
+    points : (T, P, 2) float64 positions (x, y) in pixels
+    confidence : (T, P) float64 in [0, 1], correlation with the first-frame patch
+    lost : (T, P) bool, outside the image or not matching its first-frame patch
+    fps : frames per second
+    edges : (E, 2) int64 spring edges
+    rest_length, stiffness : (E,) the springs of the last pass
+    passes : one dict per pass: ``pass``, ``max_rel_length_change`` (of the springs it
+        re-estimated), ``mean_point_change`` (px, mean displacement from the previous pass),
+        ``lost_fraction``
+    names : optional (P,) landmark names
+    """
+
+    points: np.ndarray
+    confidence: np.ndarray
+    lost: np.ndarray
+    fps: float
+    edges: np.ndarray
+    rest_length: np.ndarray
+    stiffness: np.ndarray
+    passes: list = field(default_factory=list)
+    names: list | None = None
+
+
+def delaunay_edges(points: np.ndarray) -> np.ndarray:
+    """Edges (i < j) of the Delaunay triangulation of (P, 2) points, as an (E, 2) int64 array."""
+    pts = _check_points(points, "points")
+    return np.asarray(_core.delaunay_edges(pts), dtype=np.int64)
+
+
+def _check_points(points, name: str) -> np.ndarray:
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (P, 2) (x, y per row), got {pts.shape}")
+    if len(pts) < 3:
+        raise ValueError(f"{name} must hold at least 3 landmarks for a spring mesh, got {len(pts)}")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError(f"{name} contains NaN or infinite values; give finite pixel coordinates")
+    return pts
+
+
+def _options(opts: dict) -> "_core.TrackerOptions":
+    o = _core.TrackerOptions()
+    for k, v in opts.items():
+        if k not in _OPTION_NAMES:
+            raise ValueError(f"unknown tracker option {k!r}; choose from {', '.join(_OPTION_NAMES)}")
+        setattr(o, k, v)
+    return o
+
+
+def _grey(frame: np.ndarray, t: int, shape) -> np.ndarray:
+    f = np.asarray(frame)
+    if f.ndim == 3 and f.shape[2] == 3:
+        import cv2  # colour frames come from OpenCV callers
+
+        f = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+    if f.dtype != np.uint8 or f.ndim != 2:
+        raise ValueError(f"frame {t} must be a (H, W) uint8 grey or (H, W, 3) uint8 BGR image, "
+                         f"got dtype {f.dtype} and shape {f.shape}")
+    if shape is not None and f.shape != shape:
+        raise ValueError(f"frame {t} has shape {f.shape} but frame 0 has {shape}; "
+                         "all frames of a sequence must have one size")
+    return f
+
+
+def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh, options,
+              n_hint: int | None, progress: bool, desc: str):
+    from tqdm.auto import tqdm
+
+    pts, conf, lost = [], [], []
+    tracker = None
+    shape = None
+    with tqdm(total=n_hint, desc=desc, unit="frame", disable=not progress, leave=False) as bar:
+        for t, frame in enumerate(frames()):
+            g = _grey(frame, t, shape)
+            if tracker is None:
+                shape = g.shape
+                h, w = shape
+                outside = ~((init[:, 0] >= 0) & (init[:, 0] <= w - 1) & (init[:, 1] >= 0) & (init[:, 1] <= h - 1))
+                if np.any(outside):
+                    i = int(np.flatnonzero(outside)[0])
+                    raise ValueError(f"initial point {i} = ({init[i, 0]:g}, {init[i, 1]:g}) is outside the "
+                                     f"{w}x{h} first frame; initial points must lie inside the image")
+                tracker = _core.SpringMeshTracker(g, init, mesh, options)
+                pts.append(init.copy())
+                conf.append(np.ones(len(init)))
+                lost.append(np.zeros(len(init), dtype=bool))
+            else:
+                r = tracker.track(g)
+                pts.append(np.asarray(r.points))
+                conf.append(np.asarray(r.confidence))
+                lost.append(np.asarray(r.lost, dtype=bool))
+            bar.update(1)
+    if tracker is None:
+        raise ValueError("the sequence holds no frames; nothing to track")
+    return np.stack(pts), np.stack(conf), np.stack(lost)
+
+
+def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: float, edges=None,
+           passes: int = 2, relative_sigma: float = 0.05, min_sigma: float = 0.5,
+           n_hint: int | None = None, progress: bool = True, names=None, **options) -> TrackResult:
+    init = _check_points(init_points, "init_points")
+    if passes < 1:
+        raise ValueError(f"passes must be >= 1 (tracking passes with spring re-estimation), got {passes}")
+    if edges is None:
+        edges = delaunay_edges(init)
+    edges = np.ascontiguousarray(edges, dtype=np.int64)
+    if edges.ndim != 2 or edges.shape[1] != 2 or len(edges) == 0:
+        raise ValueError(f"edges must have shape (E, 2) with E >= 1, got {edges.shape}")
+    opts = _options(options)
+    mesh = _core.springs_from_points(init, edges, relative_sigma)
+    history = []
+    prev = None
+    for k in range(passes):
+        pts, conf, lost = _one_pass(frames, init, mesh, opts, n_hint, progress,
+                                    f"tracking pass {k + 1}/{passes}")
+        row = {"pass": k + 1, "lost_fraction": float(lost.mean()),
+               "mean_point_change": None if prev is None else float(np.linalg.norm(pts - prev, axis=2).mean()),
+               "max_rel_length_change": None}
+        if k + 1 < passes:
+            new = _core.estimate_springs(pts.reshape(len(pts), -1), lost, mesh, min_sigma)
+            old_len = np.asarray(mesh.rest_length)
+            row["max_rel_length_change"] = float(np.max(np.abs(np.asarray(new.rest_length) - old_len) / old_len))
+            mesh = new
+        history.append(row)
+        prev = pts
+    return TrackResult(points=pts, confidence=conf, lost=lost, fps=float(fps), edges=edges,
+                       rest_length=np.asarray(mesh.rest_length), stiffness=np.asarray(mesh.stiffness),
+                       passes=history, names=list(names) if names is not None else None)
+
+
+def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps: float = 29.97,
+                 edges=None, passes: int = 2, progress: bool = False, **options) -> TrackResult:
+    """Tracks landmarks through frames held in memory.
+
+    Parameters
+    ----------
+    frames : (T, H, W) uint8 grey frames (or a sequence of (H, W) uint8 / (H, W, 3) BGR frames)
+    init_points : (P, 2) positions (x, y) on frame 0, P >= 3, inside the image
+    fps : frame rate recorded in the result
+    edges : (E, 2) spring edges; default: the Delaunay triangulation of ``init_points``
+    passes : tracking passes; after each but the last, spring lengths and stiffnesses are
+        re-estimated from the tracked distances (mean and variance), as in the paper
+    progress : show a tqdm progress bar
+    **options : fields of the C++ ``TrackerOptions`` (patch_radius, levels, ncc_floor, ...) and
+        ``relative_sigma`` (initial spring std as a fraction of length), ``min_sigma`` (px floor
+        of re-estimated spring std)
+
+    Returns
+    -------
+    TrackResult
+    """
+    if len(frames) == 0:
+        raise ValueError("frames is empty: the sequence holds no frames; nothing to track")
+    return _track(lambda: iter(frames), init_points, fps=fps, edges=edges, passes=passes,
+                  n_hint=len(frames), progress=progress, **options)
+
+
+def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = "auto", *,
+                edges=None, passes: int = 2, progress: bool = True, cache_bytes: int = 1 << 30,
+                **options) -> TrackResult:
+    """Tracks landmarks through a video file.
+
+    Parameters
+    ----------
+    path : a video OpenCV can decode
+    init : (P, 2) points on the first frame, a JSON/CSV file of them (see
+        :func:`load_init_points`), or ``"auto"`` for a landmark detector (:func:`auto_init`)
+    edges, passes, progress, **options : as in :func:`track_frames`
+    cache_bytes : decoded grey frames are kept in memory up to this size when ``passes > 1``;
+        longer videos are decoded again for each pass
+
+    Raises ``ValueError`` for a video that cannot be opened or holds no frames, bad points, or
+    (with ``init="auto"``) no detector or no face.
+    """
+    from voicepuppet import video
+
+    info = video.probe_video(path)
+    names = None
+    first = next(video.iter_frames(path), None)
+    if first is None:
+        raise ValueError(f"video {str(path)!r} holds no decodable frames; check the file")
+    if isinstance(init, str) and init == "auto":
+        points = auto_init(first)
+    elif isinstance(init, (str, os.PathLike)):
+        points, names = load_init_points(init)
+    else:
+        points = init
+    fps = info.fps if info.fps > 0 else 29.97
+    need = info.frame_count * first.size
+    if passes > 1 and 0 < need <= cache_bytes:
+        frames = np.stack(list(video.iter_frames(path)))
+        source = lambda: iter(frames)  # noqa: E731
+        n_hint = len(frames)
+    else:
+        source = lambda: video.iter_frames(path)  # noqa: E731
+        n_hint = info.frame_count or None
+    return _track(source, points, fps=fps, edges=edges, passes=passes, n_hint=n_hint,
+                  progress=progress, names=names, **options)
+
+
+def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
+    """Reads first-frame points: JSON ``{"points": [[x, y], ...], "names": [...]}`` (names
+    optional) or CSV with one ``x,y`` row per point (an optional header row is skipped).
+
+    Returns ``(points (P, 2), names or None)``.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"init points file {str(p)!r} does not exist; pass a JSON or CSV file, or --init auto")
+    text = p.read_text(encoding="utf-8")
+    names = None
+    if p.suffix.lower() == ".json":
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"init points file {str(p)!r} is not valid JSON: {exc}") from exc
+        if not isinstance(doc, dict) or "points" not in doc:
+            raise ValueError(f'init points file {str(p)!r} must hold {{"points": [[x, y], ...]}}')
+        try:
+            pts = np.asarray(doc["points"], dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"init points in {str(p)!r} must be a list of [x, y] numbers") from exc
+        names = doc.get("names")
+        if names is not None and len(names) != len(pts):
+            raise ValueError(f"init points file {str(p)!r} has {len(pts)} points but {len(names)} names")
+    else:
+        rows = []
+        for k, line in enumerate(text.splitlines()):
+            cells = [c.strip() for c in line.split(",") if c.strip()]
+            if not cells:
+                continue
+            try:
+                rows.append([float(cells[0]), float(cells[1])])
+            except (ValueError, IndexError):
+                if k == 0:
+                    continue  # header
+                raise ValueError(f"init points file {str(p)!r} line {k + 1} is not 'x,y': {line!r}") from None
+        pts = np.asarray(rows, dtype=np.float64).reshape(-1, 2)
+    return _check_points(pts, f"points in {str(p)!r}"), names
+
+
+def auto_init(frame: np.ndarray) -> np.ndarray:
+    """Finds 68 face landmarks on a frame with dlib's shape predictor (iBUG 300-W layout).
+
+    Needs the ``dlib-bin`` (or ``dlib``) wheel and the model file from Debian's ``libdlib-data``
+    (``/usr/share/dlib/shape_predictor_68_face_landmarks.dat``) or the path in the environment
+    variable ``VOICEPUPPET_DLIB_MODEL``. Raises ``ValueError`` saying what to install, or when
+    no face is found. Returns (68, 2) float64.
+    """
+    try:
+        import dlib
+    except ImportError:
+        raise ValueError("--init auto needs a landmark detector: pip install dlib-bin and "
+                         "apt-get install libdlib-data (dlib's 68-point model), or pass the first-frame "
+                         'points with --init points.json ({"points": [[x, y], ...]})') from None
+    candidates = [os.environ.get("VOICEPUPPET_DLIB_MODEL", "")] + list(DLIB_MODEL_PATHS)
+    model = next((c for c in candidates if c and Path(c).is_file()), None)
+    if model is None:
+        raise ValueError("--init auto found dlib but not its 68-point model: apt-get install libdlib-data, "
+                         "or set VOICEPUPPET_DLIB_MODEL to shape_predictor_68_face_landmarks.dat, "
+                         "or pass the first-frame points with --init points.json")
+    g = _grey(frame, 0, None)
+    detector = dlib.get_frontal_face_detector()
+    faces = []
+    for upsample in (0, 1, 2):
+        faces = list(detector(g, upsample))
+        if faces:
+            break
+    if not faces:
+        raise ValueError("--init auto found no face on the first frame; pass the points with --init points.json")
+    face = max(faces, key=lambda r: r.width() * r.height())
+    shape = dlib.shape_predictor(model)(g, face)
+    return np.array([[shape.part(i).x, shape.part(i).y] for i in range(shape.num_parts)], dtype=np.float64)
+
+
+def _atomic(path: Path, write: Callable[[Path], None]) -> None:
+    tmp = path.with_name(f".{path.name}.partial{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def save_landmarks(path: str | os.PathLike, result: TrackResult, csv: bool = True) -> list[Path]:
+    """Writes ``result`` as ``.npz`` (``points`` [T, P, 2], ``fps``, ``confidence`` [T, P],
+    ``lost`` [T, P], ``edges``, optional ``names``) and a ``.csv`` twin (``frame, time, x0, y0,
+    ...``), each through a temporary file and a rename. Returns the paths written."""
+    path = Path(path)
+    if path.suffix.lower() != ".npz":
+        raise ValueError(f"landmarks path must end in .npz, got {str(path)!r}")
+    if not path.parent.exists():
+        raise ValueError(f"output directory {str(path.parent)!r} does not exist; create it first")
+    arrays = {"points": result.points.astype(np.float64), "fps": np.float64(result.fps),
+              "confidence": result.confidence.astype(np.float64), "lost": result.lost.astype(bool),
+              "edges": result.edges.astype(np.int64)}
+    if result.names is not None:
+        arrays["names"] = np.asarray(result.names, dtype=str)
+
+    def write_npz(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+
+    _atomic(path, write_npz)
+    written = [path]
+    if csv:
+        T, P, _ = result.points.shape
+        header = "frame,time," + ",".join(f"x{i},y{i}" for i in range(P))
+        table = np.column_stack([np.arange(T), np.arange(T) / result.fps, result.points.reshape(T, -1)])
+        csv_path = path.with_suffix(".csv")
+
+        def write_csv(tmp: Path) -> None:
+            fmt = ["%d", "%.6f"] + ["%.4f"] * (2 * P)
+            np.savetxt(tmp, table, fmt=fmt, delimiter=",", header=header, comments="")
+
+        _atomic(csv_path, write_csv)
+        written.append(csv_path)
+    return written
+
+
+def load_landmarks(path: str | os.PathLike) -> dict:
+    """Reads a landmarks ``.npz`` back as a dict of arrays (``points``, ``fps``, ...)."""
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+# ----------------------------------------------------------------------------------- CLI
+
+def _cli(args) -> int:
+    from tqdm.auto import tqdm
+
+    from voicepuppet import video
+
+    init = args.init
+    if init != "auto" and not Path(init).is_file():
+        raise ValueError(f"--init {init!r} is neither 'auto' nor an existing points file")
+    out = Path(args.output)
+    if out.suffix.lower() != ".npz":
+        raise ValueError(f"-o must name a .npz file, got {str(out)!r}")
+    result = track_video(args.video, init, passes=args.passes, progress=not args.quiet,
+                         patch_radius=args.patch_radius, levels=args.levels)
+    written = save_landmarks(out, result)
+    if args.overlay:
+        with tqdm(total=len(result.points), desc="overlay", unit="frame", disable=args.quiet, leave=False) as bar:
+            video.write_overlay(args.overlay, video.iter_frames(args.video, grey=False), result.points,
+                                result.lost, result.fps, result.edges, progress=bar.update)
+        written.append(Path(args.overlay))
+    T, P, _ = result.points.shape
+    for row in result.passes:
+        change = row["max_rel_length_change"]
+        moved = row["mean_point_change"]
+        print(f"pass {row['pass']}: lost {100 * row['lost_fraction']:.1f}% of point-frames"
+              + (f", points moved {moved:.3f} px on average from the previous pass" if moved is not None else "")
+              + (f", spring lengths re-estimated (largest change {100 * change:.1f}%)" if change is not None else ""))
+    print(f"tracked {P} points through {T} frames; wrote {', '.join(str(w) for w in written)}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("track", help="track facial landmarks through a video (spring-mesh SSD tracker)",
+                       description="Track facial landmarks through a video with the spring-mesh SSD "
+                                   "tracker of Voice Puppetry §4.1; writes landmarks.npz and a .csv twin.")
+    p.add_argument("video", help="input video (anything OpenCV decodes)")
+    p.add_argument("-o", "--output", required=True, metavar="LANDMARKS.npz", help="output landmarks (.npz; a .csv twin is written beside it)")
+    p.add_argument("--init", default="auto", metavar="POINTS.json|auto",
+                   help='first-frame points: JSON {"points": [[x, y], ...]} or CSV x,y rows, or "auto" '
+                        "(dlib 68-point detector; needs dlib-bin and libdlib-data). Default: auto")
+    p.add_argument("--overlay", metavar="OUT.mp4", help="also write a video with the tracked mesh drawn on it")
+    p.add_argument("--passes", type=int, default=2, help="tracking passes with spring re-estimation between them (default 2)")
+    p.add_argument("--patch-radius", type=int, default=6, help="SSD patch radius in pixels (default 6: 13x13)")
+    p.add_argument("--levels", type=int, default=3, help="image pyramid levels (default 3)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cli)

