@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <vector>
 
 namespace voicepuppet {
@@ -197,7 +198,8 @@ template <class Provider>
 RowMatrixXd solve_full(Provider& p, Index n_frames, Index d) {
   RowMatrixXd y(n_frames, d);  // holds z_t (forward sweep) then y_t
   const Index psz = packed_size(d);
-  std::vector<double> factors(static_cast<size_t>(n_frames * psz));
+  // not zero-initialised: every entry is written by pack_lower before it is read
+  std::unique_ptr<double[]> factors(new double[static_cast<size_t>(n_frames * psz)]);
   MatrixXd q(d, d), prev(d, d), w(d, d);
   VectorXd g(d), v(d);
   PivotRange range;
@@ -217,13 +219,13 @@ RowMatrixXd solve_full(Provider& p, Index n_frames, Index d) {
     factor_block(q, t, range);
     q.triangularView<Eigen::Lower>().solveInPlace(g);
     y.row(t) = g.transpose();
-    pack_lower(q, factors.data() + t * psz);
+    pack_lower(q, factors.get() + t * psz);
     std::swap(q, prev);
   }
   // backward: y_t = L_t⁻ᵀ (z_t − L_t⁻¹ H[t,t+1] y_{t+1})
-  packed_backward(factors.data() + (n_frames - 1) * psz, d, y.row(n_frames - 1).data());
+  packed_backward(factors.get() + (n_frames - 1) * psz, d, y.row(n_frames - 1).data());
   for (Index t = n_frames - 2; t >= 0; --t) {
-    const double* lt = factors.data() + t * psz;
+    const double* lt = factors.get() + t * psz;
     v.noalias() = p.up(t + 1) * y.row(t + 1).transpose();
     packed_forward(lt, d, v.data());
     double* yt = y.row(t).data();
