@@ -402,6 +402,9 @@ def test_cli_features(tmp_path, capsys):
         assert z["features"].shape == (25, 26)
         assert float(z["fps"]) == 25.0
         assert list(z["names"][:2]) == ["mfcc0", "mfcc1"]
+    assert main(["features", str(wav), "-o", str(out), "--frames", "31"]) == 0
+    with np.load(out) as z:
+        assert z["features"].shape == (31, 24)  # the default "puppet" set at 29.97 fps
     assert main(["features", str(tmp_path / "nope.wav"), "-o", str(out)]) == 2
     assert "no such file" in capsys.readouterr().err
     assert main(["features", str(wav), "-o", str(tmp_path / "x.txt")]) == 2
@@ -480,3 +483,17 @@ def test_integer_pcm_is_scaled_to_full_scale():
     assert np.max(np.abs(a.samples)) == pytest.approx(0.5, abs=1e-3)
     u = (128 + 64 * np.sin(np.arange(RATE) * 0.1)).astype(np.uint8)
     assert np.max(np.abs(audio.prepare(u, RATE).samples)) == pytest.approx(0.5, abs=0.02)
+
+
+def test_n_out_matches_a_video_frame_count():
+    x = 0.1 * np.sin(np.arange(RATE) * 0.2)  # 1 s
+    a = audio.prepare(x, RATE)
+    full = audio.extract(a, fps=25.0, features="prosody")
+    longer = audio.extract(a, fps=25.0, features="prosody", n_out=30)
+    shorter = audio.extract(a, fps=25.0, features="prosody", n_out=10)
+    assert len(full) == 25 and len(longer) == 30 and len(shorter) == 10
+    assert np.all(np.isfinite(longer.values))
+    np.testing.assert_allclose(longer.column("log_energy")[28:], -100.0, atol=1e-6)
+    np.testing.assert_allclose(shorter.column("log_energy"), full.column("log_energy")[:10])
+    with pytest.raises(ValueError, match="n_out"):
+        audio.extract(a, n_out=0)

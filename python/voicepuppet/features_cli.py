@@ -21,7 +21,7 @@ def _run(args) -> int:
     if not args.output.endswith(".npz"):
         raise UserError(f"output must end in .npz, got {args.output!r}")
     sound = audio.load_audio(args.input, rate=args.rate)
-    feats = audio.extract(sound, fps=args.fps, features=fset, progress=True)
+    feats = audio.extract(sound, fps=args.fps, features=fset, n_out=args.frames, progress=True)
     feats.save(args.output)
     print(f"{args.input}: {sound.duration:.2f} s at {sound.source_rate} Hz "
           f"({sound.channels} ch) -> {len(feats)} frames x {len(feats.names)} features "
@@ -43,6 +43,9 @@ def add_parser(sub) -> None:
                    help="named feature set (default: puppet)")
     p.add_argument("--features", help=f"comma-separated features from: {', '.join(FEATURES)}")
     p.add_argument("--deltas", action="store_true", help="add MFCC deltas")
+    p.add_argument("--frames", type=int, default=None,
+                   help="number of output frames (e.g. the video's frame count; default: "
+                        "ceil(duration * fps))")
     p.add_argument("--rate", type=int, default=16000,
                    help="analysis sample rate in Hz (default 16000)")
     p.set_defaults(func=_run)

@@ -234,8 +234,8 @@ def _feature_of(col: str) -> str:
     return _PREFIX.get(head, head)
 
 
-def extract(source, fps: float = 29.97, features=None, *, progress: bool = False,
-            **options) -> Features:
+def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = None,
+            progress: bool = False, **options) -> Features:
     """Compute a feature set at video frame times.
 
     Parameters
@@ -246,6 +246,9 @@ def extract(source, fps: float = 29.97, features=None, *, progress: bool = False
         Output frame rate (default NTSC 29.97); frame ``k`` is centred at ``k / fps``.
     features : FeatureSet, str or list of str, optional
         A set (default ``"puppet"``), a set name, or feature names.
+    n_out : int, optional
+        Number of output frames, e.g. the frame count of the video the audio belongs to
+        (default ``ceil(duration * fps)``); frames past the end of the audio see silence.
     progress : bool
         Show a tqdm progress bar over the analysis stages.
     **options
@@ -254,7 +257,7 @@ def extract(source, fps: float = 29.97, features=None, *, progress: bool = False
     Returns
     -------
     Features
-        ``values`` (ceil(duration * fps), D), all finite.
+        ``values`` (T, D), all finite, ``T = n_out`` or ``ceil(duration * fps)``.
     """
     from . import lpc as lpc_mod
     from . import pitch as pitch_mod
@@ -268,7 +271,12 @@ def extract(source, fps: float = 29.97, features=None, *, progress: bool = False
     opt = fset.settings()
     audio = source if isinstance(source, Audio) else load_audio(source)
     x, rate = audio.samples, audio.rate
-    T = n_frames(x.shape[0], rate, fps)
+    if n_out is None:
+        T = n_frames(x.shape[0], rate, fps)
+    elif isinstance(n_out, (int, np.integer)) and not isinstance(n_out, bool) and n_out >= 1:
+        T = int(n_out)
+    else:
+        raise ValueError(f"n_out must be a positive whole number of frames, got {n_out!r}")
     want = set(fset.features)
     window_s = float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
     cols: dict[str, tuple[list[str], np.ndarray]] = {}
