@@ -20,8 +20,8 @@ def _peers():
         import librosa
         import parselmouth
     except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise RuntimeError("bench audio needs librosa and praat-parselmouth: "
-                           "pip install librosa praat-parselmouth") from exc
+        raise ValueError("the audio benchmark compares against librosa and Praat: "
+                         "pip install librosa praat-parselmouth") from exc
     return librosa, parselmouth
 
 
@@ -29,7 +29,11 @@ def _speech(seconds: float):
     from voicepuppet import audio
     from voicepuppet.audio import samples
 
-    a = audio.load_audio(samples.arctic_a0009())
+    try:
+        path = samples.arctic_a0009()
+    except RuntimeError as exc:  # no network or pip: say so in one line
+        raise ValueError(f"the audio benchmark needs real speech: {exc}") from exc
+    a = audio.load_audio(path)
     reps = int(np.ceil(seconds / a.duration))
     x = np.tile(a.samples, reps)[:int(seconds * a.rate)]
     return audio.prepare(x, a.rate)
