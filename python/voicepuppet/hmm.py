@@ -89,6 +89,15 @@ class GaussianHMM:
         ``m`` (means), ``c`` (covariances). As in hmmlearn.
     progress : bool
         Show a progress bar during :meth:`fit`.
+    prior : {None, "entropic"}
+        None: maximum likelihood (Baum-Welch). "entropic": MAP under Brand's entropic prior,
+        trained by :func:`voicepuppet.entropic.fit_entropic` (``history_`` then also holds
+        ``log_posterior``, ``states`` and ``arcs`` per iteration; states may be trimmed).
+    z : float or sequence of float
+        Weight of the entropic prior (1: minimum entropy; 0: maximum likelihood; < 0: high
+        temperature), or one value per iteration (see :func:`voicepuppet.entropic.anneal_schedule`).
+    trim : bool
+        With the entropic prior, trim arcs and states whenever that raises the log posterior.
 
     Attributes
     ----------
@@ -103,7 +112,8 @@ class GaussianHMM:
 
     def __init__(self, n_states: int = 1, covariance: str = "full", *, n_iter: int = 10,
                  tol: float = 1e-2, min_covar: float = 1e-3, random_state: int = 0,
-                 init_params: str = "stmc", params: str = "stmc", progress: bool = False):
+                 init_params: str = "stmc", params: str = "stmc", progress: bool = False,
+                 prior: str | None = None, z=1.0, trim: bool = True):
         if int(n_states) != n_states or n_states < 1:
             raise ValueError(f"n_states must be a positive integer, got {n_states!r}")
         if covariance not in ("full", "diag"):
@@ -124,6 +134,14 @@ class GaussianHMM:
         self.init_params = init_params
         self.params = params
         self.progress = bool(progress)
+        if prior not in (None, "entropic"):
+            raise ValueError(f"prior must be None (maximum likelihood) or 'entropic', got {prior!r}")
+        z_values = np.atleast_1d(np.asarray(z, dtype=np.float64))
+        if z_values.ndim != 1 or z_values.size == 0 or not np.all(np.isfinite(z_values)):
+            raise ValueError(f"z must be a finite number or a 1-D sequence of them, got {z!r}")
+        self.prior = prior
+        self.z = z
+        self.trim = bool(trim)
         self.history_: list[dict] = []
         self._variance_floor = 0.0
 
@@ -286,6 +304,11 @@ class GaussianHMM:
         -------
         self
         """
+        if self.prior == "entropic":
+            from voicepuppet.entropic import fit_entropic
+
+            fit_entropic(self, X, lengths)
+            return self
         X, lengths = check_sequences(X, lengths)
         self._init(X)
         self._check_params()
