@@ -16,6 +16,8 @@ VERB_MODULES = [
     "voicepuppet.info",
     "voicepuppet.tracking",
     "voicepuppet.features_cli",
+    "voicepuppet.render",
+    "voicepuppet.export",
     "voicepuppet.bench",
 ]
 

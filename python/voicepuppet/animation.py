@@ -1,0 +1,293 @@
+"""Landmark animations: the file format users exchange, validation, atomic writes.
+
+An animation is ``points`` float64 [T, P, 2] (pixel coordinates x, y), ``fps`` and optional
+``names`` [P] and ``confidence`` [T, P]. On disk (DESIGN.md, "Files users exchange") it is an
+``.npz`` with those arrays, or a ``.csv`` twin with one row per frame:
+``frame,time,x0,y0,x1,y1,...``.
+
+Also here: :func:`atomic_path`, the temp-file-then-rename helper every writer of the package
+can use, and :func:`neutral_landmarks` / :func:`procedural_animation`, a parametric 68-point
+face with planted jaw, smile, pucker, brow and blink motion for demos, tests and benchmarks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Optional
+
+import numpy as np
+
+from voicepuppet import face_layout
+
+__all__ = ["Animation", "load_animation", "save_animation", "check_points", "atomic_path",
+           "check_output_path", "neutral_landmarks", "procedural_animation"]
+
+
+def check_points(points, name: str = "points", n_points: Optional[int] = None) -> np.ndarray:
+    """Validates landmark frames: float64 [T, P, 2], finite. Returns a C-contiguous copy.
+
+    Raises ``ValueError`` naming ``name``, what was expected and what came.
+    """
+    try:
+        arr = np.array(points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be numbers of shape (T, P, 2); could not convert: {exc}") from None
+    if arr.ndim != 3 or arr.shape[2] != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ValueError(f"{name} must have shape (T, P, 2) with T >= 1 frames of P >= 1 (x, y) points, "
+                         f"got {arr.shape}; a single frame of shape (P, 2) needs a leading axis")
+    if n_points is not None and arr.shape[1] != n_points:
+        raise ValueError(f"{name} must have {n_points} points per frame to match the face mesh, got "
+                         f"{arr.shape[1]}; use landmarks in the same layout as the face's points")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        t, p, _ = np.argwhere(bad)[0]
+        raise ValueError(f"{name} must be finite, got {int(bad.sum())} NaN/inf values (first at frame {t}, "
+                         f"point {p}); fill lost points (e.g. interpolate) before rendering or exporting")
+    return np.ascontiguousarray(arr)
+
+
+def _check_fps(fps) -> float:
+    try:
+        value = float(fps)
+    except (TypeError, ValueError):
+        raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}") from None
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(f"fps must be a positive finite number of frames per second, got {value}")
+    return value
+
+
+@dataclass
+class Animation:
+    """A landmark animation.
+
+    Attributes
+    ----------
+    points : ndarray, shape (T, P, 2)
+        pixel coordinates (x right, y down) per frame.
+    fps : float
+        frames per second; frame ``t`` is shown at time ``t / fps``.
+    names : list of str or None, length P
+    confidence : ndarray, shape (T, P), or None
+    """
+
+    points: np.ndarray
+    fps: float
+    names: Optional[list] = None
+    confidence: Optional[np.ndarray] = None
+
+    def __post_init__(self):
+        self.points = check_points(self.points)
+        self.fps = _check_fps(self.fps)
+        T, P, _ = self.points.shape
+        if self.names is not None:
+            self.names = [str(n) for n in self.names]
+            if len(self.names) != P:
+                raise ValueError(f"names must have one entry per point ({P}), got {len(self.names)}")
+        if self.confidence is not None:
+            conf = np.asarray(self.confidence, dtype=np.float64)
+            if conf.shape != (T, P):
+                raise ValueError(f"confidence must have shape ({T}, {P}), got {conf.shape}")
+            self.confidence = conf
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def n_points(self) -> int:
+        return int(self.points.shape[1])
+
+    @property
+    def duration(self) -> float:
+        """Seconds covered by the frames: ``T / fps``."""
+        return self.n_frames / self.fps
+
+    @property
+    def times(self) -> np.ndarray:
+        """Frame times ``t / fps``, shape (T,)."""
+        return np.arange(self.n_frames) / self.fps
+
+
+def check_output_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Path:
+    """Checks that ``path`` can be written: known suffix, existing writable folder.
+
+    Raises ``ValueError`` saying what to do otherwise. Returns ``Path(path)``.
+    """
+    p = Path(path)
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise ValueError(f"{what} {str(p)!r} has an unknown format {p.suffix or '(no suffix)'!r}; "
+                         f"use one of {', '.join(suffixes)}")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise ValueError(f"{what} folder {str(parent)!r} does not exist; create it first")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{what} folder {str(parent)!r} is not writable; choose another output path")
+    if p.is_dir():
+        raise ValueError(f"{what} {str(p)!r} is a folder; give a file name")
+    return p
+
+
+@contextlib.contextmanager
+def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Iterator[Path]:
+    """Yields a temporary path next to ``path``; on success it is renamed onto ``path``.
+
+    On any exception the temporary file is removed and ``path`` is untouched, so a reader never
+    sees a half-written file. The temporary name keeps the suffix (writers that dispatch on it
+    still work).
+    """
+    p = check_output_path(path, suffixes, what)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".partial{p.suffix}", dir=p.parent or ".")
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, p)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def _csv_header(P: int) -> str:
+    return "frame,time," + ",".join(f"x{i},y{i}" for i in range(P))
+
+
+def save_animation(anim: Animation, path) -> Path:
+    """Writes ``anim`` as ``.npz`` or ``.csv`` (chosen by the suffix), atomically."""
+    with atomic_path(path, (".npz", ".csv"), "animation file") as tmp:
+        if tmp.suffix == ".npz":
+            arrays = {"points": anim.points, "fps": np.float64(anim.fps)}
+            if anim.names is not None:
+                arrays["names"] = np.asarray(anim.names, dtype=str)
+            if anim.confidence is not None:
+                arrays["confidence"] = anim.confidence
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **arrays)
+        else:
+            T, P, _ = anim.points.shape
+            table = np.column_stack([np.arange(T), anim.times, anim.points.reshape(T, -1)])
+            np.savetxt(tmp, table, fmt=["%d", "%.9g"] + ["%.9g"] * (2 * P), delimiter=",",
+                       header=_csv_header(P), comments="")
+    return Path(path)
+
+
+def load_animation(path, fps: Optional[float] = None) -> Animation:
+    """Reads an animation from ``.npz`` (``points``, ``fps``, optional ``names``,
+    ``confidence``) or ``.csv`` (``frame,time,x0,y0,...``; fps from the time column unless
+    given).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"animation file {str(p)!r} does not exist")
+    suffix = p.suffix.lower()
+    if suffix == ".npz":
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"animation file {str(p)!r} is not a readable .npz: {exc}") from None
+        if "points" not in data:
+            raise ValueError(f"animation file {str(p)!r} has no 'points' array (T, P, 2); found "
+                             f"{sorted(data)}")
+        if fps is None:
+            if "fps" not in data:
+                raise ValueError(f"animation file {str(p)!r} has no 'fps'; pass the frame rate")
+            fps = float(np.asarray(data["fps"]).reshape(-1)[0])
+        names = [str(n) for n in data["names"]] if "names" in data else None
+        return Animation(check_points(data["points"], f"points in {str(p)!r}"), fps, names,
+                         data.get("confidence"))
+    if suffix == ".csv":
+        try:
+            table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as exc:
+            raise ValueError(f"animation file {str(p)!r} is not a 'frame,time,x0,y0,...' CSV: {exc}") from None
+        if table.shape[1] < 4 or (table.shape[1] - 2) % 2:
+            raise ValueError(f"animation file {str(p)!r} must have columns frame,time,x0,y0,...; got "
+                             f"{table.shape[1]} columns")
+        if fps is None:
+            if table.shape[0] < 2:
+                raise ValueError(f"animation file {str(p)!r} has one frame; pass fps explicitly")
+            fps = 1.0 / float(np.median(np.diff(table[:, 1])))
+        points = table[:, 2:].reshape(table.shape[0], -1, 2)
+        return Animation(check_points(points, f"points in {str(p)!r}"), fps)
+    raise ValueError(f"animation file {str(p)!r} has an unknown format {p.suffix!r}; use .npz or .csv")
+
+
+# ------------------------------------------------------------------ a parametric 68-point face
+
+def _arc(cx, cy, rx, ry, a0, a1, n):
+    a = np.linspace(a0, a1, n)
+    return np.column_stack([cx + rx * np.cos(a), cy + ry * np.sin(a)])
+
+
+def neutral_landmarks(width: int = 320, height: int = 320) -> np.ndarray:
+    """A frontal neutral face in the 68-point layout of :mod:`voicepuppet.face_layout`,
+    centred in a ``width`` x ``height`` image, mouth closed. Returns (68, 2) float64.
+    """
+    s = min(width, height) / 380.0
+    cx, cy = width / 2.0, height / 2.0
+    pts = np.zeros((68, 2))
+    # jaw 0..16: from the subject's right temple (image left) under the chin to the left temple
+    theta = np.linspace(0.0, np.pi, 17)
+    pts[0:17] = np.column_stack([cx - 105 * s * np.cos(theta), cy - 10 * s + 130 * s * np.sin(theta)])
+    # brows 17..26 (arched upwards: y smaller in the middle)
+    pts[17:22] = _arc(cx - 52 * s, cy - 58 * s, 34 * s, 10 * s, np.pi, 2 * np.pi, 5)
+    pts[22:27] = _arc(cx + 52 * s, cy - 58 * s, 34 * s, 10 * s, np.pi, 2 * np.pi, 5)
+    # nose bridge 27..30, nose base 31..35
+    pts[27:31] = np.column_stack([np.full(4, cx), cy + np.linspace(-42, 8, 4) * s])
+    pts[31:36] = np.column_stack([cx + np.linspace(-20, 20, 5) * s, cy + (18 - 4 * np.cos(np.linspace(-1.2, 1.2, 5))) * s])
+    # eyes 36..47: corner, two upper lid points, corner, two lower lid points
+    for start, ex in ((36, cx - 45 * s), (42, cx + 45 * s)):
+        a = np.array([np.pi, 4 * np.pi / 3, 5 * np.pi / 3, 0.0, np.pi / 3, 2 * np.pi / 3])
+        pts[start:start + 6] = np.column_stack([ex + 20 * s * np.cos(a), cy - 30 * s + 9 * s * np.sin(a)])
+    # outer lip 48..59: corner (48), upper lip to the other corner (54), lower lip back
+    my = cy + 62 * s
+    a = np.linspace(np.pi, 2 * np.pi, 7)
+    upper = np.column_stack([cx + 42 * s * np.cos(a), my + 14 * s * np.sin(a)])
+    upper[3, 1] += 4 * s  # the Cupid's bow dip
+    b = np.linspace(0.0, np.pi, 7)[1:-1]
+    lower = np.column_stack([cx + 42 * s * np.cos(b), my + 16 * s * np.sin(b)])
+    pts[48:55] = upper
+    pts[55:60] = lower
+    # inner lip 60..67: corner, three upper, corner, three lower; closed mouth: lips touch
+    ai = np.linspace(np.pi, 2 * np.pi, 5)
+    pts[60:65] = np.column_stack([cx + 30 * s * np.cos(ai), my + 1.5 * s * np.sin(ai)])
+    bi = np.linspace(0.0, np.pi, 5)[1:-1]
+    pts[65:68] = np.column_stack([cx + 30 * s * np.cos(bi), my + 1.5 * s * np.sin(bi)])
+    return pts
+
+
+def procedural_animation(n_frames: int = 60, fps: float = 30.0, *, width: int = 320,
+                         height: int = 320, jaw=None, smile=None, seed: Optional[int] = None) -> Animation:
+    """A neutral face (:func:`neutral_landmarks`) with planted mouth motion.
+
+    ``jaw`` and ``smile`` are per-frame amounts in [0, 1] (default: a jaw opening at about
+    2.5 Hz and a slow smile). Jaw 1 lowers the lower lip and chin by 0.5 inter-ocular
+    distances; smile 1 pulls the lip corners out and up by 0.15. ``seed`` adds small seeded
+    landmark noise (0.2 px). Returns an :class:`Animation` with ``names`` from the layout.
+    """
+    if n_frames < 1:
+        raise ValueError(f"n_frames must be >= 1, got {n_frames}")
+    t = np.arange(n_frames) / float(fps)
+    jaw = 0.5 - 0.5 * np.cos(2 * np.pi * 2.5 * t) if jaw is None else np.broadcast_to(np.asarray(jaw, float), (n_frames,))
+    smile = 0.5 - 0.5 * np.cos(2 * np.pi * 0.5 * t) if smile is None else np.broadcast_to(np.asarray(smile, float), (n_frames,))
+    base = neutral_landmarks(width, height)
+    iod = float(face_layout.inter_ocular_distance(base))
+    pts = np.repeat(base[None], n_frames, axis=0)
+    # jaw: lower lip, inner lower lip and chin move down; jaw sides follow partially
+    lower = np.r_[55:60, 65:68]
+    weights = np.zeros(68)
+    weights[lower] = 1.0
+    weights[[54, 48, 60, 64]] = 0.5
+    weights[0:17] = np.sin(np.linspace(0.0, np.pi, 17)) ** 2
+    pts[:, :, 1] += jaw[:, None] * weights[None, :] * 0.5 * iod
+    # smile: corners out and up
+    for idx, sign in (([48, 60], -1.0), ([54, 64], 1.0)):
+        pts[:, idx, 0] += sign * smile[:, None] * 0.15 * iod
+        pts[:, idx, 1] -= smile[:, None] * 0.15 * iod
+    if seed is not None:
+        pts += np.random.default_rng(seed).normal(scale=0.2, size=pts.shape)
+    return Animation(pts, fps, list(face_layout.NAMES))

@@ -1,0 +1,783 @@
+"""A textured low-polygon face driven by landmark animations, rendered off screen (Brand §4.6).
+
+The face mesh comes from a photo and its landmarks: the landmarks, two rings of border points
+around them and a frame on the image edge are triangulated (scipy's Delaunay, about 200
+triangles), lifted to 3-D with a smooth depth profile (an ellipsoidal cap plus a nose bump)
+and texture-mapped with the photo. Any face whose points correspond to the animation's
+(a cartoon, an animal) works the same way (§6, figure 7).
+
+Driving, two ways:
+
+- ``mode="vertex"``: landmark displacements move the landmark vertices; every other vertex
+  moves by a thin-plate-spline interpolation (scipy's ``RBFInterpolator``) of them, with the
+  image frame held still.
+- ``mode="au"``: an action-unit basis on the mesh (:data:`ACTION_UNITS`: jaw open, lip corner
+  pulls, pucker, lip press, upper lip raise, brow raise, blinks) with per-frame least-squares
+  activations; the landmark motion outside the basis span is dropped (reported by
+  :func:`fit_activations`).
+
+The animation is retargeted first: its displacements from its own neutral frame are mapped
+onto the photo's landmarks through the similarity transform (scale, rotation) between the two
+neutral shapes.
+
+Rendering uses pyvista off screen (headless EGL with Mesa: ``VTK_DEFAULT_OPENGL_WINDOW=
+vtkEGLRenderWindow``, set here unless already set) with a parallel camera over the image, so
+the neutral frame reproduces the photo. Outputs: ``.mp4`` (H.264 through imageio-ffmpeg, the
+audio muxed in from the start, cut to the animation's duration), ``.gif``, a folder of
+``.png`` frames; a side-by-side comparison (prediction | ground truth); a fast 2-D landmark
+drawing instead of the mesh (``renderer="2d"``).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Iterator, Optional, Sequence
+
+import numpy as np
+
+from voicepuppet import face_layout
+from voicepuppet.animation import Animation, atomic_path, check_output_path, check_points
+
+__all__ = ["FaceMesh", "build_face_mesh", "portrait_image", "ACTION_UNITS", "action_unit_basis",
+           "fit_activations", "retarget", "mesh_animation", "FaceRenderer", "draw_landmarks_2d",
+           "render_frames", "write_video", "render", "VIDEO_SUFFIXES"]
+
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+#: action units of the basis, in column order; activation 1 is a full expression
+ACTION_UNITS = ("jaw_open", "smile_right", "smile_left", "pucker", "lip_press", "upper_lip_raise",
+                "brow_raise", "blink_right", "blink_left")
+
+_MOUTH_COLOUR = (70, 18, 24)
+
+
+# ------------------------------------------------------------------------------ the mesh
+
+@dataclass
+class FaceMesh:
+    """A textured face mesh in image coordinates.
+
+    Attributes
+    ----------
+    vertices : ndarray, shape (V, 3)
+        x, y in pixels (y down, as in the image) and depth z in pixels (towards the viewer).
+        The first ``n_landmarks`` vertices are the landmarks, in order.
+    faces : ndarray, shape (F, 3), int64
+        triangles (counter-clockwise on screen).
+    mouth : ndarray, shape (F,), bool
+        faces inside the inner lip contour (drawn as the dark mouth cavity, not textured).
+    uv : ndarray, shape (V, 2)
+        texture coordinates (u right, v up) into ``image``.
+    image : ndarray, shape (H, W, 3), uint8
+    n_landmarks : int
+    fixed : ndarray, shape (V,), bool
+        vertices that never move (the image frame).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    mouth: np.ndarray
+    uv: np.ndarray
+    image: np.ndarray
+    n_landmarks: int
+    fixed: np.ndarray
+    _interp: Optional[np.ndarray] = field(default=None, repr=False)
+
+    @property
+    def landmarks(self) -> np.ndarray:
+        """The neutral landmark positions, (P, 2)."""
+        return self.vertices[: self.n_landmarks, :2]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of the photo."""
+        return int(self.image.shape[1]), int(self.image.shape[0])
+
+    def interpolation_matrix(self) -> np.ndarray:
+        """(V, P) linear map from landmark displacements to vertex displacements: identity on
+        the landmarks, zero on the fixed frame, a thin-plate spline elsewhere."""
+        if self._interp is None:
+            from scipy.interpolate import RBFInterpolator
+
+            P = self.n_landmarks
+            ctrl = np.vstack([self.landmarks, self.vertices[self.fixed, :2]])
+            values = np.zeros((len(ctrl), P))
+            values[:P] = np.eye(P)
+            rbf = RBFInterpolator(ctrl, values, kernel="thin_plate_spline")
+            M = rbf(self.vertices[:, :2])
+            M[:P] = np.eye(P)
+            M[self.fixed] = 0.0
+            self._interp = M
+        return self._interp
+
+
+def _ellipse(centre, radii, n, phase=0.0):
+    a = phase + np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    return np.column_stack([centre[0] + radii[0] * np.cos(a), centre[1] + radii[1] * np.sin(a)])
+
+
+def _frame_points(width, height, per_side=4):
+    s = np.linspace(0.0, 1.0, per_side + 1)[:-1]
+    w, h = width - 1.0, height - 1.0
+    top = np.column_stack([s * w, np.zeros_like(s)])
+    right = np.column_stack([np.full_like(s, w), s * h])
+    bottom = np.column_stack([w - s * w, np.full_like(s, h)])
+    left = np.column_stack([np.zeros_like(s), h - s * h])
+    return np.vstack([top, right, bottom, left])
+
+
+def _topology_shape(landmarks: np.ndarray) -> np.ndarray:
+    """Landmarks with the inner lips pulled apart (68-point layout), so the triangulation has
+    the inner lip contour as edges whether the photo's mouth is open or closed."""
+    topo = landmarks.copy()
+    if len(landmarks) != face_layout.N_POINTS:
+        return topo
+    mid = 0.5 * (landmarks[[61, 62, 63]] + landmarks[[67, 66, 65]])
+    topo[[61, 62, 63]] = mid + 0.5 * (landmarks[[50, 51, 52]] - mid)
+    topo[[67, 66, 65]] = mid + 0.5 * (landmarks[[58, 57, 56]] - mid)
+    return topo
+
+
+def _depth(xy: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    lo, hi = landmarks.min(axis=0), landmarks.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    radii = np.maximum(0.55 * (hi - lo), 1.0)
+    r2 = np.sum(((xy - centre) / radii) ** 2, axis=1)
+    z = 0.6 * radii[0] * np.sqrt(np.clip(1.0 - r2, 0.0, None))
+    if len(landmarks) == face_layout.N_POINTS:
+        tip = landmarks[30]
+        sigma = 0.12 * radii[0]
+        z += 0.25 * radii[0] * np.exp(-np.sum((xy - tip) ** 2, axis=1) / (2 * sigma ** 2))
+    return z
+
+
+def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float, int]] = ((1.2, 12), (1.5, 16)),
+                    frame_per_side: int = 4) -> FaceMesh:
+    """Builds the textured face mesh of a photo.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3) or (H, W), uint8 (or float in [0, 1])
+    landmarks : ndarray, shape (P, 2)
+        the face's points in pixels; with the 68-point layout the mouth cavity and the nose
+        bump are known.
+    rings : sequence of (scale, count)
+        border rings: ellipses around the landmarks' box, scaled from its half extents.
+    frame_per_side : int
+        fixed points per image edge.
+
+    With 68 landmarks the defaults give 96 vertices and about 180 triangles.
+    """
+    from scipy.spatial import Delaunay
+
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] not in (3, 4) or min(img.shape[:2]) < 8:
+        raise ValueError(f"image must be an (H, W, 3) RGB picture of at least 8x8 pixels, got shape {img.shape}")
+    if img.dtype != np.uint8:
+        img = np.clip(np.asarray(img, dtype=np.float64) * 255.0, 0, 255).astype(np.uint8)
+    img = np.ascontiguousarray(img[:, :, :3])
+    H, W = img.shape[:2]
+    lm = check_points(np.asarray(landmarks, dtype=np.float64)[None], "face landmarks")[0]
+    if len(lm) < 3:
+        raise ValueError(f"face landmarks must have at least 3 points, got {len(lm)}")
+    inside = (lm[:, 0] >= 0) & (lm[:, 0] <= W - 1) & (lm[:, 1] >= 0) & (lm[:, 1] <= H - 1)
+    if not inside.all():
+        raise ValueError(f"face landmarks must lie inside the {W}x{H} image; {int((~inside).sum())} "
+                         f"points are outside (first: {lm[~inside][0]}); were they made for another image?")
+    lo, hi = lm.min(axis=0), lm.max(axis=0)
+    if np.any(hi - lo < 4.0):
+        raise ValueError(f"face landmarks span {hi - lo} pixels; they must outline a face (spread in x and y)")
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    border = []
+    for scale, count in rings:
+        ring = _ellipse(centre, scale * half, count, phase=np.pi / count)
+        ring = np.clip(ring, 2.0, [W - 3.0, H - 3.0])
+        border.append(ring)
+    frame = _frame_points(W, H, frame_per_side)
+    pts = np.vstack([lm] + border + [frame])
+    # drop border points that collapsed onto another point (clipped rings in tight crops)
+    keep = np.ones(len(pts), bool)
+    P = len(lm)
+    for i in range(P, len(pts)):
+        d = np.linalg.norm(pts[:i][keep[:i]] - pts[i], axis=1)
+        if d.size and d.min() < 2.0:
+            keep[i] = False
+    keep[-len(frame):] = True
+    pts = pts[keep]
+    fixed = np.zeros(len(pts), bool)
+    fixed[-len(frame):] = True
+    topo = pts.copy()
+    topo[:P] = _topology_shape(lm)
+    tri = Delaunay(topo)
+    faces = tri.simplices.astype(np.int64)
+    # counter-clockwise on screen (y up): flip where the image-space (y down) area is positive
+    a, b, c = (pts[faces[:, k]] for k in range(3))
+    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    ta, tb, tc = (topo[faces[:, k]] for k in range(3))
+    tarea = (tb[:, 0] - ta[:, 0]) * (tc[:, 1] - ta[:, 1]) - (tb[:, 1] - ta[:, 1]) * (tc[:, 0] - ta[:, 0])
+    flip = tarea > 0
+    faces[flip] = faces[flip][:, [0, 2, 1]]
+    mouth = np.zeros(len(faces), bool)
+    if P == face_layout.N_POINTS:
+        inner = set(range(60, 68))
+        mouth = np.array([set(f.tolist()) <= inner for f in faces])
+    z = _depth(pts, lm)
+    z[fixed] = 0.0
+    vertices = np.column_stack([pts, z])
+    uv = np.column_stack([pts[:, 0] / (W - 1), 1.0 - pts[:, 1] / (H - 1)])
+    del area
+    return FaceMesh(vertices, faces, mouth, uv, img, P, fixed)
+
+
+def portrait_image(landmarks, width: int, height: int) -> np.ndarray:
+    """A drawn face for the 68-point layout (skin, brows, eyes, nose, lips) to texture the mesh
+    when no photo is given. Returns (height, width, 3) uint8."""
+    from PIL import Image, ImageDraw
+
+    lm = check_points(np.asarray(landmarks, dtype=np.float64)[None], "landmarks", face_layout.N_POINTS)[0]
+    im = Image.new("RGB", (int(width), int(height)), (92, 110, 136))
+    d = ImageDraw.Draw(im)
+    jaw = lm[0:17]
+    top = lm[17:27, 1].min()
+    centre_x = 0.5 * (jaw[0, 0] + jaw[16, 0])
+    rx = 0.5 * (jaw[16, 0] - jaw[0, 0])
+    ry = jaw[0, 1] - top + 0.35 * rx
+    a = np.linspace(0.0, np.pi, 24)
+    forehead = np.column_stack([centre_x + rx * np.cos(a), jaw[0, 1] - ry * np.sin(a)])
+    outline = np.vstack([jaw, forehead[1:-1]])
+    d.polygon([tuple(p) for p in outline], fill=(226, 180, 150))
+    tup = lambda idx: [tuple(p) for p in lm[idx]]  # noqa: E731
+    lw = max(2, int(rx / 30))
+    for g in ("right_brow", "left_brow"):
+        d.line(tup(list(face_layout.GROUPS[g])), fill=(80, 52, 38), width=2 * lw)
+    for g in ("right_eye", "left_eye"):
+        idx = list(face_layout.GROUPS[g])
+        d.polygon(tup(idx), fill=(245, 245, 245), outline=(60, 40, 30))
+        c = lm[idx].mean(axis=0)
+        r = 0.3 * np.ptp(lm[idx][:, 1]) + 1.0
+        d.ellipse([c[0] - r, c[1] - r, c[0] + r, c[1] + r], fill=(50, 70, 100))
+    d.line(tup(list(range(27, 31))), fill=(170, 120, 100), width=lw)
+    d.line(tup(list(range(31, 36))), fill=(150, 100, 85), width=lw)
+    d.polygon(tup(list(range(48, 60))), fill=(190, 80, 90))
+    d.line(tup(list(range(60, 65))), fill=(120, 40, 50), width=max(1, lw // 2))
+    return np.asarray(im)
+
+
+# ---------------------------------------------------------------- retargeting and AU basis
+
+def retarget(points: np.ndarray, reference: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Maps landmark motion onto another face: ``target + s R (points - reference)``.
+
+    ``s R`` is the similarity (scale, rotation) that best maps ``reference`` onto ``target``
+    (orthogonal Procrustes). Shapes: points (T, P, 2), reference and target (P, 2).
+    Returns the displacements (T, P, 2) to add to ``target``.
+    """
+    ref_c = reference - reference.mean(axis=0)
+    tgt_c = target - target.mean(axis=0)
+    u, sv, vt = np.linalg.svd(ref_c.T @ tgt_c)
+    d = np.sign(np.linalg.det(u @ vt))
+    D = np.diag([1.0, d])
+    R = u @ D @ vt  # row vectors: x_ref @ R ~ x_tgt
+    s = float(np.sum(sv * np.diag(D)) / max(np.sum(ref_c ** 2), 1e-300))
+    return s * (points - reference) @ R
+
+
+def action_unit_basis(landmarks) -> np.ndarray:
+    """The action-unit displacement fields on a 68-point face.
+
+    Parameters
+    ----------
+    landmarks : ndarray, shape (68, 2)
+        the neutral face (pixels); displacements scale with its inter-ocular distance.
+
+    Returns
+    -------
+    ndarray, shape (K, 68, 3)
+        per unit of :data:`ACTION_UNITS`: displacement of every landmark (x, y down, depth z).
+    """
+    lm = check_points(np.asarray(landmarks, dtype=np.float64)[None], "landmarks", face_layout.N_POINTS)[0]
+    iod = float(face_layout.inter_ocular_distance(lm))
+    B = np.zeros((len(ACTION_UNITS), 68, 3))
+    k = {name: i for i, name in enumerate(ACTION_UNITS)}
+    # jaw open: lower lip and chin down, corners half way, the jaw line by its distance from the temples
+    jaw = B[k["jaw_open"]]
+    w = np.zeros(68)
+    w[np.r_[55:60, 65:68]] = 1.0
+    w[[48, 54, 60, 64]] = 0.5
+    w[0:17] = np.sin(np.linspace(0.0, np.pi, 17)) ** 2
+    jaw[:, 1] = 0.5 * iod * w
+    # lip corner pulls (subject's right = image left: 48, 60; left: 54, 64): out and up
+    for name, corners, halves, sign in (("smile_right", [48, 60], [49, 59], -1.0),
+                                        ("smile_left", [54, 64], [53, 55], 1.0)):
+        S = B[k[name]]
+        S[corners, 0] = sign * 0.15 * iod
+        S[corners, 1] = -0.15 * iod
+        S[halves, 0] = sign * 0.06 * iod
+        S[halves, 1] = -0.06 * iod
+    # pucker: lips narrow towards the mouth centre and push forward
+    lips = np.r_[48:68]
+    mc = lm[lips].mean(axis=0)
+    B[k["pucker"], lips, 0] = -0.35 * (lm[lips, 0] - mc[0])
+    B[k["pucker"], lips, 2] = 0.12 * iod
+    # lip press: lips pressed together and thinned
+    B[k["lip_press"], [61, 62, 63], 1] = 0.05 * iod
+    B[k["lip_press"], [65, 66, 67], 1] = -0.05 * iod
+    B[k["lip_press"], [50, 51, 52], 1] = 0.04 * iod
+    B[k["lip_press"], [56, 57, 58], 1] = -0.04 * iod
+    # upper lip raise
+    B[k["upper_lip_raise"], np.r_[49:54, 61:64], 1] = -0.1 * iod
+    B[k["upper_lip_raise"], [48, 54, 60, 64], 1] = -0.04 * iod
+    # brow raise (negative activations lower the brows)
+    B[k["brow_raise"], 17:27, 1] = -0.12 * iod
+    # blinks: upper lids onto the lower lids
+    for name, upper, lower in (("blink_right", [37, 38], [41, 40]), ("blink_left", [43, 44], [47, 46])):
+        B[k[name], upper, 1] = lm[lower, 1] - lm[upper, 1]
+    return B
+
+
+def fit_activations(displacements, basis, *, bounds: Optional[tuple] = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame least-squares activations of an action-unit basis.
+
+    Parameters
+    ----------
+    displacements : ndarray, shape (T, P, 2)
+        landmark motion from the neutral face (x, y).
+    basis : ndarray, shape (K, P, 2) or (K, P, 3)
+        (depth ignored: it is not observed).
+    bounds : (lower, upper) arrays of shape (K,), optional
+        box constraints (scipy ``lsq_linear``); unconstrained otherwise (one QR solve for all
+        frames).
+
+    Returns
+    -------
+    activations : ndarray, shape (T, K)
+    rms_error : ndarray, shape (T,)
+        root-mean-square residual per landmark coordinate, in the displacement's units.
+    """
+    d = check_points(displacements, "displacements")
+    B = np.asarray(basis, dtype=np.float64)[..., :2]
+    T, P, _ = d.shape
+    if B.ndim != 3 or B.shape[1] != P:
+        raise ValueError(f"basis must have shape (K, {P}, 2|3) to match the displacements, got {B.shape}")
+    A = B.reshape(len(B), -1).T  # (2P, K)
+    Y = d.reshape(T, -1).T  # (2P, T)
+    if bounds is None:
+        X, *_ = np.linalg.lstsq(A, Y, rcond=None)
+        act = X.T
+    else:
+        from scipy.optimize import lsq_linear
+
+        lo, hi = (np.broadcast_to(np.asarray(b, float), (len(B),)) for b in bounds)
+        act = np.stack([lsq_linear(A, Y[:, t], bounds=(lo, hi), method="bvls").x for t in range(T)])
+    resid = Y - A @ act.T
+    return act, np.sqrt(np.mean(resid ** 2, axis=0))
+
+
+def mesh_animation(anim: Animation, mesh: FaceMesh, *, mode: str = "vertex",
+                   neutral: Optional[np.ndarray] = None) -> dict:
+    """Vertex positions of the mesh for every frame of ``anim``.
+
+    Parameters
+    ----------
+    anim : Animation with P points (the mesh's landmark count)
+    mesh : FaceMesh
+    mode : "vertex" or "au"
+    neutral : ndarray, shape (P, 2), optional
+        the animation's rest shape (default: its first frame).
+
+    Returns
+    -------
+    dict with ``vertices`` (T, V, 3) in image coordinates (x, y down, z), and for ``"au"``
+    ``activations`` (T, K), ``targets`` (K, V, 3) (vertex displacement per unit activation)
+    and ``rms_error`` (T,) in pixels of the photo.
+    """
+    if anim.n_points != mesh.n_landmarks:
+        raise ValueError(f"the animation has {anim.n_points} points per frame but the face mesh has "
+                         f"{mesh.n_landmarks} landmarks; give the face's points in the animation's layout")
+    ref = anim.points[0] if neutral is None else check_points(np.asarray(neutral)[None], "neutral",
+                                                              anim.n_points)[0]
+    disp = retarget(anim.points, ref, mesh.landmarks)
+    M = mesh.interpolation_matrix()
+    base = mesh.vertices
+    if mode == "vertex":
+        dv = np.einsum("vp,tpc->tvc", M, disp)
+        verts = np.repeat(base[None], anim.n_frames, axis=0)
+        verts[:, :, :2] += dv
+        return {"vertices": verts}
+    if mode == "au":
+        if mesh.n_landmarks != face_layout.N_POINTS:
+            raise ValueError(f"mode 'au' needs the 68-point layout, the mesh has {mesh.n_landmarks} landmarks; "
+                             "use mode 'vertex'")
+        B = action_unit_basis(mesh.landmarks)  # (K, 68, 3)
+        act, err = fit_activations(disp, B)
+        targets = np.einsum("vp,kpc->kvc", M, B)
+        verts = base[None] + np.einsum("tk,kvc->tvc", act, targets)
+        return {"vertices": verts, "activations": act, "targets": targets, "rms_error": err}
+    raise ValueError(f"mode must be 'vertex' or 'au', got {mode!r}")
+
+
+# ------------------------------------------------------------------------------ rendering
+
+def _pyvista():
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    try:
+        import pyvista
+    except ImportError:
+        raise ValueError("mesh rendering needs pyvista: pip install pyvista (and Mesa's EGL: "
+                         "apt-get install libegl1 libgl1-mesa-dri), or use renderer='2d'") from None
+    return pyvista
+
+
+def _even(n: int) -> int:
+    return int(n) + (int(n) % 2)
+
+
+class FaceRenderer:
+    """Off-screen pyvista renderer of a :class:`FaceMesh`; ``frame(vertices)`` returns RGB.
+
+    Parameters
+    ----------
+    mesh : FaceMesh
+    size : (width, height), optional
+        output size in pixels (default: the photo's, rounded up to even numbers for H.264).
+    shading : bool
+        light the mesh (shows the depth); off by default so the neutral frame is the photo.
+    """
+
+    def __init__(self, mesh: FaceMesh, size: Optional[tuple[int, int]] = None, shading: bool = False):
+        pv = _pyvista()
+        W, H = mesh.size
+        if size is None:
+            size = (W, H)
+        self.size = (_even(size[0]), _even(size[1]))
+        self.mesh = mesh
+        self._plotter = pv.Plotter(off_screen=True, window_size=list(self.size))
+        self._plotter.set_background((0.0, 0.0, 0.0))
+        skin_faces = mesh.faces[~mesh.mouth]
+        self._skin = pv.PolyData(self._world(mesh.vertices), np.hstack([np.full((len(skin_faces), 1), 3), skin_faces]))
+        self._skin.active_texture_coordinates = mesh.uv.astype(np.float32)
+        texture = pv.Texture(mesh.image)
+        kw = {} if shading else {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0}
+        self._plotter.add_mesh(self._skin, texture=texture, lighting=shading, **kw)
+        self._mouth = None
+        if mesh.mouth.any():
+            mouth_faces = mesh.faces[mesh.mouth]
+            verts = self._world(mesh.vertices) - [0.0, 0.0, 0.5]
+            self._mouth = pv.PolyData(verts, np.hstack([np.full((len(mouth_faces), 1), 3), mouth_faces]))
+            self._plotter.add_mesh(self._mouth, color=np.array(_MOUTH_COLOUR) / 255.0, lighting=False)
+        cam = self._plotter.camera
+        cam.parallel_projection = True
+        cx, cy = (W - 1) / 2.0, (H - 1) / 2.0
+        cam.focal_point = (cx, -cy, 0.0)
+        cam.position = (cx, -cy, 10.0 * max(W, H))
+        cam.up = (0.0, 1.0, 0.0)
+        # fit the photo in the window keeping its aspect ratio
+        aspect_win = self.size[0] / self.size[1]
+        cam.parallel_scale = max(H / 2.0, W / 2.0 / aspect_win)
+        cam.clipping_range = (1.0, 20.0 * max(W, H))
+
+    @staticmethod
+    def _world(vertices: np.ndarray) -> np.ndarray:
+        v = np.asarray(vertices, dtype=np.float64).copy()
+        v[:, 1] = -v[:, 1]
+        return v
+
+    def frame(self, vertices: np.ndarray) -> np.ndarray:
+        """Renders one frame of vertex positions (V, 3); returns (height, width, 3) uint8."""
+        world = self._world(vertices)
+        self._skin.points = world
+        if self._mouth is not None:
+            self._mouth.points = world - [0.0, 0.0, 0.5]
+        self._plotter.render()
+        return np.asarray(self._plotter.screenshot(return_img=True))[:, :, :3]
+
+    def close(self) -> None:
+        self._plotter.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def draw_landmarks_2d(points: np.ndarray, size: tuple[int, int], background=(255, 255, 255)) -> np.ndarray:
+    """The fast fallback: one frame of landmarks drawn as contours (68-point layout) or dots.
+    ``points`` (P, 2) in pixels; returns (height, width, 3) uint8."""
+    from PIL import Image, ImageDraw
+
+    im = Image.new("RGB", (int(size[0]), int(size[1])), tuple(background))
+    d = ImageDraw.Draw(im)
+    pts = np.asarray(points, dtype=np.float64)
+    r = max(1.5, size[0] / 200.0)
+    if len(pts) == face_layout.N_POINTS:
+        closed = {"right_eye", "left_eye", "outer_lip", "inner_lip"}
+        for g, idx in face_layout.GROUPS.items():
+            seg = [tuple(p) for p in pts[list(idx)]]
+            if g in closed:
+                seg.append(seg[0])
+            d.line(seg, fill=(200, 40, 60) if "lip" in g else (40, 60, 90), width=max(1, int(r)))
+    for x, y in pts:
+        d.ellipse([x - r, y - r, x + r, y + r], fill=(20, 20, 20))
+    return np.asarray(im)
+
+
+def _label(img: np.ndarray, text: str) -> np.ndarray:
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(img)
+    ImageDraw.Draw(im).text((6, 4), text, fill=(255, 255, 0))
+    return np.asarray(im)
+
+
+def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str = "vertex",
+                  truth: Optional[Animation] = None, renderer: str = "mesh",
+                  size: Optional[tuple[int, int]] = None, shading: bool = False,
+                  neutral: Optional[np.ndarray] = None, progress: bool = False) -> Iterator[np.ndarray]:
+    """Yields the frames (H, W, 3) uint8 of ``anim``; with ``truth``, side by side
+    (prediction left, ground truth right, same face and frame count).
+
+    ``face`` defaults to a drawn portrait (:func:`portrait_image`) on the animation's first frame
+    (68-point layout). ``renderer="2d"`` draws the landmarks instead of the mesh.
+    """
+    if truth is not None:
+        if truth.n_points != anim.n_points:
+            raise ValueError(f"ground truth has {truth.n_points} points per frame, the prediction {anim.n_points}; "
+                             "compare animations in the same layout")
+        if truth.n_frames != anim.n_frames:
+            raise ValueError(f"ground truth has {truth.n_frames} frames, the prediction {anim.n_frames}; "
+                             "resample one of them to the other's frame rate and length")
+    tqdm = None
+    if progress:
+        from tqdm import tqdm
+    frames = range(anim.n_frames)
+    if tqdm is not None:
+        frames = tqdm(frames, desc="render", unit="frame")
+    if renderer == "2d":
+        pts = anim.points
+        lo, hi = pts.reshape(-1, 2).min(axis=0), pts.reshape(-1, 2).max(axis=0)
+        if truth is not None:
+            tp = truth.points.reshape(-1, 2)
+            lo, hi = np.minimum(lo, tp.min(axis=0)), np.maximum(hi, tp.max(axis=0))
+        margin = 0.1 * (hi - lo).max() + 4.0
+        box = (_even(int(np.ceil(hi[0] - lo[0] + 2 * margin))), _even(int(np.ceil(hi[1] - lo[1] + 2 * margin))))
+        if size is not None:
+            box = (_even(size[0]), _even(size[1]))
+        shift = lo - margin
+        for t in frames:
+            img = draw_landmarks_2d(pts[t] - shift, box)
+            if truth is not None:
+                img = np.hstack([_label(img, "prediction"),
+                                 _label(draw_landmarks_2d(truth.points[t] - shift, box), "ground truth")])
+            yield img
+        return
+    if renderer != "mesh":
+        raise ValueError(f"renderer must be 'mesh' or '2d', got {renderer!r}")
+    if face is None:
+        if anim.n_points != face_layout.N_POINTS:
+            raise ValueError(f"without a face photo the animation must use the 68-point layout "
+                             f"(a drawn portrait is used), got {anim.n_points} points; pass a face image and its points")
+        first = anim.points[0] if neutral is None else np.asarray(neutral, dtype=np.float64)
+        lo, hi = first.min(axis=0), first.max(axis=0)
+        margin = 0.45 * (hi - lo).max()
+        shift = lo - margin
+        W, H = _even(int(hi[0] - lo[0] + 2 * margin)), _even(int(hi[1] - lo[1] + 2 * margin))
+        face = build_face_mesh(portrait_image(first - shift, W, H), first - shift)
+    ref = None if neutral is None else np.asarray(neutral, dtype=np.float64)
+    pred = mesh_animation(anim, face, mode=mode, neutral=ref)["vertices"]
+    gt = None if truth is None else mesh_animation(truth, face, mode=mode, neutral=ref)["vertices"]
+    with FaceRenderer(face, size=size, shading=shading) as r:
+        for t in frames:
+            img = r.frame(pred[t])
+            if gt is not None:
+                img = np.hstack([_label(img, "prediction"), _label(r.frame(gt[t]), "ground truth")])
+            yield img
+
+
+def write_video(frames: Iterable[np.ndarray], path, fps: float, *, audio=None, n_frames: Optional[int] = None) -> Path:
+    """Writes frames (H, W, 3) uint8 to ``.mp4`` (H.264, yuv420p, audio muxed as AAC and cut to
+    the video's duration ``n_frames / fps``), ``.gif`` or a folder of ``frame_000000.png``
+    (any other path without a suffix), atomically: nothing appears at ``path`` unless all frames
+    were written.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if audio is not None:
+        audio = Path(audio)
+        if not audio.is_file():
+            raise ValueError(f"audio file {str(audio)!r} does not exist")
+        if suffix != ".mp4":
+            raise ValueError(f"audio can only be muxed into .mp4, not {suffix or 'a folder of frames'}; drop the audio "
+                             "or write an .mp4")
+    if suffix == "":
+        parent = p.parent if str(p.parent) else Path(".")
+        if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+            raise ValueError(f"output folder {str(parent)!r} must exist and be writable")
+        if p.exists() and (not p.is_dir() or any(p.iterdir())):
+            raise ValueError(f"output {str(p)!r} already exists and is not an empty folder; choose a new folder name")
+        tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".partial", dir=parent))
+        try:
+            from PIL import Image
+
+            for t, img in enumerate(frames):
+                Image.fromarray(img).save(tmp / f"frame_{t:06d}.png")
+            if p.exists():
+                p.rmdir()
+            os.replace(tmp, p)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp)
+        return p
+    check_output_path(p, VIDEO_SUFFIXES + ("",), "video")
+    with atomic_path(p, VIDEO_SUFFIXES, "video") as tmp:
+        if suffix == ".gif":
+            from PIL import Image
+
+            images = [Image.fromarray(f) for f in frames]
+            if not images:
+                raise ValueError("no frames to write")
+            images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
+                           duration=max(20, int(round(1000.0 / fps / 10.0)) * 10), loop=0)
+        else:
+            _write_mp4(frames, tmp, fps, audio, n_frames)
+    return p
+
+
+def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: Optional[int]) -> None:
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        raise ValueError("writing .mp4 needs imageio-ffmpeg: pip install imageio-ffmpeg") from None
+    from fractions import Fraction
+
+    it = iter(frames)
+    try:
+        first = next(it)
+    except StopIteration:
+        raise ValueError("no frames to write") from None
+    h, w = first.shape[:2]
+    rate = Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-3 else Fraction(fps).limit_denominator(1001)
+    out_params = ["-movflags", "+faststart"]
+    if audio is not None and n_frames is not None:
+        out_params += ["-t", f"{n_frames / float(rate):.6f}"]
+    writer = imageio_ffmpeg.write_frames(str(path), (w, h), fps=rate, codec="libx264", quality=7,
+                                         macro_block_size=2, ffmpeg_log_level="error", output_params=out_params,
+                                         audio_path=None if audio is None else str(audio),
+                                         audio_codec=None if audio is None else "aac")
+    writer.send(None)
+    try:
+        writer.send(np.ascontiguousarray(first))
+        for img in it:
+            writer.send(np.ascontiguousarray(img))
+    finally:
+        writer.close()
+
+
+def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None, mode: str = "vertex",
+           truth: Optional[Animation] = None, renderer: str = "mesh", size: Optional[tuple[int, int]] = None,
+           shading: bool = False, progress: bool = False) -> Path:
+    """Renders ``anim`` to ``path`` (``.mp4``, ``.gif`` or a folder of ``.png`` frames),
+    with ``audio`` muxed into an ``.mp4``. See :func:`render_frames` for the options."""
+    p = Path(path)
+    if p.suffix.lower() not in VIDEO_SUFFIXES + ("",):
+        raise ValueError(f"render output {str(p)!r} has an unknown format {p.suffix!r}; use .mp4, .gif, or a folder "
+                         "name for .png frames (meshes and other formats: voicepuppet export)")
+    if p.suffix:
+        check_output_path(p, VIDEO_SUFFIXES, "render output")
+    frames = render_frames(anim, face=face, mode=mode, truth=truth, renderer=renderer, size=size,
+                           shading=shading, progress=progress)
+    return write_video(frames, p, anim.fps, audio=audio, n_frames=anim.n_frames)
+
+
+# ------------------------------------------------------------------------------ CLI
+
+def load_face(image_path, points_path=None) -> FaceMesh:
+    """A face mesh from a photo file and its points: JSON ``{"points": [[x, y], ...]}``, CSV
+    ``x,y`` rows, or an animation ``.npz`` / ``.csv`` (its first frame); without points, the
+    68 landmarks are detected (dlib, see :func:`voicepuppet.tracking.auto_init`)."""
+    from PIL import Image, UnidentifiedImageError
+
+    ip = Path(image_path)
+    if not ip.is_file():
+        raise ValueError(f"face image {str(ip)!r} does not exist")
+    try:
+        with Image.open(ip) as im:
+            img = np.asarray(im.convert("RGB"))
+    except (UnidentifiedImageError, OSError) as exc:
+        raise ValueError(f"face image {str(ip)!r} is not a readable picture: {exc}") from None
+    if points_path is None:
+        from voicepuppet.tracking import auto_init
+
+        pts = auto_init(img)
+    else:
+        pp = Path(points_path)
+        if pp.suffix.lower() == ".npz":
+            from voicepuppet.animation import load_animation
+
+            pts = load_animation(pp).points[0]
+        else:
+            from voicepuppet.tracking import load_init_points
+
+            pts, _ = load_init_points(pp)
+    return build_face_mesh(img, pts)
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size must look like 640x480, got {text!r}") from None
+    if w < 16 or h < 16:
+        raise ValueError(f"--size must be at least 16x16, got {text!r}")
+    return w, h
+
+
+def _cli(args) -> int:
+    import time
+
+    from voicepuppet.animation import load_animation
+
+    anim = load_animation(args.animation)
+    truth = load_animation(args.truth) if args.truth else None
+    face = load_face(args.face, args.face_points) if args.face else None
+    suffix = Path(args.output).suffix.lower()
+    t0 = time.perf_counter()
+    if suffix in (".pvd", ".glb"):
+        from voicepuppet.export import export
+
+        export(anim, args.output, face=face, mode=args.mode)
+    else:
+        render(anim, args.output, audio=args.audio, face=face, mode=args.mode or "vertex", truth=truth,
+               renderer=args.renderer, size=_size(args.size) if args.size else None, shading=args.shading,
+               progress=True)
+    dt = time.perf_counter() - t0
+    print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {args.output} "
+          f"({dt:.1f} s, {anim.n_frames / max(dt, 1e-9):.1f} frames/s)")
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("render", help="render a landmark animation (mp4 with audio, gif, png frames)",
+                       description="Render a landmark animation on a textured face mesh off screen: .mp4 "
+                                   "(with --audio muxed in sync), .gif, a folder of .png frames (an output "
+                                   "name without suffix), or the mesh as .pvd / .glb.")
+    p.add_argument("animation", help="landmark animation (.npz or .csv)")
+    p.add_argument("-o", "--output", required=True, help="out.mp4, out.gif, a new folder, out.pvd or out.glb")
+    p.add_argument("--audio", help="sound to mux into the .mp4 (wav, flac, mp3, or a video's audio)")
+    p.add_argument("--face", help="face photo (default: a drawn portrait on the first frame)")
+    p.add_argument("--face-points", help="the photo's points: JSON {\"points\": [[x, y], ...]}, CSV, or .npz "
+                                         "(default: detect 68 landmarks with dlib)")
+    p.add_argument("--truth", help="ground-truth animation: render side by side (prediction | truth)")
+    p.add_argument("--mode", choices=["vertex", "au"], default=None,
+                   help="drive vertices directly (default) or through the action-unit basis")
+    p.add_argument("--renderer", choices=["mesh", "2d"], default="mesh",
+                   help="textured mesh (default) or a fast 2-D landmark drawing")
+    p.add_argument("--size", help="output size WxH (default: the face image's)")
+    p.add_argument("--shading", action="store_true", help="light the mesh to show its depth")
+    p.set_defaults(func=_cli)
