@@ -1,7 +1,6 @@
 // The spring-mesh SSD facial tracker (Voice Puppetry §4.1). See tracker.hpp for the method.
 #include "voicepuppet/tracker.hpp"
 
-#include <Eigen/Cholesky>
 
 #include <algorithm>
 #include <array>
@@ -220,20 +219,38 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
     fail_argument("min_sigma must be a positive length in pixels, got ", min_sigma);
   }
   SpringMesh mesh = previous;
+  std::vector<double> d, dev;
   for (Index e = 0; e < mesh.edges.rows(); ++e) {
     const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
-    // Welford's running mean and variance.
-    double mean = 0, m2 = 0;
-    Index count = 0;
+    d.clear();
     for (Index t = 0; t < T; ++t) {
       if (lost(t, a) || lost(t, b)) continue;
-      const double dx = tracks(t, 2 * b) - tracks(t, 2 * a);
-      const double dy = tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1);
-      const double d = std::sqrt(dx * dx + dy * dy);
+      d.push_back(std::hypot(tracks(t, 2 * b) - tracks(t, 2 * a), tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1)));
+    }
+    if (d.size() < 2) continue;
+    // Frames where a tracker sat on the wrong feature would inflate the variance and soften the
+    // very spring that should pull it back: keep the distances within 3 robust standard
+    // deviations (1.4826 * median absolute deviation) of the median, then take the mean and
+    // variance of those.
+    const auto median = [](std::vector<double> v) {
+      const size_t h = v.size() / 2;
+      std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(h), v.end());
+      double m = v[h];
+      if (v.size() % 2 == 0) m = 0.5 * (m + *std::max_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(h)));
+      return m;
+    };
+    const double med = median(d);
+    dev.resize(d.size());
+    for (size_t k = 0; k < d.size(); ++k) dev[k] = std::abs(d[k] - med);
+    const double band = 3.0 * std::max(1.4826 * median(dev), min_sigma);
+    double mean = 0, m2 = 0;  // Welford's running mean and variance
+    Index count = 0;
+    for (const double x : d) {
+      if (std::abs(x - med) > band) continue;
       ++count;
-      const double delta = d - mean;
+      const double delta = x - mean;
       mean += delta / static_cast<double>(count);
-      m2 += delta * (d - mean);
+      m2 += delta * (x - mean);
     }
     if (count < 2 || !(mean > 0)) continue;
     const double var = m2 / static_cast<double>(count - 1);
@@ -256,16 +273,20 @@ struct Level {
 
 // 2x2 box average and decimation: pixel (x, y) of level l+1 sits at (2x + 0.5, 2y + 0.5) of l.
 void downsample(const Level& src, Level& dst) {
-  dst.width = src.width / 2;
-  dst.height = src.height / 2;
-  dst.stride = dst.width;
-  dst.owned.resize(static_cast<size_t>(dst.width * dst.height));
-  for (Index y = 0; y < dst.height; ++y) {
-    const std::uint8_t* r0 = src.data + (2 * y) * src.stride;
-    const std::uint8_t* r1 = r0 + src.stride;
-    std::uint8_t* out = dst.owned.data() + y * dst.stride;
-    for (Index x = 0; x < dst.width; ++x) {
-      out[x] = static_cast<std::uint8_t>((r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1] + 2) >> 2);
+  const Index w = src.width / 2, h = src.height / 2, sstride = src.stride;
+  dst.width = w;
+  dst.height = h;
+  dst.stride = w;
+  dst.owned.resize(static_cast<size_t>(w * h));
+  const std::uint8_t* in = src.data;
+  std::uint8_t* outp = dst.owned.data();
+  for (Index y = 0; y < h; ++y) {
+    const std::uint8_t* __restrict r0 = in + (2 * y) * sstride;
+    const std::uint8_t* __restrict r1 = r0 + sstride;
+    std::uint8_t* __restrict out = outp + y * w;
+    for (Index x = 0; x < w; ++x) {
+      const unsigned sum = unsigned(r0[2 * x]) + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1] + 2u;
+      out[x] = static_cast<std::uint8_t>(sum >> 2);
     }
   }
   dst.data = dst.owned.data();
@@ -345,9 +366,62 @@ struct SpringMeshTracker::Impl {
   // Work buffers.
   std::vector<float> patch, big;
   RowMatrixXd A;
-  VectorXd rhs, delta;
-  Eigen::LLT<Eigen::MatrixXd> llt;
-  Eigen::MatrixXd Adense;
+  // The Gauss-Newton system in block form: 2x2 diagonal blocks per point, one 2x2 coupling
+  // block per edge (the spring's -k u u^T), solved by block-Jacobi preconditioned conjugate
+  // gradients (the system is SPD; a few dozen unknowns, ~3 couplings per point).
+  std::vector<Eigen::Matrix2d> diag, coupling, inv;
+  std::vector<Eigen::Vector2d> rhs, delta, res, z, dir, adir;
+
+  void multiply(const std::vector<Eigen::Vector2d>& x, std::vector<Eigen::Vector2d>& y) const {
+    for (Index i = 0; i < P; ++i) y[i] = diag[i] * x[i];
+    for (Index e = 0; e < mesh.edges.rows(); ++e) {
+      const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
+      y[a].noalias() += coupling[e] * x[b];
+      y[b].noalias() += coupling[e] * x[a];
+    }
+  }
+
+  void solve() {
+    double bnorm = 0;
+    for (Index i = 0; i < P; ++i) {
+      const Eigen::Matrix2d& d = diag[i];
+      const double det = d(0, 0) * d(1, 1) - d(0, 1) * d(1, 0);
+      if (!(det > 0) || !(d(0, 0) > 0)) {
+        fail_numeric("spring-mesh tracker: the Gauss-Newton system is not positive definite at "
+                     "point ", i, "; check the options (damping > 0) and the spring stiffnesses");
+      }
+      inv[i] << d(1, 1) / det, -d(0, 1) / det, -d(1, 0) / det, d(0, 0) / det;
+      delta[i].setZero();
+      res[i] = rhs[i];
+      z[i] = inv[i] * res[i];
+      dir[i] = z[i];
+      bnorm += rhs[i].squaredNorm();
+    }
+    if (bnorm == 0) return;
+    double rz = 0;
+    for (Index i = 0; i < P; ++i) rz += res[i].dot(z[i]);
+    for (Index it = 0; it < 4 * P; ++it) {
+      multiply(dir, adir);
+      double pap = 0;
+      for (Index i = 0; i < P; ++i) pap += dir[i].dot(adir[i]);
+      if (!(pap > 0)) break;
+      const double alpha = rz / pap;
+      double rr = 0, rz_new = 0;
+      for (Index i = 0; i < P; ++i) {
+        delta[i] += alpha * dir[i];
+        res[i] -= alpha * adir[i];
+        rr += res[i].squaredNorm();
+      }
+      if (rr <= 1e-20 * bnorm) break;
+      for (Index i = 0; i < P; ++i) {
+        z[i] = inv[i] * res[i];
+        rz_new += res[i].dot(z[i]);
+      }
+      const double beta = rz_new / rz;
+      rz = rz_new;
+      for (Index i = 0; i < P; ++i) dir[i] = z[i] + beta * dir[i];
+    }
+  }
 
   static double level_coord(double p0, Index l) {
     return (p0 + 0.5) / static_cast<double>(Index(1) << l) - 0.5;
@@ -408,13 +482,13 @@ struct SpringMeshTracker::Impl {
     Match mt;
     mt.inside = sample_patch(pyr[l], level_coord(x, l), level_coord(y, l), r, patch.data());
     const float* I = patch.data();
-    double s = 0, s2 = 0;
-    for (int k = 0; k < n_pix; ++k) {
-      s += I[k];
-      s2 += double(I[k]) * I[k];
-    }
-    const double mean = s / n_pix;
-    const double var = std::max(0.0, s2 / n_pix - mean * mean);
+    float sf = 0;
+    for (int k = 0; k < n_pix; ++k) sf += I[k];
+    const double mean = double(sf) / n_pix;
+    const float mf0 = static_cast<float>(mean);
+    float s2f = 0;  // centred second moment (no cancellation)
+    for (int k = 0; k < n_pix; ++k) s2f += (I[k] - mf0) * (I[k] - mf0);
+    const double var = double(s2f) / n_pix;
     const double sigma_i = std::sqrt(var);
     if (sigma_i < kMinContrast || tpl.sigma < kMinContrast) return mt;
     mt.textured = true;
@@ -449,8 +523,10 @@ struct SpringMeshTracker::Impl {
       const double scale = 1.0 / static_cast<double>(Index(1) << l);
       for (Index it = 0; it < opt.max_iterations; ++it) {
         ++iterations;
-        Adense.setZero();
-        rhs.setZero();
+        for (Index i = 0; i < P; ++i) {
+          diag[i] = Eigen::Matrix2d::Identity() * opt.damping;
+          rhs[i].setZero();
+        }
         for (Index i = 0; i < P; ++i) {
           const Template& tpl = tpls[static_cast<size_t>(l * P + i)];
           const Match m = match(l, pts(i, 0), pts(i, 1), tpl);
@@ -462,55 +538,42 @@ struct SpringMeshTracker::Impl {
           }
           const double c = w * inv_s2;
           if (c > 0) {
-            Adense(2 * i, 2 * i) += c * tpl.hxx * scale * scale;
-            Adense(2 * i, 2 * i + 1) += c * tpl.hxy * scale * scale;
-            Adense(2 * i + 1, 2 * i) += c * tpl.hxy * scale * scale;
-            Adense(2 * i + 1, 2 * i + 1) += c * tpl.hyy * scale * scale;
-            rhs[2 * i] -= c * m.bx * scale;
-            rhs[2 * i + 1] -= c * m.by * scale;
+            const double cs2 = c * scale * scale;
+            diag[i](0, 0) += cs2 * tpl.hxx;
+            diag[i](0, 1) += cs2 * tpl.hxy;
+            diag[i](1, 0) += cs2 * tpl.hxy;
+            diag[i](1, 1) += cs2 * tpl.hyy;
+            rhs[i](0) -= c * m.bx * scale;
+            rhs[i](1) -= c * m.by * scale;
           }
         }
         for (Index e = 0; e < mesh.edges.rows(); ++e) {
+          coupling[e].setZero();
           const double k = mesh.stiffness[e] * opt.spring_weight;
           if (k <= 0) continue;
           const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
           const double dx = pts(b, 0) - pts(a, 0), dy = pts(b, 1) - pts(a, 1);
           const double len = std::sqrt(dx * dx + dy * dy);
           if (len < 1e-9) continue;
-          const double ux = dx / len, uy = dy / len, res = len - mesh.rest_length[e];
-          const double kxx = k * ux * ux, kxy = k * ux * uy, kyy = k * uy * uy;
-          for (const Index v : {a, b}) {
-            Adense(2 * v, 2 * v) += kxx;
-            Adense(2 * v, 2 * v + 1) += kxy;
-            Adense(2 * v + 1, 2 * v) += kxy;
-            Adense(2 * v + 1, 2 * v + 1) += kyy;
-          }
-          Adense(2 * a, 2 * b) -= kxx;
-          Adense(2 * a, 2 * b + 1) -= kxy;
-          Adense(2 * a + 1, 2 * b) -= kxy;
-          Adense(2 * a + 1, 2 * b + 1) -= kyy;
-          Adense(2 * b, 2 * a) -= kxx;
-          Adense(2 * b, 2 * a + 1) -= kxy;
-          Adense(2 * b + 1, 2 * a) -= kxy;
-          Adense(2 * b + 1, 2 * a + 1) -= kyy;
-          rhs[2 * a] += k * res * ux;
-          rhs[2 * a + 1] += k * res * uy;
-          rhs[2 * b] -= k * res * ux;
-          rhs[2 * b + 1] -= k * res * uy;
+          const Eigen::Vector2d u(dx / len, dy / len);
+          const double r = len - mesh.rest_length[e];
+          Eigen::Matrix2d kuu = k * u * u.transpose();
+          // Newton's curvature term of a stretched spring, k (r / len) (I - u u^T), is positive
+          // semidefinite and speeds up motion across the spring; a compressed one's is not.
+          if (r > 0) kuu += (k * r / len) * (Eigen::Matrix2d::Identity() - u * u.transpose());
+          diag[a] += kuu;
+          diag[b] += kuu;
+          coupling[e] = -kuu;
+          rhs[a] += k * r * u;
+          rhs[b] -= k * r * u;
         }
-        Adense.diagonal().array() += opt.damping;
-        llt.compute(Adense);
-        if (llt.info() != Eigen::Success) {
-          fail_numeric("spring-mesh tracker: the Gauss-Newton system is not positive definite; "
-                       "check the options (damping must be > 0, stiffness finite)");
-        }
-        delta = llt.solve(rhs);
+        solve();
         double max_step = 0;
         for (Index v = 0; v < n; ++v) {
           // Trust region: at most 2 level pixels per iteration, so a bad linearisation of one
           // patch cannot throw a point across the face.
           const double limit = 2.0 / scale;
-          double d = delta[v];
+          double d = delta[v / 2](v % 2);
           if (!std::isfinite(d)) d = 0;
           d = std::clamp(d, -limit, limit);
           pts(v / 2, v % 2) += d;
@@ -591,8 +654,10 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   }
   s.patch.resize(static_cast<size_t>(s.n_pix));
   s.big.resize(static_cast<size_t>((2 * s.r + 3) * (2 * s.r + 3)));
-  s.Adense.resize(2 * s.P, 2 * s.P);
-  s.rhs.resize(2 * s.P);
+  for (auto* v : {&s.rhs, &s.delta, &s.res, &s.z, &s.dir, &s.adir}) v->resize(static_cast<size_t>(s.P));
+  s.diag.resize(static_cast<size_t>(s.P));
+  s.inv.resize(static_cast<size_t>(s.P));
+  s.coupling.resize(static_cast<size_t>(mesh.edges.rows()));
   s.build_pyramid(first);
   s.first.resize(static_cast<size_t>(s.n_levels * s.P));
   for (Index l = 0; l < s.n_levels; ++l) {

@@ -172,7 +172,10 @@ TEST_CASE("springs_from_points and estimate_springs: closed-form lengths, means 
   }
   lost(3, 2) = true;
   const SpringMesh r = estimate_springs(tracks, lost, m, 0.5);
-  CHECK(r.rest_length[0] == doctest::Approx((3 + 6 + 9 + 300) / 4.0));
+  // Edge 0 sees 3, 6, 9 and 300: median 7.5, MAD 3, so 300 lies beyond 3 robust sigmas
+  // (3 * 1.4826 * 3 = 13.3) and is left out: mean 6, variance 9.
+  CHECK(r.rest_length[0] == doctest::Approx(6));
+  CHECK(r.stiffness[0] == doctest::Approx(1.0 / 9));
   CHECK(r.rest_length[1] == doctest::Approx(8));   // frames 0..2 only: 4, 8, 12
   CHECK(r.stiffness[1] == doctest::Approx(1.0 / 16));  // sample variance of 4, 8, 12
   CHECK(r.rest_length[2] == doctest::Approx(10));

@@ -68,8 +68,10 @@ SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
 
 /// Re-estimates spring rest lengths and stiffnesses from a tracked pass (paper §4.1): for each
 /// edge, L_e = mean and k_e = 1 / max(var, min_sigma²) of the distance between its endpoints over
-/// the frames where neither endpoint is lost. Edges seen in fewer than 2 frames keep their
-/// previous values.
+/// the frames where neither endpoint is lost and the distance lies within 3 robust standard
+/// deviations (1.4826 · MAD, at least min_sigma) of its median, so frames where a tracker sat on
+/// the wrong feature do not soften the spring that should pull it back. Edges with fewer than
+/// 2 such frames keep their previous values.
 /// @param[in] tracks     #T by 2·#P positions, row t = (x0, y0, x1, y1, ...) of frame t
 /// @param[in] lost       #T by #P lost flags (true: exclude from the statistics)
 /// @param[in] previous   the mesh used for the pass (its edges are kept)
@@ -82,7 +84,7 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
 struct TrackerOptions {
   Index patch_radius = 6;        ///< patch is (2r+1)² pixels at every pyramid level (>= 1)
   Index levels = 3;              ///< pyramid levels (>= 1; fewer are used on small frames)
-  Index max_iterations = 12;     ///< Gauss–Newton iterations per level (>= 1)
+  Index max_iterations = 5;      ///< Gauss–Newton iterations per level and stage (>= 1)
   double tolerance = 0.02;       ///< stop the finest level when no point moves more (px, > 0);
                                  ///< coarser levels stop at max(tolerance, 0.1) level pixels
   double intensity_sigma = 8.0;  ///< grey-level noise of the SSD residual (> 0)
