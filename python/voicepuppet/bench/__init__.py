@@ -23,6 +23,7 @@ SUITES = {
     "audio": "voicepuppet.bench.audio",
     "tracker": "voicepuppet.bench.tracker",
     "trajectory": "voicepuppet.bench.trajectory",
+    "entropic": "voicepuppet.bench.entropic",
 }
 
 
