@@ -269,3 +269,13 @@ def test_progress_bar_is_shown(capsys):
     X, _, _ = planted_cycle(300, seed=7)
     GaussianHMM(4, n_iter=3, prior="entropic", progress=True, tol=-np.inf).fit(X)
     assert "entropic EM" in capsys.readouterr().err
+
+
+def test_diagonal_covariances_and_several_sequences():
+    X, _, _ = planted_cycle(1200, seed=8)
+    lengths = [500, 400, 300]
+    ent = GaussianHMM(8, "diag", n_iter=30, random_state=0, tol=-np.inf, prior="entropic").fit(X, lengths)
+    lp = np.array([r["log_posterior"] for r in ent.history_])
+    assert np.all(np.diff(lp) >= -1e-8 * np.abs(lp[1:]))
+    assert ent.covars_.shape == (ent.n_states, 2) and ent.n_states <= 8
+    assert np.isfinite(ent.score(X, lengths))
