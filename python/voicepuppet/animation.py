@@ -227,7 +227,7 @@ def neutral_landmarks(width: int = 320, height: int = 320) -> np.ndarray:
     """A frontal neutral face in the 68-point layout of :mod:`voicepuppet.face_layout`,
     centred in a ``width`` x ``height`` image, mouth closed. Returns (68, 2) float64.
     """
-    s = min(width, height) / 380.0
+    s = min(width, height) / 440.0
     cx, cy = width / 2.0, height / 2.0
     pts = np.zeros((68, 2))
     # jaw 0..16: from the subject's right temple (image left) under the chin to the left temple
@@ -265,7 +265,7 @@ def procedural_animation(n_frames: int = 60, fps: float = 30.0, *, width: int = 
     """A neutral face (:func:`neutral_landmarks`) with planted mouth motion.
 
     ``jaw`` and ``smile`` are per-frame amounts in [0, 1] (default: a jaw opening at about
-    2.5 Hz and a slow smile). Jaw 1 lowers the lower lip and chin by 0.5 inter-ocular
+    2.5 Hz and a slow smile). Jaw 1 lowers the lower lip and chin by 0.35 inter-ocular
     distances; smile 1 pulls the lip corners out and up by 0.15. ``seed`` adds small seeded
     landmark noise (0.2 px). Returns an :class:`Animation` with ``names`` from the layout.
     """
@@ -283,7 +283,7 @@ def procedural_animation(n_frames: int = 60, fps: float = 30.0, *, width: int = 
     weights[lower] = 1.0
     weights[[54, 48, 60, 64]] = 0.5
     weights[0:17] = np.sin(np.linspace(0.0, np.pi, 17)) ** 2
-    pts[:, :, 1] += jaw[:, None] * weights[None, :] * 0.5 * iod
+    pts[:, :, 1] += jaw[:, None] * weights[None, :] * 0.35 * iod
     # smile: corners out and up
     for idx, sign in (([48, 60], -1.0), ([54, 64], 1.0)):
         pts[:, idx, 0] += sign * smile[:, None] * 0.15 * iod

@@ -286,13 +286,13 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
         u, s, vt = np.linalg.svd(D, full_matrices=False)
         keep = s > s[0] * 1e-9 if s.size and s[0] > 0 else np.zeros(0, bool)
         k = int(min(max_targets, keep.sum()))
-        targets = vt[:k].reshape(k, -1, 3)
+        if k == 0:
+            raise ValueError("the animation does not move; nothing to animate in glTF")
+        targets = vt[:k].reshape(k, len(face.vertices), 3)
         weights = u[:, :k] * s[:k]
         names = [f"component_{i}" for i in range(k)]
     else:
         raise ValueError(f"mode must be 'au' or 'vertex', got {mode!r}")
-    if len(names) == 0:
-        raise ValueError("the animation does not move; nothing to animate in glTF")
     iod = float(np.linalg.norm(face.landmarks[36] - face.landmarks[45])) if face.n_landmarks == 68 else \
         float(np.ptp(face.landmarks[:, 0]))
     scale = face_width_m / iod

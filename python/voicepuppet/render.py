@@ -311,7 +311,7 @@ def action_unit_basis(landmarks) -> np.ndarray:
     w[np.r_[55:60, 65:68]] = 1.0
     w[[48, 54, 60, 64]] = 0.5
     w[0:17] = np.sin(np.linspace(0.0, np.pi, 17)) ** 2
-    jaw[:, 1] = 0.5 * iod * w
+    jaw[:, 1] = 0.35 * iod * w
     # lip corner pulls (subject's right = image left: 48, 60; left: 54, 64): out and up
     for name, corners, halves, sign in (("smile_right", [48, 60], [49, 59], -1.0),
                                         ("smile_left", [54, 64], [53, 55], 1.0)):

@@ -1,0 +1,245 @@
+"""Face mesh, driving (vertex / action units), off-screen rendering and video writing.
+
+Animations are planted: a parametric neutral face with a known jaw opening and smile
+(:func:`voicepuppet.animation.procedural_animation`), or action-unit activations drawn at random.
+"""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from voicepuppet import face_layout
+from voicepuppet import render as R
+from voicepuppet.animation import Animation, load_animation, neutral_landmarks, procedural_animation, save_animation
+
+pytest.importorskip("pyvista")
+
+
+def _signed_area(pts, faces):
+    a, b, c = (pts[faces[:, k]] for k in range(3))
+    return (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+
+
+@pytest.fixture(scope="module")
+def face():
+    lm = neutral_landmarks(240, 240)
+    return R.build_face_mesh(R.portrait_image(lm, 240, 240), lm)
+
+
+@pytest.fixture(scope="module")
+def jaw_anim():
+    t = np.arange(24)
+    jaw = np.clip(np.sin(np.pi * t / 12.0), 0.0, None)  # opens and closes, then stays closed
+    return procedural_animation(24, 24.0, width=240, height=240, jaw=jaw, smile=0.0), jaw
+
+
+def test_mesh_has_about_200_triangles_landmarks_first_and_no_folds(face, jaw_anim):
+    anim, _ = jaw_anim
+    assert 150 <= len(face.faces) <= 250
+    np.testing.assert_array_equal(face.vertices[:68, :2], neutral_landmarks(240, 240))
+    assert face.mouth.sum() == 6  # an 8-point inner lip polygon triangulates into 6 triangles
+    assert set(face.faces[face.mouth].ravel()) <= set(range(60, 68))
+    # every vertex used; skin triangles keep their orientation when the jaw opens fully
+    assert set(np.unique(face.faces)) == set(range(len(face.vertices)))
+    verts = R.mesh_animation(anim, face)["vertices"]
+    skin = face.faces[~face.mouth]
+    for t in range(anim.n_frames):
+        assert np.all(_signed_area(verts[t, :, :2], skin) < 0), f"fold at frame {t}"
+    # depth: the nose tip is the highest point of the face, the frame is flat
+    z = face.vertices[:, 2]
+    assert np.argmax(z[:68]) == 30 and np.all(z[face.fixed] == 0)
+
+
+def test_interpolation_is_identity_on_landmarks_zero_on_frame(face):
+    M = face.interpolation_matrix()
+    np.testing.assert_allclose(M[:68], np.eye(68))
+    assert np.all(M[face.fixed] == 0)
+    # a uniform landmark shift moves the border rings part of the way, never beyond
+    ring = ~face.fixed & (np.arange(len(M)) >= 68)
+    moved = M[ring].sum(axis=1)
+    assert np.all(moved > 0.05) and np.all(moved < 1.2)
+
+
+def test_retarget_recovers_a_planted_similarity(rng):
+    ref = neutral_landmarks()
+    angle, s = 0.3, 1.7
+    Rm = np.array([[np.cos(angle), np.sin(angle)], [-np.sin(angle), np.cos(angle)]])
+    target = s * ref @ Rm + [40.0, -12.0]
+    d = rng.normal(size=(5, 68, 2))
+    got = R.retarget(ref + d, ref, target)
+    np.testing.assert_allclose(got, s * d @ Rm, atol=1e-9)
+
+
+def test_action_unit_least_squares_recovers_planted_activations(rng):
+    lm = neutral_landmarks()
+    B = R.action_unit_basis(lm)
+    assert B.shape == (len(R.ACTION_UNITS), 68, 3)
+    truth = rng.uniform(-0.5, 1.0, size=(40, len(R.ACTION_UNITS)))
+    disp = np.einsum("tk,kpc->tpc", truth, B[..., :2]) + rng.normal(scale=0.01, size=(40, 68, 2))
+    act, err = R.fit_activations(disp, B)
+    np.testing.assert_allclose(act, truth, atol=0.02)
+    assert np.all(err < 0.02)
+    # bounded: activations outside the box are clipped to it, the rest still recovered
+    act_b, _ = R.fit_activations(disp, B, bounds=(np.zeros(len(R.ACTION_UNITS)), np.ones(len(R.ACTION_UNITS))))
+    assert act_b.min() >= 0 and act_b.max() <= 1
+    inside = np.all(truth > 0.05, axis=1)
+    np.testing.assert_allclose(act_b[inside], truth[inside], atol=0.02)
+
+
+def test_au_mode_tracks_the_planted_jaw_and_reports_its_error(face, jaw_anim):
+    anim, jaw = jaw_anim
+    res = R.mesh_animation(anim, face, mode="au")
+    k = R.ACTION_UNITS.index("jaw_open")
+    np.testing.assert_allclose(res["activations"][:, k], jaw, atol=1e-6)
+    assert np.max(res["rms_error"]) < 1e-6
+    np.testing.assert_allclose(res["vertices"], R.mesh_animation(anim, face, mode="vertex")["vertices"], atol=1e-6)
+
+
+def test_rendered_frames_change_at_the_mouth_only_and_follow_the_jaw(face, jaw_anim):
+    anim, jaw = jaw_anim
+    frames = np.stack(list(R.render_frames(anim, face=face))).astype(float)
+    assert frames.shape == (24, 240, 240, 3)
+    # the neutral frame reproduces the photo
+    assert np.mean(np.abs(frames[0] - face.image)) < 2.0
+    lm = face.landmarks
+    x0, y0 = lm[48:68].min(axis=0).astype(int)
+    x1, y1 = lm[48:68].max(axis=0).astype(int)
+    mouth = np.mean(np.abs(frames[:, y0 - 5:y1 + 40, x0:x1] - frames[0, y0 - 5:y1 + 40, x0:x1]), axis=(1, 2, 3))
+    ey0, ey1 = int(lm[17:27, 1].min()) - 5, int(lm[36:48, 1].max()) + 5
+    eyes = np.mean(np.abs(frames[:, ey0:ey1] - frames[0, ey0:ey1]), axis=(1, 2, 3))
+    assert np.corrcoef(mouth, jaw)[0, 1] > 0.95
+    assert mouth.max() > 20.0
+    assert eyes.max() < 1.0
+    closed = jaw < 1e-9
+    assert np.all(mouth[closed] < 1.0)
+
+
+def test_side_by_side_and_2d_fallback(face, jaw_anim):
+    anim, _ = jaw_anim
+    short = Animation(anim.points[:3], anim.fps)
+    single = list(R.render_frames(short, face=face))
+    pair = list(R.render_frames(short, face=face, truth=short))
+    assert pair[0].shape == (240, 480, 3)
+    # same animation on both sides: halves agree apart from the labels
+    assert np.mean(np.abs(pair[2][40:, :240].astype(int) - single[2][40:].astype(int))) < 1.0
+    np.testing.assert_array_equal(pair[2][40:, :240], pair[2][40:, 240:])
+    flat = list(R.render_frames(short, renderer="2d"))
+    assert len(flat) == 3 and flat[0].ndim == 3
+    assert not np.array_equal(flat[0], flat[2]) or np.allclose(short.points[0], short.points[2])
+
+
+def _write_tone(path, seconds, rate=16000):
+    import soundfile as sf
+
+    t = np.arange(int(rate * seconds)) / rate
+    sf.write(path, 0.3 * np.sin(2 * np.pi * 330 * t), rate)
+
+
+@pytest.mark.parametrize("audio_seconds", [2.0, 0.5])
+def test_mp4_has_the_frame_count_duration_and_audio(tmp_path, face, audio_seconds):
+    av = pytest.importorskip("av")
+    pytest.importorskip("imageio_ffmpeg")
+    anim = procedural_animation(30, 29.97, width=240, height=240)
+    wav = tmp_path / "a.wav"
+    _write_tone(wav, audio_seconds)
+    out = R.render(anim, tmp_path / "out.mp4", audio=wav, face=face)
+    assert sorted(os.listdir(tmp_path)) == ["a.wav", "out.mp4"]
+    with av.open(str(out)) as c:
+        video = c.streams.video[0]
+        audio = c.streams.audio[0]
+        assert (video.width, video.height) == (240, 240)
+        assert abs(float(video.average_rate) - 29.97) < 1e-3
+        n = sum(1 for _ in c.decode(video=0))
+        assert n == 30
+        a_dur = float(audio.duration * audio.time_base)
+    # audio longer than the video is cut to it; shorter audio stays as it is
+    assert abs(a_dur - min(audio_seconds, 30 / 29.97)) < 1.0 / 29.97 + 0.03
+
+
+def test_gif_and_png_frames(tmp_path, face):
+    from PIL import Image
+
+    anim = procedural_animation(6, 10.0, width=240, height=240)
+    gif = R.render(anim, tmp_path / "a.gif", face=face)
+    with Image.open(gif) as im:
+        assert im.n_frames == 6
+        assert im.info["duration"] == 100
+    folder = R.render(anim, tmp_path / "frames", face=face)
+    assert sorted(p.name for p in folder.iterdir()) == [f"frame_{t:06d}.png" for t in range(6)]
+    with pytest.raises(ValueError, match="already exists"):
+        R.render(anim, tmp_path / "frames", face=face)
+
+
+def test_bad_input_gives_clear_errors_and_no_files(tmp_path, face):
+    anim = procedural_animation(4, 10.0, width=240, height=240)
+    with pytest.raises(ValueError, match=r"shape \(T, P, 2\)"):
+        Animation(np.zeros((4, 68)), 10.0)
+    bad = anim.points.copy()
+    bad[2, 5, 0] = np.nan
+    with pytest.raises(ValueError, match="frame 2, point 5"):
+        Animation(bad, 10.0)
+    with pytest.raises(ValueError, match="fps"):
+        Animation(anim.points, 0.0)
+    with pytest.raises(ValueError, match="20 points per frame but the face mesh has 68"):
+        R.mesh_animation(Animation(anim.points[:, :20], 10.0), face)
+    with pytest.raises(ValueError, match="unknown format '.avi'"):
+        R.render(anim, tmp_path / "a.avi", face=face)
+    with pytest.raises(ValueError, match="does not exist"):
+        R.render(anim, tmp_path / "missing" / "a.mp4", face=face)
+    with pytest.raises(ValueError, match="must lie inside"):
+        R.build_face_mesh(face.image, face.landmarks + 500.0)
+    with pytest.raises(ValueError, match="mode"):
+        R.mesh_animation(anim, face, mode="bones")
+    with pytest.raises(ValueError, match="audio can only be muxed into .mp4"):
+        R.render(anim, tmp_path / "a.gif", face=face, audio=__file__)
+    readonly = tmp_path / "ro"
+    readonly.mkdir()
+    readonly.chmod(0o500)
+    try:
+        if not os.access(readonly, os.W_OK):  # root can write anywhere
+            with pytest.raises(ValueError, match="not writable"):
+                R.render(anim, readonly / "a.mp4", face=face)
+    finally:
+        readonly.chmod(0o700)
+
+    # a failure mid-write leaves neither the output nor a temporary file
+    def frames():
+        yield np.zeros((240, 240, 3), np.uint8)
+        raise RuntimeError("renderer died")
+
+    for name in ("b.mp4", "b.gif", "b_frames"):
+        with pytest.raises(RuntimeError, match="renderer died"):
+            R.write_video(frames(), tmp_path / name, 10.0)
+    assert sorted(os.listdir(tmp_path)) == ["ro"]
+
+
+def test_animation_files_round_trip(tmp_path):
+    anim = procedural_animation(7, 29.97, seed=3)
+    save_animation(anim, tmp_path / "a.npz")
+    save_animation(anim, tmp_path / "a.csv")
+    back = load_animation(tmp_path / "a.npz")
+    np.testing.assert_array_equal(back.points, anim.points)
+    assert back.fps == anim.fps and back.names == list(face_layout.NAMES)
+    csv = load_animation(tmp_path / "a.csv")
+    np.testing.assert_allclose(csv.points, anim.points, rtol=1e-8)
+    assert abs(csv.fps - 29.97) < 1e-4
+    header = (tmp_path / "a.csv").read_text().splitlines()[0]
+    assert header.startswith("frame,time,x0,y0,x1,y1")
+    with pytest.raises(ValueError, match="unknown format"):
+        load_animation(Path(__file__))
+    with pytest.raises(ValueError, match="no 'points'"):
+        np.savez(tmp_path / "x.npz", fps=3.0)
+        load_animation(tmp_path / "x.npz")
+
+
+def test_cli_render(tmp_path):
+    from voicepuppet.cli import main
+
+    anim = procedural_animation(5, 10.0, width=200, height=200)
+    save_animation(anim, tmp_path / "a.npz")
+    assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "a.gif"), "--renderer", "2d"]) == 0
+    assert (tmp_path / "a.gif").is_file()
+    assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "a.webm")]) == 2
+    assert not (tmp_path / "a.webm").exists()
