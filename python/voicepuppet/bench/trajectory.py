@@ -83,7 +83,7 @@ def _gemm_gflops() -> float:
 
 
 _CHILD = r"""
-import json, resource, sys, time
+import json, sys, time
 import numpy as np
 from voicepuppet import _core, trajectory as tr
 T, d, full = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3] == "full"
@@ -93,12 +93,17 @@ from voicepuppet.bench.trajectory import _model, _states
 means, vel, covars = _model(rng, 26, d, full)
 states = _states(rng, T, 26)
 model = tr.make_model(means, vel, covars, "full" if full else "diag")
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+def hwm_kb():  # this process's peak RSS (ru_maxrss would inherit the parent's peak across fork)
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1])
+    return 0
+base = hwm_kb()
 t0 = time.perf_counter()
 y = _core.solve_trajectory(model, states)
 dt = time.perf_counter() - t0
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps({"seconds": dt, "peak_mb": (peak - base) / 1024.0}))
+peak = hwm_kb()
+print(json.dumps({"seconds": dt, "peak_mb": (peak - base) / 1024.0, "process_peak_mb": peak / 1024.0}))
 """
 
 
@@ -201,6 +206,7 @@ def run(quick: bool, repeats: int) -> list[dict]:
             r = _child_solve(T, d, kind)
             cases.append(case(f"{kind}_hour", f"T={T} D={d} N={N_STATES}", r["seconds"], None, None, None,
                               realtime_factor=T / FPS / r["seconds"], peak_mem_mb=r["peak_mb"],
+                              process_peak_mem_mb=r["process_peak_mb"],
                               **({"gflops": 2.33 * d**3 * T / r["seconds"] / 1e9} if kind == "full" else {})))
     return cases
 
