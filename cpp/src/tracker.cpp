@@ -349,6 +349,7 @@ struct Match {
 };
 
 constexpr double kMinContrast = 0.5;  // grey levels RMS below which a patch is flat
+constexpr int kLanes = 16;  // accumulator lanes of the patch sums (n_pad is a multiple)
 constexpr double kCoarseFloor = 0.2;  // coarse-level correlation below which a point is ignored
 
 }  // namespace
@@ -357,7 +358,7 @@ struct SpringMeshTracker::Impl {
   TrackerOptions opt;
   SpringMesh mesh;
   Index P = 0, width = 0, height = 0, n_levels = 1;
-  int r = 0, n_pix = 0;
+  int r = 0, n_pix = 0, n_pad = 0;  // patch pixels, and rounded up to a multiple of kLanes
   RowMatrixXd pts;
   std::vector<double> prev_weight;  // data weight of each point at the end of the last frame
   std::vector<Level> pyr;
@@ -442,9 +443,9 @@ struct SpringMeshTracker::Impl {
     const int q = r + 1, m = 2 * q + 1, n = 2 * r + 1;
     const double inside =
         sample_patch(pyr[l], level_coord(x, l), level_coord(y, l), q, big.data());
-    tpl.t.resize(n_pix);
-    tpl.gx.resize(n_pix);
-    tpl.gy.resize(n_pix);
+    tpl.t.assign(n_pad, 0.0f);
+    tpl.gx.assign(n_pad, 0.0f);
+    tpl.gy.assign(n_pad, 0.0f);
     double mt = 0, mgx = 0, mgy = 0;
     for (int j = 0; j < n; ++j) {
       for (int i = 0; i < n; ++i) {
@@ -481,32 +482,53 @@ struct SpringMeshTracker::Impl {
   Match match(Index l, double x, double y, const Template& tpl) {
     Match mt;
     mt.inside = sample_patch(pyr[l], level_coord(x, l), level_coord(y, l), r, patch.data());
-    const float* I = patch.data();
+    // Sums over n_pad = n_pix rounded up to kLanes, in kLanes independent accumulators so the
+    // compiler can vectorise them; the padding is zero in the patch and in the templates.
+    const float* __restrict I = patch.data();
+    const float* __restrict T = tpl.t.data();
+    const float* __restrict GX = tpl.gx.data();
+    const float* __restrict GY = tpl.gy.data();
+    float acc[kLanes] = {};
+    for (int k = 0; k < n_pad; k += kLanes) {
+      for (int j = 0; j < kLanes; ++j) acc[j] += I[k + j];
+    }
     float sf = 0;
-    for (int k = 0; k < n_pix; ++k) sf += I[k];
-    const double mean = double(sf) / n_pix;
-    const float mf0 = static_cast<float>(mean);
-    float s2f = 0;  // centred second moment (no cancellation)
-    for (int k = 0; k < n_pix; ++k) s2f += (I[k] - mf0) * (I[k] - mf0);
-    const double var = double(s2f) / n_pix;
+    for (int j = 0; j < kLanes; ++j) sf += acc[j];
+    const float mf = sf / static_cast<float>(n_pix);
+    float a2[kLanes] = {};  // centred second moment (no cancellation); pads add mf² each
+    for (int k = 0; k < n_pad; k += kLanes) {
+      for (int j = 0; j < kLanes; ++j) a2[j] += (I[k + j] - mf) * (I[k + j] - mf);
+    }
+    float s2f = 0;
+    for (int j = 0; j < kLanes; ++j) s2f += a2[j];
+    s2f -= static_cast<float>(n_pad - n_pix) * mf * mf;
+    const double var = std::max(0.0, double(s2f) / n_pix);
     const double sigma_i = std::sqrt(var);
     if (sigma_i < kMinContrast || tpl.sigma < kMinContrast) return mt;
     mt.textured = true;
-    const float mf = static_cast<float>(mean);
     const float gain = static_cast<float>(tpl.sigma / sigma_i);
+    float ac[kLanes] = {}, ax[kLanes] = {}, ay[kLanes] = {};
+    for (int k = 0; k < n_pad; k += kLanes) {
+      for (int j = 0; j < kLanes; ++j) {
+        const float d = I[k + j] - mf;
+        ac[j] += d * T[k + j];
+        const float e = gain * d - T[k + j];
+        ax[j] += GX[k + j] * e;
+        ay[j] += GY[k + j] * e;
+      }
+    }
     float cross = 0, bx = 0, by = 0;
-    for (int k = 0; k < n_pix; ++k) {
-      const float d = I[k] - mf;
-      cross += d * tpl.t[k];
-      const float e = gain * d - tpl.t[k];
-      bx += tpl.gx[k] * e;
-      by += tpl.gy[k] * e;
+    for (int j = 0; j < kLanes; ++j) {
+      cross += ac[j];
+      bx += ax[j];
+      by += ay[j];
     }
     mt.ncc = cross / (n_pix * sigma_i * tpl.sigma);
     mt.bx = bx;
     mt.by = by;
     return mt;
   }
+
 
   double data_weight(const Match& m) const {
     if (!m.textured || m.inside < 0.5) return 0.0;
@@ -645,6 +667,7 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   s.height = first.height;
   s.r = static_cast<int>(options.patch_radius);
   s.n_pix = (2 * s.r + 1) * (2 * s.r + 1);
+  s.n_pad = (s.n_pix + kLanes - 1) / kLanes * kLanes;
   s.pts = points;
   // Use a level only if it is at least two patches wide and high.
   s.n_levels = 1;
@@ -652,7 +675,7 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
          std::min(first.width, first.height) >> s.n_levels >= 2 * (2 * s.r + 3)) {
     ++s.n_levels;
   }
-  s.patch.resize(static_cast<size_t>(s.n_pix));
+  s.patch.assign(static_cast<size_t>(s.n_pad), 0.0f);
   s.big.resize(static_cast<size_t>((2 * s.r + 3) * (2 * s.r + 3)));
   for (auto* v : {&s.rhs, &s.delta, &s.res, &s.z, &s.dir, &s.adir}) v->resize(static_cast<size_t>(s.P));
   s.diag.resize(static_cast<size_t>(s.P));
