@@ -22,6 +22,7 @@ SUITES = {
     "hmm": "voicepuppet.bench.hmm",
     "audio": "voicepuppet.bench.audio",
     "tracker": "voicepuppet.bench.tracker",
+    "render": "voicepuppet.bench.render",
     "trajectory": "voicepuppet.bench.trajectory",
     "entropic": "voicepuppet.bench.entropic",
 }
