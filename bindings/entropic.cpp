@@ -48,6 +48,13 @@ void bind_entropic(py::module_& m) {
       },
       py::arg("startprob"), py::arg("transmat"), py::arg("covars"), py::arg("covariance_type"), py::arg("z"),
       py::arg("prior"), "Log entropic prior of a Gaussian HMM (up to a model-independent constant).");
+  m.def(
+      "entropic_state_costs",
+      [](const MatrixRef& transmat, const MatrixRef& covars, const std::string& type, double z, double prior) {
+        return entropic_state_costs(transmat, covars, parse_covariance_type(type), z, prior);
+      },
+      py::arg("transmat"), py::arg("covars"), py::arg("covariance_type"), py::arg("z"), py::arg("prior"),
+      "Per-state description cost [N]: −Z Σθ log θ + Z⁺/2 log((2πe)^D|K|) + prior/2 tr K⁻¹.");
   m.def("transition_trim_candidates", &transition_trim_candidates, py::arg("transmat"), py::arg("expected"),
         py::arg("z"), "0/1 flags [N,N] of arcs with θ_ij <= exp(−(ξ_ij/θ_ij)/Z) (never a row's largest).");
   m.def("trim_transitions", &trim_transitions, py::arg("transmat"), py::arg("flags"),

@@ -326,26 +326,25 @@ GaussianParams entropic_gaussian_mstep(const GaussianStats& stats, double z, dou
   return p;
 }
 
-double entropic_log_prior(const VectorRef& startprob, const MatrixRef& transmat, const MatrixRef& covars,
-                          CovarianceType type, double z, double prior) {
+VectorXd entropic_state_costs(const MatrixRef& transmat, const MatrixRef& covars, CovarianceType type, double z,
+                              double prior) {
   check_z(z);
+  if (!(prior >= 0) || !std::isfinite(prior)) fail_argument("prior (covariance regulariser) must be finite and >= 0, got ", prior);
   const Index n = transmat.rows();
-  if (transmat.cols() != n || startprob.size() != n) {
-    fail_argument("transmat must be square and startprob match it: got transmat ", shape_of(transmat),
-                  ", startprob of ", startprob.size());
-  }
+  if (transmat.cols() != n) fail_argument("transmat must be square, got ", shape_of(transmat));
   check_row_stochastic(transmat, "transmat");
-  double lp = 0;
-  auto xlogx = [](double p) { return p > 0 ? p * std::log(p) : 0.0; };
-  for (Index i = 0; i < n; ++i) {
-    lp += z * xlogx(startprob[i]);
-    for (Index j = 0; j < n; ++j) lp += z * xlogx(transmat(i, j));
-  }
   const double zp = std::max(z, 0.0);
   const bool full = type == CovarianceType::Full;
   const Index d = covars.cols();
   if (covars.rows() != (full ? n * d : n)) fail_argument("covars has shape ", shape_of(covars), " for ", n, " states");
+  require_finite(covars, "covars");
+  VectorXd cost(n);
   for (Index i = 0; i < n; ++i) {
+    double row = 0;
+    for (Index j = 0; j < n; ++j) {
+      const double p = transmat(i, j);
+      if (p > 0) row += p * std::log(p);
+    }
     double log_det, trace_inv;
     if (full) {
       const Eigen::MatrixXd c = covars.middleRows(i * d, d);
@@ -360,9 +359,22 @@ double entropic_log_prior(const VectorRef& startprob, const MatrixRef& transmat,
       log_det = covars.row(i).array().log().sum();
       trace_inv = covars.row(i).array().inverse().sum();
     }
-    lp -= 0.5 * zp * (static_cast<double>(d) * kLog2PiE + log_det) + 0.5 * prior * trace_inv;
+    cost[i] = -z * row + 0.5 * zp * (static_cast<double>(d) * kLog2PiE + log_det) + 0.5 * prior * trace_inv;
   }
-  return lp;
+  return cost;
+}
+
+double entropic_log_prior(const VectorRef& startprob, const MatrixRef& transmat, const MatrixRef& covars,
+                          CovarianceType type, double z, double prior) {
+  check_z(z);
+  if (startprob.size() != transmat.rows()) {
+    fail_argument("startprob must have one entry per state (", transmat.rows(), "), got ", startprob.size());
+  }
+  double lp = 0;
+  for (Index i = 0; i < startprob.size(); ++i) {
+    if (startprob[i] > 0) lp += z * startprob[i] * std::log(startprob[i]);
+  }
+  return lp - entropic_state_costs(transmat, covars, type, z, prior).sum();
 }
 
 RowMatrixXd transition_trim_candidates(const MatrixRef& transmat, const MatrixRef& expected, double z) {

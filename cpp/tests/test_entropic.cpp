@@ -179,3 +179,23 @@ TEST_CASE("annealing schedule ramps monotonically from z_start to z_final") {
   CHECK(anneal_schedule(3, -1.0, 1.0, 0) == VectorXd::Constant(3, 1.0));
   CHECK_THROWS_AS(anneal_schedule(0, 0.0, 1.0, 0), std::invalid_argument);
 }
+
+TEST_CASE("state costs: closed form for diagonal Gaussians, and they add up to the log prior") {
+  RowMatrixXd A(2, 2), C(2, 3);
+  A << 0.5, 0.5, 0.0, 1.0;
+  C << 1.0, 2.0, 4.0, 0.5, 0.5, 0.5;
+  VectorXd pi(2);
+  pi << 0.25, 0.75;
+  const double z = 1.5, c = 0.2;
+  const VectorXd cost = entropic_state_costs(A, C, CovarianceType::Diagonal, z, c);
+  const double l2pe = std::log(2 * M_PI * std::exp(1.0));
+  CHECK(cost[0] == doctest::Approx(z * std::log(2.0) + 0.5 * z * (3 * l2pe + std::log(8.0)) + 0.5 * c * 1.75));
+  CHECK(cost[1] == doctest::Approx(0.5 * z * (3 * l2pe + 3 * std::log(0.5)) + 0.5 * c * 6.0));
+  const double lp = entropic_log_prior(pi, A, C, CovarianceType::Diagonal, z, c);
+  CHECK(lp == doctest::Approx(z * (0.25 * std::log(0.25) + 0.75 * std::log(0.75)) - cost.sum()));
+  // Full covariances that are diagonal give the same costs.
+  RowMatrixXd F = RowMatrixXd::Zero(6, 3);
+  for (Index i = 0; i < 2; ++i)
+    for (Index k = 0; k < 3; ++k) F(i * 3 + k, k) = C(i, k);
+  CHECK((entropic_state_costs(A, F, CovarianceType::Full, z, c) - cost).cwiseAbs().maxCoeff() < 1e-12);
+}

@@ -170,18 +170,7 @@ def _state_trim_scores(st: _State, log_b, post, z, gp) -> np.ndarray:
     n = st.n
     if n < 2:
         return np.full(n, -np.inf)
-    d = st.means.shape[1]
-    with np.errstate(divide="ignore"):
-        logA = np.where(st.transmat > 0, np.log(np.where(st.transmat > 0, st.transmat, 1.0)), 0.0)
-    row_entropy = -(st.transmat * logA).sum(axis=1)
-    if st.covariance == "full":
-        chol = np.linalg.cholesky(st.covars)
-        log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
-        trace_inv = np.array([np.sum(np.linalg.inv(L) ** 2) for L in chol])
-    else:
-        log_det = np.log(st.covars).sum(axis=1)
-        trace_inv = (1.0 / st.covars).sum(axis=1)
-    cost = max(z, 0.0) * 0.5 * (d * LOG_2PI_E + log_det) + z * row_entropy + 0.5 * gp * trace_inv
+    cost = _core.entropic_state_costs(st.transmat, st.covars_2d(), st.covariance, z, gp)
     top2 = np.partition(log_b, n - 2, axis=1)[:, n - 2:]
     second, first = top2[:, 0], top2[:, 1]
     runner_up = np.where(log_b >= first[:, None], second[:, None], first[:, None])

@@ -64,6 +64,13 @@ GaussianParams entropic_gaussian_mstep(const GaussianStats& stats, double z, dou
 double entropic_log_prior(const VectorRef& startprob, const MatrixRef& transmat, const MatrixRef& covars,
                           CovarianceType type, double z, double prior);
 
+/// Each state's share of the negated log prior (its description cost):
+///   cost_i = −Z Σ_j θ_ij log θ_ij + Z⁺/2 · log((2πe)^D |K_i|) + prior/2 · tr K_i⁻¹,
+/// so that entropic_log_prior = Z Σ_i π_i log π_i − Σ_i cost_i.
+/// @return #N costs
+VectorXd entropic_state_costs(const MatrixRef& transmat, const MatrixRef& covars, CovarianceType type, double z,
+                              double prior);
+
 /// Transition trimming candidates (parameter extinction, Brand 1999): arc i→j is a candidate when
 ///   θ_ij ≤ exp(−(∂ log L/∂θ_ij)/Z),   ∂ log L/∂θ_ij = ξ_ij / θ_ij,
 /// with ξ the expected transition counts of an E-step at exactly these θ. The largest arc of a
