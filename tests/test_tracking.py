@@ -202,3 +202,46 @@ def test_auto_init_without_a_face_says_what_to_do():
     _dlib_or_skip()
     with pytest.raises(ValueError, match="no face"):
         tracking.auto_init(np.full((120, 160), 128, np.uint8))
+
+
+def test_auto_init_without_dlib_says_what_to_install(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "dlib", None)  # import dlib now raises ImportError
+    with pytest.raises(ValueError, match="pip install dlib-bin.*libdlib-data.*--init points.json"):
+        tracking.auto_init(np.full((120, 160), 128, np.uint8))
+
+
+def test_cli_auto_init_on_carphone(tmp_path):
+    _dlib_or_skip()
+    from voicepuppet.cli import main
+
+    out = tmp_path / "carphone.npz"
+    assert main(["track", _carphone(), "-o", str(out), "--quiet", "--passes", "1",
+                 "--patch-radius", "4", "--levels", "2"]) == 0
+    z = tracking.load_landmarks(out)
+    assert z["points"].shape == (120, 68, 2)
+    assert float(z["fps"]) == pytest.approx(29.97, abs=0.01)
+
+
+def test_failed_runs_leave_no_output(tmp_path, planted):
+    from voicepuppet.cli import main
+
+    vid = tmp_path / "empty.avi"
+    w = cv2.VideoWriter(str(vid), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (64, 48), False)
+    w.release()  # a container with zero frames (or none at all)
+    out = tmp_path / "lm.npz"
+    init = tmp_path / "p.json"
+    init.write_text(json.dumps({"points": [[10, 10], [30, 12], [20, 30]]}))
+    assert main(["track", str(vid), "-o", str(out), "--init", str(init), "--quiet"]) == 2
+    # Points outside the frame: refused before anything is written.
+    frames = planted[0][:3]
+    good = tmp_path / "face.avi"
+    w = cv2.VideoWriter(str(good), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (640, 480), False)
+    for f in frames:
+        w.write(f)
+    w.release()
+    init.write_text(json.dumps({"points": [[10, 10], [900, 12], [20, 30]]}))
+    assert main(["track", str(good), "-o", str(out), "--init", str(init), "--quiet"]) == 2
+    assert not out.exists() and not out.with_suffix(".csv").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.avi", "face.avi", "p.json"]
