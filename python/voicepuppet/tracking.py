@@ -218,7 +218,9 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
 
     info = video.probe_video(path)
     names = None
-    first = next(video.iter_frames(path), None)
+    frames_iter = video.iter_frames(path)
+    first = next(frames_iter, None)
+    frames_iter.close()  # releases the decoder now rather than at garbage collection
     if first is None:
         raise ValueError(f"video {str(path)!r} holds no decodable frames; check the file")
     if isinstance(init, str) and init == "auto":
