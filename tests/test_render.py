@@ -243,3 +243,39 @@ def test_cli_render(tmp_path):
     assert (tmp_path / "a.gif").is_file()
     assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "a.webm")]) == 2
     assert not (tmp_path / "a.webm").exists()
+
+
+def test_animator_controls_exaggerate_and_expression_offset(tmp_path):
+    from voicepuppet import export as E
+    from voicepuppet.animation import add_offset, exaggerate
+    from voicepuppet.cli import main
+
+    anim = procedural_animation(20, 10.0, seed=5)
+    mu = anim.points.mean(axis=0)
+    np.testing.assert_allclose(exaggerate(anim, 1.0).points, anim.points)
+    np.testing.assert_allclose(exaggerate(anim, 2.0).points - mu, 2.0 * (anim.points - mu))
+    np.testing.assert_allclose(exaggerate(anim, 0.0).points, np.broadcast_to(mu, anim.points.shape))
+    with pytest.raises(ValueError, match="exaggeration factor"):
+        exaggerate(anim, -1.0)
+    offset = R.expression_offset(anim.points[0], "smile_left=1,smile_right=0.5")
+    B = R.action_unit_basis(anim.points[0])[..., :2]
+    np.testing.assert_allclose(offset, B[1] * 0.5 + B[2])
+    grin = add_offset(anim, offset, start=0.5, end=1.0)
+    inside = (anim.times >= 0.5 - 1e-9) & (anim.times <= 1.0 + 1e-9)
+    np.testing.assert_allclose(grin.points[inside] - anim.points[inside], np.broadcast_to(offset, (6, 68, 2)))
+    np.testing.assert_array_equal(grin.points[~inside], anim.points[~inside])
+    faded = add_offset(anim, offset, start=0.5, end=1.5, fade=0.5)
+    # the ramp reaches full strength only in the middle of the range (t = 1.0 s)
+    w = (faded.points - anim.points)[:, 54, 0] / offset[54, 0]
+    np.testing.assert_allclose(w[[4, 5, 7, 10, 13, 15, 16]], [0, 0, 0.4, 1.0, 0.4, 0, 0], atol=1e-9)
+    with pytest.raises(ValueError, match="unknown action unit 'grin'"):
+        R.expression_offset(anim.points[0], "grin=1")
+    # the command line: a smile over 0.5..1.0 s shows up in the ARKit weights only there
+    still = Animation(np.repeat(anim.points[:1], 20, axis=0), 10.0)
+    save_animation(still, tmp_path / "s.npz")
+    out = tmp_path / "w.csv"
+    assert main(["export", str(tmp_path / "s.npz"), "--format", "arkit", "-o", str(out),
+                 "--expression", "smile_left=1,smile_right=1", "--expression-time", "0.5:1.0"]) == 0
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    smile = table[:, 2 + E.ARKIT_NAMES.index("mouthSmileLeft")]
+    np.testing.assert_allclose(smile, inside.astype(float), atol=1e-6)

@@ -24,7 +24,7 @@ import numpy as np
 from voicepuppet import face_layout
 
 __all__ = ["Animation", "load_animation", "save_animation", "check_points", "atomic_path",
-           "check_output_path", "neutral_landmarks", "procedural_animation"]
+           "check_output_path", "neutral_landmarks", "procedural_animation", "exaggerate", "add_offset"]
 
 
 def check_points(points, name: str = "points", n_points: Optional[int] = None) -> np.ndarray:
@@ -214,6 +214,49 @@ def load_animation(path, fps: Optional[float] = None) -> Animation:
         points = table[:, 2:].reshape(table.shape[0], -1, 2)
         return Animation(check_points(points, f"points in {str(p)!r}"), fps)
     raise ValueError(f"animation file {str(p)!r} has an unknown format {p.suffix!r}; use .npz or .csv")
+
+
+# ------------------------------------------------------------------ animator controls (Brand §6)
+
+def exaggerate(anim: Animation, factor: float, mean=None) -> Animation:
+    """Scales every frame's deviation from the mean shape: ``mean + factor (x_t - mean)``.
+
+    ``mean`` (P, 2) defaults to the time average of the animation; ``factor`` 1 is the identity,
+    above 1 exaggerates, between 0 and 1 calms the performance.
+    """
+    f = float(factor)
+    if not np.isfinite(f) or f < 0:
+        raise ValueError(f"exaggeration factor must be a finite number >= 0, got {factor!r}")
+    mu = anim.points.mean(axis=0) if mean is None else check_points(np.asarray(mean)[None], "mean",
+                                                                     anim.n_points)[0]
+    return Animation(mu + f * (anim.points - mu), anim.fps, anim.names, anim.confidence)
+
+
+def add_offset(anim: Animation, offset, start: float = 0.0, end: Optional[float] = None,
+               fade: float = 0.0) -> Animation:
+    """Adds a whole-face expression offset (e.g. a grin) over a time range.
+
+    Parameters
+    ----------
+    offset : ndarray, shape (P, 2)
+        displacement of every point at full strength.
+    start, end : float
+        seconds; frames with ``start <= t / fps <= end`` get the offset (``end`` default: the end).
+    fade : float
+        seconds of linear ramp inside the range at each end (0: a hard switch).
+    """
+    off = check_points(np.asarray(offset)[None], "offset", anim.n_points)[0]
+    end = anim.duration if end is None else float(end)
+    start, fade = float(start), float(fade)
+    if not (np.isfinite(start) and np.isfinite(end)) or end < start:
+        raise ValueError(f"expression time range must have start <= end, got {start}..{end} s")
+    if fade < 0 or not np.isfinite(fade):
+        raise ValueError(f"fade must be >= 0 seconds, got {fade}")
+    t = anim.times
+    w = ((t >= start - 1e-9) & (t <= end + 1e-9)).astype(np.float64)
+    if fade > 0:
+        w *= np.clip(np.minimum(t - start, end - t) / fade, 0.0, 1.0)
+    return Animation(anim.points + w[:, None, None] * off, anim.fps, anim.names, anim.confidence)
 
 
 # ------------------------------------------------------------------ a parametric 68-point face

@@ -406,9 +406,10 @@ def export(anim: Animation, path, fmt: Optional[str] = None, *, face: Optional[F
 
 def _cli(args) -> int:
     from voicepuppet.animation import load_animation
-    from voicepuppet.render import load_face
+    from voicepuppet.render import apply_controls, load_face
 
-    anim = load_animation(args.animation)
+    original = load_animation(args.animation)
+    anim = apply_controls(original, args)
     fmt = args.format
     out = args.output
     if out is None:
@@ -417,7 +418,7 @@ def _cli(args) -> int:
         out = str(Path(args.animation).with_suffix("")) + ("_arkit" if fmt.startswith("arkit") else "") + \
             ("_cues" if fmt.startswith("rhubarb") else "") + FORMATS[fmt]
     face = load_face(args.face, args.face_points) if args.face else None
-    export(anim, out, fmt, face=face, mode=args.mode, sound_file=args.sound_file or "")
+    export(anim, out, fmt, face=face, mode=args.mode, neutral=original.points[0], sound_file=args.sound_file or "")
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {out}")
     return 0
 
@@ -434,4 +435,7 @@ def add_parser(sub) -> None:
     p.add_argument("--face-points", help="the photo's points (JSON, CSV or .npz)")
     p.add_argument("--mode", choices=["vertex", "au"], help="mesh driving: vertex (pvd default) or au (gltf default)")
     p.add_argument("--sound-file", help="sound file name recorded in Rhubarb json metadata")
+    from voicepuppet.render import add_control_arguments
+
+    add_control_arguments(p)
     p.set_defaults(func=_cli)

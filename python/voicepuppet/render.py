@@ -44,7 +44,7 @@ from voicepuppet.animation import Animation, atomic_path, check_output_path, che
 
 __all__ = ["FaceMesh", "build_face_mesh", "portrait_image", "ACTION_UNITS", "action_unit_basis",
            "fit_activations", "retarget", "mesh_animation", "FaceRenderer", "draw_landmarks_2d",
-           "render_frames", "write_video", "render", "VIDEO_SUFFIXES"]
+           "render_frames", "write_video", "render", "VIDEO_SUFFIXES", "expression_offset"]
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -379,6 +379,31 @@ def fit_activations(displacements, basis, *, bounds: Optional[tuple] = None) -> 
     return act, np.sqrt(np.mean(resid ** 2, axis=0))
 
 
+def expression_offset(neutral, weights) -> np.ndarray:
+    """A whole-face expression as landmark displacements: ``sum_k w_k B_k`` over the action-unit
+    basis of the 68-point ``neutral`` face (x, y only).
+
+    ``weights``: a dict ``{unit: weight}`` or a string ``"smile_left=1,smile_right=1"``; units from
+    :data:`ACTION_UNITS`. Returns (68, 2). Use with :func:`voicepuppet.animation.add_offset`.
+    """
+    if isinstance(weights, str):
+        parsed = {}
+        for item in filter(None, (w.strip() for w in weights.split(","))):
+            name, _, value = item.partition("=")
+            try:
+                parsed[name.strip()] = float(value) if value else 1.0
+            except ValueError:
+                raise ValueError(f"expression item {item!r} must be UNIT or UNIT=WEIGHT, e.g. smile_left=0.8") from None
+        weights = parsed
+    B = action_unit_basis(neutral)
+    out = np.zeros((face_layout.N_POINTS, 2))
+    for name, w in weights.items():
+        if name not in ACTION_UNITS:
+            raise ValueError(f"unknown action unit {name!r} in the expression; use {', '.join(ACTION_UNITS)}")
+        out += float(w) * B[ACTION_UNITS.index(name), :, :2]
+    return out
+
+
 def mesh_animation(anim: Animation, mesh: FaceMesh, *, mode: str = "vertex",
                    neutral: Optional[np.ndarray] = None) -> dict:
     """Vertex positions of the mesh for every frame of ``anim``.
@@ -686,7 +711,7 @@ def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: 
 
 def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None, mode: str = "vertex",
            truth: Optional[Animation] = None, renderer: str = "mesh", size: Optional[tuple[int, int]] = None,
-           shading: bool = False, progress: bool = False) -> Path:
+           shading: bool = False, neutral: Optional[np.ndarray] = None, progress: bool = False) -> Path:
     """Renders ``anim`` to ``path`` (``.mp4``, ``.gif`` or a folder of ``.png`` frames),
     with ``audio`` muxed into an ``.mp4``. See :func:`render_frames` for the options."""
     p = Path(path)
@@ -696,7 +721,7 @@ def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None
     if p.suffix:
         check_output_path(p, VIDEO_SUFFIXES, "render output")
     frames = render_frames(anim, face=face, mode=mode, truth=truth, renderer=renderer, size=size,
-                           shading=shading, progress=progress)
+                           shading=shading, neutral=neutral, progress=progress)
     return write_video(frames, p, anim.fps, audio=audio, n_frames=anim.n_frames)
 
 
@@ -743,12 +768,42 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def apply_controls(anim: Animation, args) -> Animation:
+    """The animator controls of the command line: ``--exaggerate`` then ``--expression`` over
+    ``--expression-time START:END`` (seconds) with ``--fade``."""
+    from voicepuppet.animation import add_offset, exaggerate
+
+    if getattr(args, "exaggerate", None) is not None:
+        anim = exaggerate(anim, args.exaggerate)
+    if getattr(args, "expression", None):
+        start, end = 0.0, None
+        if args.expression_time:
+            a, _, b = args.expression_time.partition(":")
+            try:
+                start = float(a) if a else 0.0
+                end = float(b) if b else None
+            except ValueError:
+                raise ValueError(f"--expression-time must be START:END in seconds, got {args.expression_time!r}") from None
+        anim = add_offset(anim, expression_offset(anim.points[0], args.expression), start, end, args.fade)
+    return anim
+
+
+def add_control_arguments(p) -> None:
+    """``--exaggerate``, ``--expression``, ``--expression-time``, ``--fade`` (Brand §6)."""
+    p.add_argument("--exaggerate", type=float, help="scale deviations from the mean shape (1: as is)")
+    p.add_argument("--expression", help=f"whole-face offset, e.g. smile_left=1,smile_right=1 (units: "
+                                        f"{', '.join(ACTION_UNITS)})")
+    p.add_argument("--expression-time", help="START:END seconds of the expression (default: all)")
+    p.add_argument("--fade", type=float, default=0.0, help="seconds of ramp at each end of the expression")
+
+
 def _cli(args) -> int:
     import time
 
     from voicepuppet.animation import load_animation
 
-    anim = load_animation(args.animation)
+    original = load_animation(args.animation)
+    anim = apply_controls(original, args)
     truth = load_animation(args.truth) if args.truth else None
     face = load_face(args.face, args.face_points) if args.face else None
     suffix = Path(args.output).suffix.lower()
@@ -756,11 +811,11 @@ def _cli(args) -> int:
     if suffix in (".pvd", ".glb"):
         from voicepuppet.export import export
 
-        export(anim, args.output, face=face, mode=args.mode)
+        export(anim, args.output, face=face, mode=args.mode, neutral=original.points[0])
     else:
         render(anim, args.output, audio=args.audio, face=face, mode=args.mode or "vertex", truth=truth,
                renderer=args.renderer, size=_size(args.size) if args.size else None, shading=args.shading,
-               progress=True)
+               neutral=original.points[0], progress=True)
     dt = time.perf_counter() - t0
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {args.output} "
           f"({dt:.1f} s, {anim.n_frames / max(dt, 1e-9):.1f} frames/s)")
@@ -785,4 +840,5 @@ def add_parser(sub) -> None:
                    help="textured mesh (default) or a fast 2-D landmark drawing")
     p.add_argument("--size", help="output size WxH (default: the face image's)")
     p.add_argument("--shading", action="store_true", help="light the mesh to show its depth")
+    add_control_arguments(p)
     p.set_defaults(func=_cli)
