@@ -279,3 +279,4 @@ def test_diagonal_covariances_and_several_sequences():
     assert np.all(np.diff(lp) >= -1e-8 * np.abs(lp[1:]))
     assert ent.covars_.shape == (ent.n_states, 2) and ent.n_states <= 8
     assert np.isfinite(ent.score(X, lengths))
+

@@ -228,7 +228,13 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
         for it in range(n_iter):
             z = float(zs[it])
             log_b = _core.gaussian_log_density(X, st.means, st.covars_2d(), cov)
-            lp, ll, post, xi, starts = _evaluate(st, log_b, lengths, z, gp)
+            try:
+                lp, ll, post, xi, starts = _evaluate(st, log_b, lengths, z, gp)
+            except RuntimeError as exc:
+                raise RuntimeError(f"entropic training at iteration {it} (z = {z}, {st.n} states, "
+                                   f"{int(np.count_nonzero(st.transmat))} arcs) has no state sequence "
+                                   f"that explains the data: {exc}. Lower z, use trim=False, or start "
+                                   "from more states") from exc
             arcs_trimmed = states_trimmed = 0
             lp_untrimmed = lp
             if model.trim and z > 0:
