@@ -279,3 +279,36 @@ def test_animator_controls_exaggerate_and_expression_offset(tmp_path):
     table = np.loadtxt(out, delimiter=",", skiprows=1)
     smile = table[:, 2 + E.ARKIT_NAMES.index("mouthSmileLeft")]
     np.testing.assert_allclose(smile, inside.astype(float), atol=1e-6)
+
+
+def test_real_photo_with_dlib_landmarks():
+    """A real face (scikit-image's astronaut) with dlib's 68 points: the neutral frame is the
+    photo, a planted jaw opening moves the mouth and chin, not the eyes."""
+    dlib = pytest.importorskip("dlib")
+    skdata = pytest.importorskip("skimage.data")
+    from voicepuppet.tracking import DLIB_MODEL_PATHS
+
+    model = next((p for p in DLIB_MODEL_PATHS if Path(p).is_file()), None)
+    if model is None:
+        pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
+    img = skdata.astronaut()
+    rects, scores, _ = dlib.get_frontal_face_detector().run(img, 1)
+    shape = dlib.shape_predictor(model)(img, rects[int(np.argmax(scores))])
+    pts = np.array([[shape.part(i).x, shape.part(i).y] for i in range(68)], dtype=np.float64)
+    face = R.build_face_mesh(img, pts)
+    assert 150 <= len(face.faces) <= 250
+    assert not face.mouth.any()  # her mouth is open in the photo: its teeth texture the cavity
+    jaw = np.r_[0.0, 0.5, 1.0, 0.5, 0.0]
+    anim = procedural_animation(5, 10.0, jaw=jaw, smile=0.0)  # another face's geometry: retargeted
+    frames = np.stack(list(R.render_frames(anim, face=face))).astype(float)
+    assert np.mean(np.abs(frames[0] - img)) < 2.0
+    lo, hi = pts[48:68].min(axis=0).astype(int), pts[48:68].max(axis=0).astype(int)
+    mouth = np.mean(np.abs(frames[:, lo[1]:hi[1] + 20, lo[0]:hi[0]] - frames[0, lo[1]:hi[1] + 20, lo[0]:hi[0]]),
+                    axis=(1, 2, 3))
+    ey0, ey1 = int(pts[17:27, 1].min()), int(pts[36:48, 1].max()) + 3
+    eyes = np.mean(np.abs(frames[:, ey0:ey1] - frames[0, ey0:ey1]), axis=(1, 2, 3))
+    # more opening, more change; the same opening on the way back, the same picture
+    assert mouth[1] > 3.0 and mouth[2] > mouth[1] + 3.0 and mouth[2] > 10.0
+    assert abs(mouth[3] - mouth[1]) < 0.5
+    assert eyes.max() < 1.0
+    assert mouth[4] < 1.0

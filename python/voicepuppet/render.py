@@ -69,7 +69,8 @@ class FaceMesh:
     faces : ndarray, shape (F, 3), int64
         triangles (counter-clockwise on screen).
     mouth : ndarray, shape (F,), bool
-        faces inside the inner lip contour (drawn as the dark mouth cavity, not textured).
+        faces inside the inner lip contour, drawn as the dark mouth cavity, not textured
+        (none when the photo's mouth is open: its own interior is the texture there).
     uv : ndarray, shape (V, 2)
         texture coordinates (u right, v up) into ``image``.
     image : ndarray, shape (H, W, 3), uint8
@@ -217,8 +218,6 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
     tri = Delaunay(topo)
     faces = tri.simplices.astype(np.int64)
     # counter-clockwise on screen (y up): flip where the image-space (y down) area is positive
-    a, b, c = (pts[faces[:, k]] for k in range(3))
-    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
     ta, tb, tc = (topo[faces[:, k]] for k in range(3))
     tarea = (tb[:, 0] - ta[:, 0]) * (tc[:, 1] - ta[:, 1]) - (tb[:, 1] - ta[:, 1]) * (tc[:, 0] - ta[:, 0])
     flip = tarea > 0
@@ -227,11 +226,14 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
     if P == face_layout.N_POINTS:
         inner = set(range(60, 68))
         mouth = np.array([set(f.tolist()) <= inner for f in faces])
+        # a photo with the mouth open shows its own teeth and tongue: texture the cavity with them
+        gap = np.mean(np.linalg.norm(lm[[61, 62, 63]] - lm[[67, 66, 65]], axis=1))
+        if gap > 0.04 * np.linalg.norm(lm[36] - lm[45]):
+            mouth[:] = False
     z = _depth(pts, lm)
     z[fixed] = 0.0
     vertices = np.column_stack([pts, z])
     uv = np.column_stack([pts[:, 0] / (W - 1), 1.0 - pts[:, 1] / (H - 1)])
-    del area
     return FaceMesh(vertices, faces, mouth, uv, img, P, fixed)
 
 
