@@ -451,8 +451,11 @@ struct SpringMeshTracker::Impl {
       for (int i = 0; i < n; ++i) {
         const int c = (j + 1) * m + (i + 1), k = j * n + i;
         tpl.t[k] = big[c];
-        tpl.gx[k] = 0.5f * (big[c + 1] - big[c - 1]);
-        tpl.gy[k] = 0.5f * (big[c + m] - big[c - m]);
+        // Scharr derivatives (3, 10, 3 smoothing across the difference), normalised to unit gain.
+        tpl.gx[k] = (3.0f * (big[c - m + 1] - big[c - m - 1]) + 10.0f * (big[c + 1] - big[c - 1]) +
+                     3.0f * (big[c + m + 1] - big[c + m - 1])) / 32.0f;
+        tpl.gy[k] = (3.0f * (big[c + m - 1] - big[c - m - 1]) + 10.0f * (big[c + m] - big[c - m]) +
+                     3.0f * (big[c + m + 1] - big[c - m + 1])) / 32.0f;
         mt += tpl.t[k];
         mgx += tpl.gx[k];
         mgy += tpl.gy[k];
