@@ -312,3 +312,30 @@ def test_real_photo_with_dlib_landmarks():
     assert abs(mouth[3] - mouth[1]) < 0.5
     assert eyes.max() < 1.0
     assert mouth[4] < 1.0
+
+
+def test_face_palette_by_name(tmp_path):
+    import json
+
+    from PIL import Image
+
+    from voicepuppet.cli import main
+
+    pal = tmp_path / "faces"
+    pal.mkdir()
+    for name, size in (("wide", (300, 240)), ("tall", (240, 300))):
+        lm = neutral_landmarks(*size)
+        Image.fromarray(R.portrait_image(lm, *size)).save(pal / f"{name}.png")
+        (pal / f"{name}.json").write_text(json.dumps({"points": lm.tolist()}))
+    assert list(R.face_palette(pal)) == ["tall", "wide"]
+    face = R.resolve_face("wide", palette=pal)
+    assert face.size == (300, 240)
+    np.testing.assert_allclose(face.landmarks, neutral_landmarks(300, 240))
+    with pytest.raises(ValueError, match="choose one of tall, wide"):
+        R.resolve_face("round", palette=pal)
+    anim = procedural_animation(3, 10.0)
+    save_animation(anim, tmp_path / "a.npz")
+    assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "t.gif"), "--palette", str(pal),
+                 "--face", "tall"]) == 0
+    with Image.open(tmp_path / "t.gif") as im:
+        assert im.size == (240, 300) and im.n_frames == 3

@@ -281,7 +281,8 @@ def neutral_landmarks(width: int = 320, height: int = 320) -> np.ndarray:
     pts[22:27] = _arc(cx + 52 * s, cy - 58 * s, 34 * s, 10 * s, np.pi, 2 * np.pi, 5)
     # nose bridge 27..30, nose base 31..35
     pts[27:31] = np.column_stack([np.full(4, cx), cy + np.linspace(-42, 8, 4) * s])
-    pts[31:36] = np.column_stack([cx + np.linspace(-20, 20, 5) * s, cy + (18 - 4 * np.cos(np.linspace(-1.2, 1.2, 5))) * s])
+    pts[31:36] = np.column_stack([cx + np.linspace(-20, 20, 5) * s,
+                                  cy + (18 - 4 * np.cos(np.linspace(-1.2, 1.2, 5))) * s])
     # eyes 36..47: corner, two upper lid points, corner, two lower lid points
     for start, ex in ((36, cx - 45 * s), (42, cx + 45 * s)):
         a = np.array([np.pi, 4 * np.pi / 3, 5 * np.pi / 3, 0.0, np.pi / 3, 2 * np.pi / 3])
@@ -315,8 +316,10 @@ def procedural_animation(n_frames: int = 60, fps: float = 30.0, *, width: int = 
     if n_frames < 1:
         raise ValueError(f"n_frames must be >= 1, got {n_frames}")
     t = np.arange(n_frames) / float(fps)
-    jaw = 0.5 - 0.5 * np.cos(2 * np.pi * 2.5 * t) if jaw is None else np.broadcast_to(np.asarray(jaw, float), (n_frames,))
-    smile = 0.5 - 0.5 * np.cos(2 * np.pi * 0.5 * t) if smile is None else np.broadcast_to(np.asarray(smile, float), (n_frames,))
+    jaw = (0.5 - 0.5 * np.cos(2 * np.pi * 2.5 * t) if jaw is None
+           else np.broadcast_to(np.asarray(jaw, float), (n_frames,)))
+    smile = (0.5 - 0.5 * np.cos(2 * np.pi * 0.5 * t) if smile is None
+             else np.broadcast_to(np.asarray(smile, float), (n_frames,)))
     base = neutral_landmarks(width, height)
     iod = float(face_layout.inter_ocular_distance(base))
     pts = np.repeat(base[None], n_frames, axis=0)

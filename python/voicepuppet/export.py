@@ -111,7 +111,8 @@ def write_arkit(anim: Animation, path, neutral=None) -> Path:
                        header="frame,time," + ",".join(ARKIT_NAMES), comments="")
         else:
             doc = {"fps": anim.fps, "names": list(ARKIT_NAMES),
-                   "frames": [{"time": round(float(t), 6), "weights": {n: round(float(w), 5) for n, w in zip(ARKIT_NAMES, row)}}
+                   "frames": [{"time": round(float(t), 6),
+                               "weights": {n: round(float(w), 5) for n, w in zip(ARKIT_NAMES, row)}}
                               for t, row in zip(anim.times, W)]}
             tmp.write_text(json.dumps(doc), encoding="utf-8")
     return Path(path)
@@ -223,7 +224,8 @@ def write_pvd(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
             mesh.cell_data["mouth"] = face.mouth.astype(np.uint8)
             name = f"frame_{t:06d}.vtp"
             mesh.save(tmpdir / name)
-            entries.append(f'    <DataSet timestep="{t / anim.fps:.9g}" group="" part="0" file="{folder.name}/{name}"/>')
+            entries.append(f'    <DataSet timestep="{t / anim.fps:.9g}" group="" part="0" '
+                           f'file="{folder.name}/{name}"/>')
         xml = ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
                "  <Collection>\n" + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n")
         with atomic_path(p, (".pvd",), "VTK series") as tmp:
@@ -362,7 +364,8 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
         textures=[g.Texture(source=0, sampler=0)],
         animations=[g.Animation(name="voicepuppet", samplers=[g.AnimationSampler(input=times, output=wts,
                                                                                  interpolation="LINEAR")],
-                                channels=[g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=0, path="weights"))])],
+                                channels=[g.AnimationChannel(
+                                    sampler=0, target=g.AnimationChannelTarget(node=0, path="weights"))])],
         accessors=accessors, bufferViews=views, buffers=[g.Buffer(byteLength=len(blob))],
     )
     gltf.set_binary_blob(bytes(blob))
@@ -406,7 +409,7 @@ def export(anim: Animation, path, fmt: Optional[str] = None, *, face: Optional[F
 
 def _cli(args) -> int:
     from voicepuppet.animation import load_animation
-    from voicepuppet.render import apply_controls, load_face
+    from voicepuppet.render import apply_controls, resolve_face
 
     original = load_animation(args.animation)
     anim = apply_controls(original, args)
@@ -417,7 +420,7 @@ def _cli(args) -> int:
             raise ValueError("give --format or -o with a suffix")
         out = str(Path(args.animation).with_suffix("")) + ("_arkit" if fmt.startswith("arkit") else "") + \
             ("_cues" if fmt.startswith("rhubarb") else "") + FORMATS[fmt]
-    face = load_face(args.face, args.face_points) if args.face else None
+    face = resolve_face(args.face, args.face_points, args.palette) if args.face else None
     export(anim, out, fmt, face=face, mode=args.mode, neutral=original.points[0], sound_file=args.sound_file or "")
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {out}")
     return 0
@@ -431,7 +434,8 @@ def add_parser(sub) -> None:
     p.add_argument("animation", help="landmark animation (.npz or .csv)")
     p.add_argument("--format", choices=sorted(FORMATS), help="output format (default: from the -o suffix)")
     p.add_argument("-o", "--output", help="output file (default: next to the animation)")
-    p.add_argument("--face", help="face photo for pvd/gltf (default: a drawn portrait)")
+    p.add_argument("--face", help="face photo (or a name with --palette) for pvd/gltf (default: a drawn portrait)")
+    p.add_argument("--palette", help="folder of faces (NAME.png + NAME.json points) to pick --face from")
     p.add_argument("--face-points", help="the photo's points (JSON, CSV or .npz)")
     p.add_argument("--mode", choices=["vertex", "au"], help="mesh driving: vertex (pvd default) or au (gltf default)")
     p.add_argument("--sound-file", help="sound file name recorded in Rhubarb json metadata")

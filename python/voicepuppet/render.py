@@ -614,7 +614,8 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
     if face is None:
         if anim.n_points != face_layout.N_POINTS:
             raise ValueError(f"without a face photo the animation must use the 68-point layout "
-                             f"(a drawn portrait is used), got {anim.n_points} points; pass a face image and its points")
+                             f"(a drawn portrait is used), got {anim.n_points} points; "
+                             "pass a face image and its points")
         first = anim.points[0] if neutral is None else np.asarray(neutral, dtype=np.float64)
         lo, hi = first.min(axis=0), first.max(axis=0)
         margin = 0.45 * (hi - lo).max()
@@ -760,6 +761,43 @@ def load_face(image_path, points_path=None) -> FaceMesh:
     return build_face_mesh(img, pts)
 
 
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+_POINT_SUFFIXES = (".json", ".csv", ".npz")
+
+
+def face_palette(folder) -> dict:
+    """The faces of a palette folder (Brand §6: the animator picks a face by name).
+
+    Every picture ``NAME.png`` (or .jpg, ...) is a face; its points are ``NAME.json`` / ``.csv`` /
+    ``.npz`` beside it (without them the 68 landmarks are detected). Returns
+    ``{name: (image_path, points_path or None)}`` sorted by name.
+    """
+    d = Path(folder)
+    if not d.is_dir():
+        raise ValueError(f"face palette {str(d)!r} is not a folder; give a folder of NAME.png + NAME.json faces")
+    faces = {}
+    for img in sorted(d.iterdir()):
+        if img.suffix.lower() in _IMAGE_SUFFIXES and not img.name.startswith("."):
+            pts = next((img.with_suffix(s) for s in _POINT_SUFFIXES if img.with_suffix(s).is_file()), None)
+            faces[img.stem] = (img, pts)
+    if not faces:
+        raise ValueError(f"face palette {str(d)!r} holds no pictures ({', '.join(_IMAGE_SUFFIXES)})")
+    return faces
+
+
+def resolve_face(face: str, points=None, palette=None) -> FaceMesh:
+    """A face mesh from ``face``: a picture file (with ``points`` or detected landmarks) or, with a
+    ``palette`` folder, a face name in it."""
+    if palette is not None and not Path(face).is_file():
+        faces = face_palette(palette)
+        if face not in faces:
+            raise ValueError(f"face {face!r} is not in the palette {str(palette)!r}; choose one of "
+                             f"{', '.join(faces)}")
+        image, pts = faces[face]
+        return load_face(image, points if points is not None else pts)
+    return load_face(face, points)
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -785,7 +823,8 @@ def apply_controls(anim: Animation, args) -> Animation:
                 start = float(a) if a else 0.0
                 end = float(b) if b else None
             except ValueError:
-                raise ValueError(f"--expression-time must be START:END in seconds, got {args.expression_time!r}") from None
+                raise ValueError(f"--expression-time must be START:END in seconds, "
+                                 f"got {args.expression_time!r}") from None
         anim = add_offset(anim, expression_offset(anim.points[0], args.expression), start, end, args.fade)
     return anim
 
@@ -807,7 +846,7 @@ def _cli(args) -> int:
     original = load_animation(args.animation)
     anim = apply_controls(original, args)
     truth = load_animation(args.truth) if args.truth else None
-    face = load_face(args.face, args.face_points) if args.face else None
+    face = resolve_face(args.face, args.face_points, args.palette) if args.face else None
     suffix = Path(args.output).suffix.lower()
     t0 = time.perf_counter()
     if suffix in (".pvd", ".glb"):
@@ -832,7 +871,9 @@ def add_parser(sub) -> None:
     p.add_argument("animation", help="landmark animation (.npz or .csv)")
     p.add_argument("-o", "--output", required=True, help="out.mp4, out.gif, a new folder, out.pvd or out.glb")
     p.add_argument("--audio", help="sound to mux into the .mp4 (wav, flac, mp3, or a video's audio)")
-    p.add_argument("--face", help="face photo (default: a drawn portrait on the first frame)")
+    p.add_argument("--face", help="face photo, or a face name with --palette (default: a drawn portrait on "
+                                  "the first frame)")
+    p.add_argument("--palette", help="folder of faces (NAME.png + NAME.json points) to pick --face from")
     p.add_argument("--face-points", help="the photo's points: JSON {\"points\": [[x, y], ...]}, CSV, or .npz "
                                          "(default: detect 68 landmarks with dlib)")
     p.add_argument("--truth", help="ground-truth animation: render side by side (prediction | truth)")
