@@ -9,6 +9,8 @@
 /// Drift: every frame is first tracked against each point's current template, then refined
 /// against its first-frame template; the current template is replaced only when both answers
 /// agree (the guarded update of Matthews, Ishikawa & Baker, "The template update problem", 2004).
+/// The joint system is block-sparse (2×2 blocks, one coupling per spring) and is solved by
+/// block-Jacobi preconditioned conjugate gradients.
 ///
 /// Residuals are brightness-normalised (the sampled patch is scaled to the template's mean and
 /// contrast), and each point's data term is weighted by its normalised cross-correlation with
@@ -93,14 +95,15 @@ struct TrackerOptions {
   double ncc_full = 0.85;        ///< ... and 1 at or above this one (ncc_floor < ncc_full <= 1)
   double lost_confidence = 0.5;  ///< a point is lost when its confidence is below this
   double drift_tolerance = 1.0;  ///< px: current- and first-template answers must agree this well
-                                 ///< for the current template to be replaced (> 0)
+                                 ///< (and the first-frame correlation reach ncc_full) for the
+                                 ///< current template to be replaced (> 0)
   double damping = 1e-3;         ///< 1/px² Levenberg damping toward the previous iterate (> 0)
 };
 
 /// One frame's answer.
 struct TrackerFrame {
   RowMatrixXd points;   ///< #P by 2 positions (x, y) in pixels
-  VectorXd confidence;  ///< #P in [0, 1]: correlation of the patch with the template it matched
+  VectorXd confidence;  ///< #P in [0, 1]: correlation of the final patch with the first-frame patch
   VectorXb lost;        ///< #P: outside the image or confidence below `lost_confidence`
   Index iterations = 0; ///< Gauss–Newton iterations spent on this frame (all levels, both stages)
 };
