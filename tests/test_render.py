@@ -88,6 +88,14 @@ def test_action_unit_least_squares_recovers_planted_activations(rng):
     np.testing.assert_allclose(act_b[inside], truth[inside], atol=0.02)
 
 
+def test_au_projection_reports_motion_outside_the_basis():
+    B = R.action_unit_basis(neutral_landmarks())
+    shift = np.zeros((3, 68, 2))
+    shift[:, :, 0] = 3.0  # a head translation: no action unit expresses it
+    _, err = R.fit_activations(shift, B)
+    assert np.all(err > 1.0) and np.all(err <= 3.0 / np.sqrt(2) + 1e-9)
+
+
 def test_au_mode_tracks_the_planted_jaw_and_reports_its_error(face, jaw_anim):
     anim, jaw = jaw_anim
     res = R.mesh_animation(anim, face, mode="au")

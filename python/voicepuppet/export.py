@@ -266,7 +266,9 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     embedded as the (unlit) base colour texture; the mouth cavity is a second primitive.
 
     Returns a summary dict (``targets``, ``frames``, ``duration``, ``max_error_m``: the largest
-    difference between the morph-target reconstruction and the driven mesh, in metres).
+    difference between the morph-target reconstruction and the driven mesh, in metres; with
+    ``mode="au"`` also ``au_rms_error_iod``: the landmark motion the basis cannot express, mean
+    RMS per coordinate in inter-ocular distances).
     """
     try:
         import pygltflib as g
@@ -371,15 +373,19 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     gltf.set_binary_blob(bytes(blob))
     with atomic_path(path, (".glb",), "glTF file") as tmp:
         gltf.save_binary(str(tmp))
-    return {"targets": len(names), "frames": anim.n_frames, "duration": anim.duration, "max_error_m": max_err}
+    summary = {"targets": len(names), "frames": anim.n_frames, "duration": anim.duration, "max_error_m": max_err}
+    if mode == "au":
+        summary["au_rms_error_iod"] = float(np.mean(res["rms_error"])) / iod
+    return summary
 
 
 # --------------------------------------------------------------------------- dispatch
 
 def export(anim: Animation, path, fmt: Optional[str] = None, *, face: Optional[FaceMesh] = None,
-           mode: Optional[str] = None, neutral=None, sound_file: str = "") -> Path:
+           mode: Optional[str] = None, neutral=None, sound_file: str = "", report=None) -> Path:
     """Writes ``anim`` in format ``fmt`` (a key of :data:`FORMATS`; default: from the suffix,
-    ``.json`` meaning Rhubarb cues and ``.csv`` landmarks)."""
+    ``.json`` meaning Rhubarb cues and ``.csv`` landmarks). ``report``, if given, is called with
+    the summary of :func:`write_glb` for the glTF format."""
     p = Path(path)
     if fmt is None:
         by_suffix = {".csv": "csv", ".npz": "npz", ".pvd": "pvd", ".glb": "gltf", ".json": "rhubarb",
@@ -400,12 +406,23 @@ def export(anim: Animation, path, fmt: Optional[str] = None, *, face: Optional[F
         return write_rhubarb(anim, p, neutral, sound_file)
     if fmt == "pvd":
         return write_pvd(anim, p, face, mode or "vertex", neutral)
-    write_glb(anim, p, face, mode or "au", neutral)
+    summary = write_glb(anim, p, face, mode or "au", neutral)
+    if report is not None:
+        report(summary)
     return p
 
 
 
 # --------------------------------------------------------------------------- CLI
+
+def _print_summary(summary: dict) -> None:
+    if "au_rms_error_iod" in summary:
+        print(f"action-unit projection: {summary['targets']} units, landmark error "
+              f"{summary['au_rms_error_iod']:.4f} IOD (RMS per coordinate, mean over frames)")
+    else:
+        print(f"{summary['targets']} morph targets reproduce the vertex motion within "
+              f"{summary['max_error_m'] * 1000:.3f} mm")
+
 
 def _cli(args) -> int:
     from voicepuppet.animation import load_animation
@@ -421,7 +438,8 @@ def _cli(args) -> int:
         out = str(Path(args.animation).with_suffix("")) + ("_arkit" if fmt.startswith("arkit") else "") + \
             ("_cues" if fmt.startswith("rhubarb") else "") + FORMATS[fmt]
     face = resolve_face(args.face, args.face_points, args.palette) if args.face else None
-    export(anim, out, fmt, face=face, mode=args.mode, neutral=original.points[0], sound_file=args.sound_file or "")
+    export(anim, out, fmt, face=face, mode=args.mode, neutral=original.points[0], sound_file=args.sound_file or "",
+           report=_print_summary)
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {out}")
     return 0
 

@@ -852,7 +852,9 @@ def _cli(args) -> int:
     if suffix in (".pvd", ".glb"):
         from voicepuppet.export import export
 
-        export(anim, args.output, face=face, mode=args.mode, neutral=original.points[0])
+        from voicepuppet.export import _print_summary
+
+        export(anim, args.output, face=face, mode=args.mode, neutral=original.points[0], report=_print_summary)
     else:
         render(anim, args.output, audio=args.audio, face=face, mode=args.mode or "vertex", truth=truth,
                renderer=args.renderer, size=_size(args.size) if args.size else None, shading=args.shading,
