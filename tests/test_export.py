@@ -79,6 +79,7 @@ def test_vtk_series_loads_back_in_pyvista(tmp_path):
     face = E.default_face(anim)
     E.write_pvd(anim, tmp_path / "s.pvd", face=face)
     assert sorted(os.listdir(tmp_path)) == ["s.pvd", "s_frames"]
+    assert (tmp_path / "s_frames" / "texture.png").is_file()
     verts = R.mesh_animation(anim, face)["vertices"]
     reader = pv.get_reader(str(tmp_path / "s.pvd"))
     np.testing.assert_allclose(reader.time_values, np.arange(5) / 10.0)
@@ -108,6 +109,19 @@ def test_arkit_weights_of_a_planted_jaw_opening(tmp_path):
         assert np.corrcoef(Ws[:, E.ARKIT_NAMES.index(name)], np.linspace(0, 1, 11))[0, 1] > 0.99
         assert Ws[-1, E.ARKIT_NAMES.index(name)] > 0.8
     assert Ws[:, col].max() < 0.05
+    # subject's left vs right, and a negative brow raise as browDown
+    base = neutral_landmarks()
+    B = R.action_unit_basis(base)[..., :2]
+    k = R.ACTION_UNITS.index
+    planted = base + 0.7 * B[k("blink_left")] - 0.5 * B[k("brow_raise")] + 0.3 * B[k("smile_right")]
+    Wp, errp = E.arkit_weights(Animation(np.stack([base, planted]), 10.0))
+    got = {n: w for n, w in zip(E.ARKIT_NAMES, Wp[1]) if w > 1e-6}
+    assert got.keys() == {"eyeBlinkLeft", "browDownLeft", "browDownRight", "mouthSmileRight"}
+    names = ["eyeBlinkLeft", "browDownLeft", "browDownRight", "mouthSmileRight"]
+    np.testing.assert_allclose([got[n] for n in names], [0.7, 0.5, 0.5, 0.3], atol=1e-6)
+    assert errp.max() < 1e-9
+    # the subject's left eye is on the image's right (larger x)
+    assert base[42:48, 0].mean() > base[36:42, 0].mean()
     E.export(anim, tmp_path / "w.csv", "arkit")
     E.export(anim, tmp_path / "w.json", "arkit-json")
     table = np.loadtxt(tmp_path / "w.csv", delimiter=",", skiprows=1)

@@ -201,8 +201,9 @@ def default_face(anim: Animation, neutral=None) -> FaceMesh:
 
 def write_pvd(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str = "vertex", neutral=None) -> Path:
     """A VTK time series for ParaView: ``NAME.pvd`` listing ``NAME_frames/frame_000000.vtp``
-    (the mesh per frame, with texture coordinates; times in seconds). Both the folder and the
-    collection are written to temporary names and renamed into place."""
+    (the mesh per frame, with texture coordinates and a ``mouth`` cell flag; times in seconds)
+    and the photo as ``NAME_frames/texture.png``. Both the folder and the collection are
+    written to temporary names and renamed into place."""
     import pyvista as pv
 
     from voicepuppet.render import _pyvista
@@ -216,6 +217,9 @@ def write_pvd(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
         raise ValueError(f"{str(folder)!r} already exists; remove it or choose another output name")
     tmpdir = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".partial", dir=p.parent))
     try:
+        from PIL import Image
+
+        Image.fromarray(face.image).save(tmpdir / "texture.png")
         cells = np.hstack([np.full((len(face.faces), 1), 3), face.faces])
         entries = []
         for t in range(anim.n_frames):
