@@ -162,6 +162,9 @@ def test_mp4_has_the_frame_count_duration_and_audio(tmp_path, face, audio_second
         n = sum(1 for _ in c.decode(video=0))
         assert n == 30
         a_dur = float(audio.duration * audio.time_base)
+        # in sync: both streams start at zero (within AAC's priming delay)
+        assert abs(float(video.start_time * video.time_base)) < 1e-6
+        assert abs(float(audio.start_time * audio.time_base)) <= 1024 / 16000 + 1e-6
     # audio longer than the video is cut to it; shorter audio stays as it is
     assert abs(a_dur - min(audio_seconds, 30 / 29.97)) < 1.0 / 29.97 + 0.03
 
@@ -347,3 +350,24 @@ def test_face_palette_by_name(tmp_path):
                  "--face", "tall"]) == 0
     with Image.open(tmp_path / "t.gif") as im:
         assert im.size == (240, 300) and im.n_frames == 3
+
+
+def test_a_face_of_other_geometry_by_point_correspondence():
+    """Any point set works (a cartoon with 12 points): the mesh, vertex driving and rendering
+    need no 68-point semantics; the action-unit mode says it needs them."""
+    from PIL import Image, ImageDraw
+
+    ang = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    pts = np.column_stack([100 + 50 * np.cos(ang), 100 + 60 * np.sin(ang)])
+    im = Image.new("RGB", (200, 200), (30, 90, 160))
+    ImageDraw.Draw(im).polygon([tuple(p) for p in pts], fill=(250, 200, 40))
+    face = R.build_face_mesh(np.asarray(im), pts)
+    assert not face.mouth.any() and face.n_landmarks == 12
+    motion = np.zeros((4, 12, 2))
+    motion[:, 3, 1] = np.r_[0.0, 5.0, 10.0, 0.0]  # point 3 (bottom) moves down and back
+    anim = Animation(pts + motion, 10.0)
+    frames = np.stack(list(R.render_frames(anim, face=face))).astype(float)
+    diff = np.abs(frames - frames[0]).mean(axis=(1, 2, 3))
+    assert diff[0] == 0 and diff[3] < 0.5 and diff[2] > diff[1] > 0.05
+    with pytest.raises(ValueError, match="68-point layout"):
+        R.mesh_animation(anim, face, mode="au")
