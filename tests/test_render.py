@@ -371,3 +371,14 @@ def test_a_face_of_other_geometry_by_point_correspondence():
     assert diff[0] == 0 and diff[3] < 0.5 and diff[2] > diff[1] > 0.05
     with pytest.raises(ValueError, match="68-point layout"):
         R.mesh_animation(anim, face, mode="au")
+
+
+def test_chunked_rendering_matches_whole_animation_driving(face, monkeypatch):
+    anim = procedural_animation(8, 10.0, width=240, height=240, seed=6)
+    verts = R.mesh_animation(anim, face)["vertices"]
+    with R.FaceRenderer(face) as r:
+        direct = [r.frame(v) for v in verts]
+    monkeypatch.setattr(R, "_FRAME_CHUNK", 3)
+    chunked = list(R.render_frames(anim, face=face))
+    for a, b in zip(direct, chunked):
+        np.testing.assert_array_equal(a, b)

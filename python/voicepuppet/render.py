@@ -53,6 +53,7 @@ ACTION_UNITS = ("jaw_open", "smile_right", "smile_left", "pucker", "lip_press", 
                 "brow_raise", "blink_right", "blink_left")
 
 _MOUTH_COLOUR = (70, 18, 24)
+_FRAME_CHUNK = 512  # frames of vertices computed at once while rendering
 
 
 # ------------------------------------------------------------------------------ the mesh
@@ -623,13 +624,23 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
         W, H = _even(int(hi[0] - lo[0] + 2 * margin)), _even(int(hi[1] - lo[1] + 2 * margin))
         face = build_face_mesh(portrait_image(first - shift, W, H), first - shift)
     ref = None if neutral is None else np.asarray(neutral, dtype=np.float64)
-    pred = mesh_animation(anim, face, mode=mode, neutral=ref)["vertices"]
-    gt = None if truth is None else mesh_animation(truth, face, mode=mode, neutral=ref)["vertices"]
+    # vertices in chunks of frames: memory stays bounded for hour-long animations
+    chunk = _FRAME_CHUNK
+    pred_ref = anim.points[0] if ref is None else ref
+    truth_ref = None if truth is None else (truth.points[0] if ref is None else ref)
+    pred = gt = None
     with FaceRenderer(face, size=size, shading=shading) as r:
         for t in frames:
-            img = r.frame(pred[t])
+            if t % chunk == 0:
+                part = slice(t, t + chunk)
+                pred = mesh_animation(Animation(anim.points[part], anim.fps), face, mode=mode,
+                                      neutral=pred_ref)["vertices"]
+                if truth is not None:
+                    gt = mesh_animation(Animation(truth.points[part], truth.fps), face, mode=mode,
+                                        neutral=truth_ref)["vertices"]
+            img = r.frame(pred[t % chunk])
             if gt is not None:
-                img = np.hstack([_label(img, "prediction"), _label(r.frame(gt[t]), "ground truth")])
+                img = np.hstack([_label(img, "prediction"), _label(r.frame(gt[t % chunk]), "ground truth")])
             yield img
 
 
