@@ -196,3 +196,24 @@ def test_cli_export(tmp_path):
     assert (tmp_path / "a_cues.json").is_file()
     assert main(["export", str(tmp_path / "a.npz"), "-o", str(tmp_path / "b.glb")]) == 0
     assert main(["export", str(tmp_path / "a.npz"), "--format", "gltf", "-o", str(tmp_path / "b.csv")]) == 2
+
+
+def test_failed_writes_leave_nothing(tmp_path, monkeypatch):
+    pygltflib = pytest.importorskip("pygltflib")
+    anim = procedural_animation(4, 10.0)
+
+    def boom(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pygltflib.GLTF2, "save_binary", boom)
+    with pytest.raises(OSError, match="disk full"):
+        E.write_glb(anim, tmp_path / "a.glb")
+    monkeypatch.setattr(np, "savetxt", boom)
+    with pytest.raises(OSError, match="disk full"):
+        E.export(anim, tmp_path / "w.csv", "arkit")
+    import pyvista as pv
+
+    monkeypatch.setattr(pv.PolyData, "save", boom)
+    with pytest.raises(OSError, match="disk full"):
+        E.write_pvd(anim, tmp_path / "s.pvd")
+    assert os.listdir(tmp_path) == []
