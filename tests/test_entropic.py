@@ -186,7 +186,16 @@ def test_every_trim_step_raises_the_log_posterior(monkeypatch):
                               st.covariance), z, gp, res[0]))
         return res
 
+    real_lp = E._log_posterior
+
+    def spy_lp(st, log_b, lengths, z, gp):
+        value = real_lp(st, log_b, lengths, z, gp)
+        seen.append((E._State(st.startprob.copy(), st.transmat.copy(), st.means.copy(), st.covars.copy(),
+                              st.covariance), z, gp, value))
+        return value
+
     monkeypatch.setattr(E, "_evaluate", spy)
+    monkeypatch.setattr(E, "_log_posterior", spy_lp)
     ent = GaussianHMM(10, n_iter=25, random_state=1, tol=-np.inf, prior="entropic", z=1.0).fit(X)
     trims = [r for r in ent.history_ if r["arcs_trimmed"] or r["states_trimmed"]]
     assert trims

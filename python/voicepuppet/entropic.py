@@ -133,6 +133,15 @@ class _State:
                                               self.covariance, z, gp))
 
 
+_TRIALS = [0]  # forward passes spent on trimming trials (reported per iteration in the history)
+
+
+def _log_posterior(st: _State, log_b, lengths, z, gp) -> float:
+    """Exact log posterior at st from a forward pass only (for trimming trials)."""
+    _TRIALS[0] += 1
+    return float(_core.log_likelihood(log_b, st.startprob, st.transmat, lengths)) + st.log_prior(z, gp)
+
+
 def _evaluate(st: _State, log_b, lengths, z, gp):
     """Forward-backward at st: (log posterior, log-likelihood, posteriors, ξ, starts)."""
     ll, post, xi, starts, _ = _core.forward_backward(log_b, st.startprob, st.transmat, lengths)
@@ -178,11 +187,12 @@ def _state_trim_scores(st: _State, log_b, post, z, gp) -> np.ndarray:
     return cost - (post * advantage).sum(axis=0)
 
 
-def _record(history, it, z, lp, lp0, ll, st, n_arcs_trimmed, n_states_trimmed):
+def _record(history, it, z, lp, lp0, ll, st, n_arcs_trimmed, n_states_trimmed, trials):
     history.append({"iteration": it, "z": z, "log_posterior": lp, "log_posterior_untrimmed": lp0,
                     "log_likelihood": ll,
                     "states": int(st.n), "arcs": int(np.count_nonzero(st.transmat)),
-                    "arcs_trimmed": int(n_arcs_trimmed), "states_trimmed": int(n_states_trimmed)})
+                    "arcs_trimmed": int(n_arcs_trimmed), "states_trimmed": int(n_states_trimmed),
+                    "trim_trials": int(trials)})
 
 
 def fit_entropic(model, X, lengths=None) -> list[dict]:
@@ -237,6 +247,7 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
                                    "from more states") from exc
             arcs_trimmed = states_trimmed = 0
             lp_untrimmed = lp
+            trials_before = _TRIALS[0]
             if model.trim and z > 0:
                 # Transition trimming: all candidates, then the weaker half, then a quarter.
                 flags = _core.transition_trim_candidates(st.transmat, xi, z)
@@ -250,9 +261,8 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
                         f[sel[:, 0], sel[:, 1]] = 1.0
                         trial = _State(st.startprob, _core.trim_transitions(st.transmat, f), st.means,
                                        st.covars, cov)
-                        res = _evaluate(trial, log_b, lengths, z, gp)
-                        if res[0] > lp:
-                            st, (lp, ll, post, xi, starts) = trial, res
+                        if _log_posterior(trial, log_b, lengths, z, gp) > lp:
+                            st, (lp, ll, post, xi, starts) = trial, _evaluate(trial, log_b, lengths, z, gp)
                             arcs_trimmed = k
                             break
                         if k == 1:
@@ -271,14 +281,16 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
                         continue
                     trial_log_b = np.ascontiguousarray(np.delete(log_b, i, axis=1))
                     try:
-                        res = _evaluate(trial, trial_log_b, lengths, z, gp)
+                        accept = _log_posterior(trial, trial_log_b, lengths, z, gp) > lp
                     except RuntimeError:  # no allowed path without this state
                         continue
-                    if res[0] > lp:
+                    if accept:
+                        res = _evaluate(trial, trial_log_b, lengths, z, gp)
                         st, log_b, (lp, ll, post, xi, starts) = trial, trial_log_b, res
                         scores = _state_trim_scores(st, log_b, post, z, gp)
                         states_trimmed += 1
-            _record(history, it, z, lp, lp_untrimmed, ll, st, arcs_trimmed, states_trimmed)
+            _record(history, it, z, lp, lp_untrimmed, ll, st, arcs_trimmed, states_trimmed,
+                    _TRIALS[0] - trials_before)
             if bar is not None:
                 bar.set_postfix(logpost=f"{lp:.6g}", states=st.n, arcs=int(np.count_nonzero(st.transmat)))
                 bar.update(1)
