@@ -199,8 +199,8 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
     """Train ``model`` (a :class:`~voicepuppet.hmm.GaussianHMM` with ``prior="entropic"``) by
     entropic MAP-EM; returns (and stores as ``model.history_``) one dict per iteration with ``z``,
     ``log_posterior`` and ``log_likelihood`` (at the parameters entering that iteration's M-step,
-    after trimming), ``log_posterior_untrimmed`` (the same before trimming), ``states``, ``arcs``
-    and how many arcs / states that iteration trimmed.
+    after trimming), ``log_posterior_untrimmed`` (the same before trimming), ``states``, ``arcs``,
+    how many arcs / states that iteration trimmed and ``trim_trials`` (forward passes spent).
 
     Each iteration: log densities and forward-backward; if ``model.trim`` and Z > 0, transition
     trimming (Brand's test θ_ij ≤ exp(−(ξ_ij/θ_ij)/Z)) and then state trimming, each kept only if
