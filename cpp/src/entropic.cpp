@@ -286,7 +286,9 @@ RowMatrixXd entropic_rows(const MatrixRef& counts, double z, const MatrixRef& ol
 GaussianParams entropic_gaussian_mstep(const GaussianStats& stats, double z, double prior,
                                        const MatrixRef& old_means, const MatrixRef& old_covars) {
   check_z(z);
-  if (!(prior >= 0) || !std::isfinite(prior)) fail_argument("prior (covariance regulariser) must be finite and >= 0, got ", prior);
+  if (!(prior >= 0) || !std::isfinite(prior)) {
+    fail_argument("prior (covariance regulariser) must be finite and >= 0, got ", prior);
+  }
   const double zp = std::max(z, 0.0);
   const Index n_states = stats.weight.size(), d = stats.shift.size();
   const bool full = stats.type == CovarianceType::Full;
@@ -329,7 +331,9 @@ GaussianParams entropic_gaussian_mstep(const GaussianStats& stats, double z, dou
 VectorXd entropic_state_costs(const MatrixRef& transmat, const MatrixRef& covars, CovarianceType type, double z,
                               double prior) {
   check_z(z);
-  if (!(prior >= 0) || !std::isfinite(prior)) fail_argument("prior (covariance regulariser) must be finite and >= 0, got ", prior);
+  if (!(prior >= 0) || !std::isfinite(prior)) {
+    fail_argument("prior (covariance regulariser) must be finite and >= 0, got ", prior);
+  }
   const Index n = transmat.rows();
   if (transmat.cols() != n) fail_argument("transmat must be square, got ", shape_of(transmat));
   check_row_stochastic(transmat, "transmat");

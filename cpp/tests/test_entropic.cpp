@@ -199,3 +199,16 @@ TEST_CASE("state costs: closed form for diagonal Gaussians, and they add up to t
     for (Index k = 0; k < 3; ++k) F(i * 3 + k, k) = C(i, k);
   CHECK((entropic_state_costs(A, F, CovarianceType::Full, z, c) - cost).cwiseAbs().maxCoeff() < 1e-12);
 }
+
+TEST_CASE("entropic_rows: row-wise estimate, rows without evidence kept, bad input rejected") {
+  RowMatrixXd counts(3, 3), old(3, 3);
+  counts << 5, 1, 0, 0, 0, 0, 2, 2, 2;
+  old << 0.2, 0.3, 0.5, 0.1, 0.8, 0.1, 1.0 / 3, 1.0 / 3, 1.0 / 3;
+  const RowMatrixXd r = entropic_rows(counts, 1.0, old);
+  CHECK(r.row(0).transpose().isApprox(entropic_multinomial(counts.row(0).transpose(), 1.0)));
+  CHECK(r.row(1) == old.row(1));
+  for (Index k = 0; k < 3; ++k) CHECK(r(2, k) == doctest::Approx(1.0 / 3));  // symmetric evidence
+  CHECK_THROWS_AS(entropic_rows(counts, 1.0, RowMatrixXd(1, 3)), std::invalid_argument);
+  counts(0, 0) = -1;
+  CHECK_THROWS_AS(entropic_rows(counts, 1.0, old), std::invalid_argument);
+}
