@@ -316,11 +316,20 @@ def make_corpus(out_dir, train_seconds: float = 60.0, n_test: int = 3, seed: int
     total = 0.0
     bar = tqdm(total=len(train_plan) + len(test_plan), desc="performer speech", unit="utt",
                disable=not progress, leave=False)
-    for text, style, pause in train_plan:
-        u = speak(text, **style)
-        utts.append((u, pause))
-        total += u.duration + pause
-        bar.update()
+    from concurrent.futures import ThreadPoolExecutor
+
+    def say(item):
+        return speak(item[0], **item[1])
+
+    with ThreadPoolExecutor(max_workers=2) as pool:  # each utterance is its own espeak process
+        for (_, _, pause), u in zip(train_plan, pool.map(say, train_plan)):
+            utts.append((u, pause))
+            total += u.duration + pause
+            bar.update()
+        tests = []
+        for u in pool.map(say, test_plan):
+            tests.append(u)
+            bar.update()
     extra = 0
     while total < train_seconds:  # top up deterministically
         text, style, pause = train_plan[extra % len(train_plan)]
@@ -333,10 +342,6 @@ def make_corpus(out_dir, train_seconds: float = 60.0, n_test: int = 3, seed: int
         total -= utts[-1][0].duration + utts[-1][1]
         utts.pop()
     train_utt = concatenate([u for u, _ in utts], [p for _, p in utts])
-    tests = []
-    for text, style in test_plan:
-        tests.append(speak(text, **style))
-        bar.update()
     bar.close()
     if real_test:
         try:

@@ -4,7 +4,7 @@ Each phone class sets a target and a dominance (how strongly it claims the artic
 five articulators: jaw opening, lip aperture effort, spreading, rounding/protrusion and the
 labiodental lower-lip tuck. Co-articulation follows Cohen & Massaro: an articulator's value is
 the dominance-weighted mean of the targets, each phone's dominance decaying exponentially with the
-distance from its segment (time constants 35-120 ms), then a zero-phase critically damped
+distance from its segment (Gaussian fall-off, 40-120 ms), then a zero-phase critically damped
 second-order filter (the muscle) smooths it. The inner-lip gap is a physical contact: the
 jaw and lip efforts add up to an aperture that the lips clip at zero (a smooth softplus), so
 bilabials whose effort overshoots into contact close the lips fully. Brows follow prosody (F0
@@ -31,14 +31,14 @@ PARAM_NAMES = ARTICULATORS + ("gap", "brows", "blink")
 INTERNAL_RATE = 200.0
 
 # co-articulation time constants (s) per articulator: rounding anticipates furthest
-_TAU = {"jaw": 0.06, "lips": 0.035, "spread": 0.05, "round": 0.12, "labiodental": 0.035}
+_TAU = {"jaw": 0.07, "lips": 0.04, "spread": 0.06, "round": 0.12, "labiodental": 0.04}
 # muscle time constant of the critically damped smoothing (s)
 _MUSCLE = 0.012
 
 # class -> {articulator: (target, dominance)}; unspecified articulators take (0, 0.3)
 _CLASSES = {
     "pause": {"jaw": (0.05, 0.4), "lips": (-0.3, 0.4), "spread": (0.0, 0.4), "round": (0.0, 0.4)},
-    "bilabial": {"jaw": (0.15, 1.5), "lips": (-1.5, 8.0)},
+    "bilabial": {"jaw": (0.15, 1.5), "lips": (-1.5, 4.0)},
     "labiodental": {"jaw": (0.12, 1.5), "lips": (0.05, 5.0), "labiodental": (1.0, 5.0)},
     "dental": {"jaw": (0.22, 1.0), "lips": (0.35, 1.0), "spread": (0.2, 0.5)},
     "alveolar": {"jaw": (0.2, 0.8), "lips": (0.3, 0.6)},
@@ -163,7 +163,7 @@ def articulator_tracks(phones, duration: float, rate: float = INTERNAL_RATE) -> 
     for k, art in enumerate(ARTICULATORS):
         targ = np.array([_CLASSES[c].get(art, (0.0, 0.3))[0] for _, _, c in segs])
         dom = np.array([_CLASSES[c].get(art, (0.0, 0.3))[1] for _, _, c in segs])
-        w = dom[None, :] * np.exp(-dist / _TAU[art])
+        w = dom[None, :] * np.exp(-(dist / _TAU[art]) ** 2)
         raw = (w @ targ) / np.maximum(w.sum(axis=1), 1e-300)
         out[:, k] = _critically_damped(raw, _MUSCLE, rate)
     return out
@@ -209,7 +209,7 @@ def deform(neutral: np.ndarray, params: np.ndarray) -> np.ndarray:
     T = len(params)
     du = np.zeros((T, 68))
     dv = np.zeros((T, 68))
-    g0 = max(0.0, local[66, 1] - local[62, 1])
+    g0 = float(np.linalg.norm(local[66] - local[62]))
     dg = P["gap"] - g0
     lower_in, lower_out = [65, 66, 67], [55, 56, 57, 58, 59]
     upper_in, upper_out = [61, 62, 63], [49, 50, 51, 52, 53]

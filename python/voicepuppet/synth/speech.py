@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import json
+import os
 import re
-import threading
+import subprocess
+import sys
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,13 +24,6 @@ SAMPLE_RATE = 16000
 #: espeak-ng voices (language + variant) the corpus draws from
 VOICES = ("en-us", "en-us+m3", "en-us+f2", "en-gb-x-rp", "en-gb-x-rp+f4", "en-gb-scotland",
           "en-us+m1", "en-029")
-
-_EVENT_WORD, _EVENT_PHONEME, _EVENT_LIST_TERMINATED = 1, 7, 0
-_AUDIO_OUTPUT_SYNCHRONOUS = 2
-_INIT_PHONEME_EVENTS, _INIT_DONT_EXIT = 0x0001, 0x8000
-_RATE, _PITCH, _RANGE = 1, 3, 4
-_POS_CHARACTER, _CHARS_UTF8 = 1, 1
-
 
 @dataclass(frozen=True)
 class Phone:
@@ -63,100 +59,54 @@ class Utterance:
         return len(self.samples) / float(self.rate)
 
 
-class _EventId(ctypes.Union):
-    _fields_ = [("number", ctypes.c_int), ("name", ctypes.c_char_p), ("string", ctypes.c_char * 8)]
+_WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "_espeak_worker.py")
+_INFO: dict | None = None
 
 
-class _Event(ctypes.Structure):
-    _fields_ = [("type", ctypes.c_int), ("unique_identifier", ctypes.c_uint),
-                ("text_position", ctypes.c_int), ("length", ctypes.c_int),
-                ("audio_position", ctypes.c_int), ("sample", ctypes.c_int),
-                ("user_data", ctypes.c_void_p), ("id", _EventId)]
-
-
-_CALLBACK = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_short), ctypes.c_int,
-                             ctypes.POINTER(_Event))
-
-
-class _Espeak:
-    """The process-wide libespeak-ng handle (the library keeps global state: one lock)."""
-
-    def __init__(self):
-        name = ctypes.util.find_library("espeak-ng") or "libespeak-ng.so.1"
-        self.lib = ctypes.CDLL(name)
-        self.lib.espeak_Initialize.restype = ctypes.c_int
-        self.rate = self.lib.espeak_Initialize(_AUDIO_OUTPUT_SYNCHRONOUS, 0, None,
-                                               _INIT_PHONEME_EVENTS | _INIT_DONT_EXIT)
-        if self.rate <= 0:
-            raise RuntimeError("libespeak-ng failed to initialise (espeak_Initialize returned "
-                               f"{self.rate}); reinstall espeak-ng (apt-get install espeak-ng)")
-        self.lib.espeak_Info.restype = ctypes.c_char_p
-        self.version = self.lib.espeak_Info(None).decode()
-        self.lock = threading.Lock()
-        self._chunks: list[np.ndarray] = []
-        self._events: list[tuple[int, str]] = []
-        self._n = 0
-        self._cb = _CALLBACK(self._collect)  # keep a reference: the library calls it
-        self.lib.espeak_SetSynthCallback(self._cb)
-
-    def _collect(self, wav, n, events):
-        if n > 0 and wav:
-            self._chunks.append(np.ctypeslib.as_array(wav, shape=(n,)).copy())
-        i = 0
-        while events[i].type != _EVENT_LIST_TERMINATED:
-            ev = events[i]
-            if ev.type == _EVENT_PHONEME:
-                label = bytes(ev.id.string).split(b"\0")[0].decode("ascii", "replace")
-                self._events.append((int(ev.sample), label))
-            i += 1
-        self._n += max(n, 0)
-        return 0
-
-    def synth(self, text: str, voice: str, rate: int, pitch: int, pitch_range: int):
-        with self.lock:
-            if self.lib.espeak_SetVoiceByName(voice.encode()) != 0:
-                raise ValueError(f"voice must be an installed espeak-ng voice such as {VOICES[0]!r}, "
-                                 f"got {voice!r} (list them with: espeak-ng --voices=en)")
-            self.lib.espeak_SetParameter(_RATE, int(rate), 0)
-            self.lib.espeak_SetParameter(_PITCH, int(pitch), 0)
-            self.lib.espeak_SetParameter(_RANGE, int(pitch_range), 0)
-            self._chunks, self._events, self._n = [], [], 0
-            data = text.encode("utf-8")
-            err = self.lib.espeak_Synth(data, len(data) + 1, 0, _POS_CHARACTER, 0, _CHARS_UTF8,
-                                        None, None)
-            self.lib.espeak_Synchronize()
-            if err != 0:
-                raise RuntimeError(f"espeak-ng could not speak {text!r} (error {err})")
-            audio = np.concatenate(self._chunks) if self._chunks else np.zeros(0, np.int16)
-            return audio, list(self._events)
-
-
-_ENGINE: _Espeak | None = None
-
-
-def _engine() -> _Espeak:
-    global _ENGINE
-    if _ENGINE is None:
-        try:
-            _ENGINE = _Espeak()
-        except OSError:
+def _run_worker(request: dict) -> tuple[dict, bytes]:
+    """One libespeak-ng run in a fresh process (see _espeak_worker.py for why)."""
+    try:
+        proc = subprocess.run([sys.executable, _WORKER], input=json.dumps(request).encode(),
+                              capture_output=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        raise RuntimeError(f"espeak-ng did not finish within 120 s for {request!r}") from None
+    if proc.returncode != 0:
+        err = proc.stderr.decode(errors="replace").strip()
+        if "OSError" in err:
             raise RuntimeError("the synthetic performer's speech needs espeak-ng: install it "
                                "(Debian/Ubuntu: apt-get install espeak-ng; macOS: brew install "
-                               "espeak-ng)") from None
-    return _ENGINE
+                               "espeak-ng)")
+        raise RuntimeError(f"espeak-ng failed: {err[-400:]}")
+    line, _, pcm = proc.stdout.partition(b"\n")
+    return json.loads(line), pcm
+
+
+def _info() -> dict:
+    global _INFO
+    if _INFO is None:
+        _INFO, _ = _run_worker({"info": True})
+        if "error" in _INFO:
+            raise RuntimeError(f"libespeak-ng failed to initialise ({_INFO['error']}); reinstall "
+                               "espeak-ng (apt-get install espeak-ng)")
+    return _INFO
 
 
 def espeak_available() -> bool:
-    """True when libespeak-ng can be loaded."""
+    """True when libespeak-ng can be loaded and initialised."""
+    if ctypes.util.find_library("espeak-ng") is None:
+        try:
+            ctypes.CDLL("libespeak-ng.so.1")
+        except OSError:
+            return False
     try:
-        _engine()
+        _info()
     except RuntimeError:
         return False
     return True
 
 
 def espeak_version() -> str:
-    return _engine().version
+    return _info()["version"]
 
 
 def _resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
@@ -181,6 +131,8 @@ def _contiguous(events: list[tuple[float, str]], duration: float) -> list[Phone]
         end = events[i + 1][0] if i + 1 < len(events) else duration
         if end - t > 1e-4:
             out.append(Phone(lab, t, end))
+    if out and out[-1].end < duration:  # a dropped tail phone: the last one runs to the end
+        out[-1] = Phone(out[-1].label, out[-1].start, duration)
     return out
 
 
@@ -215,11 +167,18 @@ def speak(text: str, *, voice: str = "en-us", rate: int = 160, pitch: int = 50,
             raise ValueError(f"{name} must be 0..99, got {v}")
     if not 8000 <= int(sample_rate) <= 48000:
         raise ValueError(f"sample_rate must be 8000..48000 Hz, got {sample_rate}")
-    eng = _engine()
-    pcm, events = eng.synth(text, voice, rate, pitch, pitch_range)
-    x = _resample(pcm.astype(np.float64) / 32768.0, eng.rate, int(sample_rate)).astype(np.float32)
+    head, pcm = _run_worker(dict(text=text, voice=voice, rate=int(rate), pitch=int(pitch),
+                                 pitch_range=int(pitch_range)))
+    if head.get("error") == "voice":
+        raise ValueError(f"voice must be an installed espeak-ng voice such as {VOICES[0]!r}, "
+                         f"got {voice!r} (list them with: espeak-ng --voices=en)")
+    if "error" in head:
+        raise RuntimeError(f"espeak-ng could not speak {text!r}: {head['error']}")
+    sr = int(head["rate"])
+    raw = np.frombuffer(pcm, dtype="<i2").astype(np.float64) / 32768.0
+    x = _resample(raw, sr, int(sample_rate)).astype(np.float32)
     duration = len(x) / float(sample_rate)
-    phones = _contiguous([(s / eng.rate, lab) for s, lab in events], duration)
+    phones = _contiguous([(s / sr, lab) for s, lab in head["events"]], duration)
     return Utterance(x, int(sample_rate), phones, text,
                      f"espeak-ng {voice} rate={int(rate)} pitch={int(pitch)}")
 
@@ -254,7 +213,7 @@ def arctic_utterance(sample_rate: int = SAMPLE_RATE) -> Utterance:
     rows = read_hts_labels(lab)
     phones = _contiguous([(s, "_" if p in ("sil", "pau") else p) for s, _, p in rows], duration)
     return Utterance(x, int(sample_rate), phones,
-                     "Author of the danger trail, Philip Steels, etc.", "CMU ARCTIC a0009 (bdl)")
+                     "He turned sharply, and faced Gregson across the table.", "CMU ARCTIC a0009 (bdl)")
 
 
 def concatenate(utterances: list[Utterance], pauses: list[float]) -> Utterance:
