@@ -25,6 +25,7 @@ SUITES = {
     "render": "voicepuppet.bench.render",
     "trajectory": "voicepuppet.bench.trajectory",
     "entropic": "voicepuppet.bench.entropic",
+    "synth": "voicepuppet.bench.synth",
 }
 
 
