@@ -25,6 +25,7 @@ SAMPLE_RATE = 16000
 VOICES = ("en-us", "en-us+m3", "en-us+f2", "en-gb-x-rp", "en-gb-x-rp+f4", "en-gb-scotland",
           "en-us+m1", "en-029")
 
+
 @dataclass(frozen=True)
 class Phone:
     """One phone: ``label`` from ``start`` to ``end`` seconds."""

@@ -175,9 +175,9 @@ class FaceWarper:
                                  np.stack([np.full(4, W - 1.0), side[1:-1] * (H - 1)], 1)])
         self.border = border
         src = np.concatenate([self.neutral, self.ring, border])
-        tri = Delaunay(src).simplices
-        # no triangle inside the mouth opening other than the inner-lip fan (drawn over anyway)
-        self.triangles = tri
+        # fixed topology from the neutral face; triangles spanning the lip gap stretch when the
+        # mouth opens and are drawn over by the mouth interior
+        self.triangles = Delaunay(src).simplices
         self.src = src
         self.shape = (H, W)
         ys, xs = np.mgrid[0:H, 0:W]
