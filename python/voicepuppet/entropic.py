@@ -25,7 +25,7 @@ from voicepuppet import _core
 __all__ = [
     "entropic_multinomial", "entropic_rows", "entropic_objective", "anneal_schedule",
     "log_prior", "fit_entropic", "perplexity", "context_memory", "entropy_rate",
-    "viterbi_share", "diagnostics",
+    "viterbi_share", "diagnostics", "LocalData", "LocalEvaluation",
 ]
 
 LOG_2PI_E = math.log(2 * math.pi * math.e)
@@ -128,24 +128,107 @@ class _State:
     def covars_2d(self) -> np.ndarray:
         return np.ascontiguousarray(self.covars.reshape(-1, self.covars.shape[-1]))
 
+    def params(self) -> dict:
+        """The parameters as :meth:`voicepuppet.hmm.GaussianHMM.parameters` gives them."""
+        return {"startprob": self.startprob, "transmat": self.transmat, "means": self.means,
+                "covars": self.covars_2d(), "covariance": self.covariance}
+
     def log_prior(self, z: float, gp: float) -> float:
         return float(_core.entropic_log_prior(self.startprob, self.transmat, self.covars_2d(),
                                               self.covariance, z, gp))
 
 
+class LocalEvaluation:
+    """Forward-backward at one model on data held in this process (see :class:`LocalData`).
+
+    Attributes
+    ----------
+    log_likelihood : float
+    expected_transitions : ndarray, shape (N, N)
+        ξ summed over frames and sequences.
+    expected_starts : ndarray, shape (N,)
+    """
+
+    def __init__(self, data: "LocalData", log_b: np.ndarray, params: dict, shift: np.ndarray):
+        ll, post, xi, starts, _ = _core.forward_backward(log_b, params["startprob"], params["transmat"],
+                                                          data.lengths)
+        self.log_likelihood, self.expected_transitions, self.expected_starts = float(ll), xi, starts
+        self._data, self._log_b, self._post, self._shift = data, log_b, post, shift
+        self._heirs = None
+
+    def exclusive_evidence(self) -> np.ndarray:
+        """Σ_t γ_ti · max(0, log b_i(x_t) − max_{j≠i} log b_j(x_t)), shape (N,): the evidence only
+        state i explains (N >= 2)."""
+        log_b, post = self._log_b, self._post
+        n = log_b.shape[1]
+        top2 = np.partition(log_b, n - 2, axis=1)[:, n - 2:]
+        second, first = top2[:, 0], top2[:, 1]
+        runner_up = np.where(log_b >= first[:, None], second[:, None], first[:, None])
+        advantage = np.maximum(0.0, log_b - runner_up)
+        return (post * advantage).sum(axis=0)
+
+    def heirs(self) -> np.ndarray:
+        """For each state i, the other state that best explains i's frames:
+        argmax_j≠i Σ_t γ_ti log b_j(x_t), shape (N,) int."""
+        if self._heirs is None:
+            fit = self._post.T @ self._log_b  # [i, j]
+            np.fill_diagonal(fit, -np.inf)
+            self._heirs = np.argmax(fit, axis=1)
+        return self._heirs
+
+    def gaussian_stats(self):
+        """γ-weighted Gaussian statistics ``(weight [N], sum [N,D], outer)`` about the shift
+        given to :meth:`LocalData.evaluate` (outer: full [N*D,D], diag [N,D])."""
+        return _core.gaussian_stats(self._data.X, self._post, self._shift, self._data.covariance)
+
+
+class LocalData:
+    """The data side of entropic training, in this process (the default of :func:`fit_entropic`).
+
+    An object with the same methods over the same data (e.g.
+    :class:`voicepuppet.distributed.DaskEStep`) computes them elsewhere; training calls only these:
+
+    - ``densities(params) -> handle``: the log densities [T, N] of the Gaussians in ``params``
+      (or anything that stands for them);
+    - ``drop_state(handle, i) -> handle``: the same without state i;
+    - ``log_likelihood(params, handle) -> float``: Σ over sequences of log p(x | params), a
+      forward pass (raises ``RuntimeError`` when no state sequence explains the data);
+    - ``evaluate(params, handle, shift) -> evaluation``: forward-backward, with
+      ``log_likelihood``, ``expected_transitions``, ``expected_starts``, ``exclusive_evidence()``,
+      ``heirs()`` and ``gaussian_stats()`` (moments about ``shift`` [D]; see :class:`LocalEvaluation`).
+
+    ``params`` are dicts as :meth:`voicepuppet.hmm.GaussianHMM.parameters` gives them.
+    """
+
+    def __init__(self, X: np.ndarray, lengths: np.ndarray, covariance: str):
+        self.X, self.lengths, self.covariance = X, lengths, covariance
+
+    def densities(self, params: dict) -> np.ndarray:
+        return _core.gaussian_log_density(self.X, params["means"], params["covars"], self.covariance)
+
+    def drop_state(self, log_b: np.ndarray, i: int) -> np.ndarray:
+        return np.ascontiguousarray(np.delete(log_b, i, axis=1))
+
+    def log_likelihood(self, params: dict, log_b: np.ndarray) -> float:
+        return float(_core.log_likelihood(log_b, params["startprob"], params["transmat"], self.lengths))
+
+    def evaluate(self, params: dict, log_b: np.ndarray, shift: np.ndarray) -> LocalEvaluation:
+        return LocalEvaluation(self, log_b, params, shift)
+
+
 _TRIALS = [0]  # forward passes spent on trimming trials (reported per iteration in the history)
 
 
-def _log_posterior(st: _State, log_b, lengths, z, gp) -> float:
+def _log_posterior(st: _State, data, log_b, z, gp) -> float:
     """Exact log posterior at st from a forward pass only (for trimming trials)."""
     _TRIALS[0] += 1
-    return float(_core.log_likelihood(log_b, st.startprob, st.transmat, lengths)) + st.log_prior(z, gp)
+    return data.log_likelihood(st.params(), log_b) + st.log_prior(z, gp)
 
 
-def _evaluate(st: _State, log_b, lengths, z, gp):
-    """Forward-backward at st: (log posterior, log-likelihood, posteriors, ξ, starts)."""
-    ll, post, xi, starts, _ = _core.forward_backward(log_b, st.startprob, st.transmat, lengths)
-    return float(ll) + st.log_prior(z, gp), float(ll), post, xi, starts
+def _evaluate(st: _State, data, log_b, z, gp, shift):
+    """Forward-backward at st: (log posterior, log-likelihood, evaluation)."""
+    ev = data.evaluate(st.params(), log_b, shift)
+    return ev.log_likelihood + st.log_prior(z, gp), ev.log_likelihood, ev
 
 
 def _drop_state(st: _State, i: int, into: int) -> _State | None:
@@ -165,14 +248,7 @@ def _drop_state(st: _State, i: int, into: int) -> _State | None:
                   np.ascontiguousarray(st.means[keep]), np.ascontiguousarray(st.covars[keep]), st.covariance)
 
 
-def _heirs(log_b, post) -> np.ndarray:
-    """For each state i, the other state that best explains i's frames: argmax_j≠i Σ_t γ_ti log b_j."""
-    fit = post.T @ log_b  # [i, j]
-    np.fill_diagonal(fit, -np.inf)
-    return np.argmax(fit, axis=1)
-
-
-def _state_trim_scores(st: _State, log_b, post, z, gp) -> np.ndarray:
+def _state_trim_scores(st: _State, ev, z, gp) -> np.ndarray:
     """Estimated log-posterior gain of deleting each state (the rule of docs/entropic.md):
     its description cost Z·[H(θ_i·) + ½ log((2πe)^D |K_i|)] + (c/2) tr K_i⁻¹ minus the evidence only
     it explains, Σ_t γ_ti · max(0, log b_i(x_t) − max_{j≠i} log b_j(x_t))."""
@@ -180,11 +256,7 @@ def _state_trim_scores(st: _State, log_b, post, z, gp) -> np.ndarray:
     if n < 2:
         return np.full(n, -np.inf)
     cost = _core.entropic_state_costs(st.transmat, st.covars_2d(), st.covariance, z, gp)
-    top2 = np.partition(log_b, n - 2, axis=1)[:, n - 2:]
-    second, first = top2[:, 0], top2[:, 1]
-    runner_up = np.where(log_b >= first[:, None], second[:, None], first[:, None])
-    advantage = np.maximum(0.0, log_b - runner_up)
-    return cost - (post * advantage).sum(axis=0)
+    return cost - ev.exclusive_evidence()
 
 
 def _record(history, it, z, lp, lp0, ll, st, n_arcs_trimmed, n_states_trimmed, trials):
@@ -195,7 +267,7 @@ def _record(history, it, z, lp, lp0, ll, st, n_arcs_trimmed, n_states_trimmed, t
                     "trim_trials": int(trials)})
 
 
-def fit_entropic(model, X, lengths=None) -> list[dict]:
+def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
     """Train ``model`` (a :class:`~voicepuppet.hmm.GaussianHMM` with ``prior="entropic"``) by
     entropic MAP-EM; returns (and stores as ``model.history_``) one dict per iteration with ``z``,
     ``log_posterior`` and ``log_likelihood`` (at the parameters entering that iteration's M-step,
@@ -207,6 +279,10 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
     the exact log posterior (a forward pass on the same densities) rises; then the entropic
     M-step (MAP multinomials for starts and rows, entropic covariances). At fixed Z every step
     is a generalised EM step, so the log posterior never decreases.
+
+    ``estep`` (default: :class:`LocalData` over ``X``) computes the data-side quantities, e.g. on a
+    cluster (:class:`voicepuppet.distributed.DaskEStep`); initialisation, trimming decisions and
+    the M-step stay here.
     """
     from voicepuppet.hmm import check_sequences
 
@@ -225,6 +301,7 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
     gp = model._variance_floor  # covariance regulariser c: K = (S + c I) / (w + Z)
     cov = model.covariance
     shift = X.mean(axis=0)
+    data = LocalData(X, lengths, cov) if estep is None else estep
     st = _State(model.startprob_.copy(), model.transmat_.copy(), model.means_.copy(),
                 model.covars_.copy(), cov)
     history: list[dict] = []
@@ -237,9 +314,9 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
     try:
         for it in range(n_iter):
             z = float(zs[it])
-            log_b = _core.gaussian_log_density(X, st.means, st.covars_2d(), cov)
+            log_b = data.densities(st.params())
             try:
-                lp, ll, post, xi, starts = _evaluate(st, log_b, lengths, z, gp)
+                lp, ll, ev = _evaluate(st, data, log_b, z, gp, shift)
             except RuntimeError as exc:
                 raise RuntimeError(f"entropic training at iteration {it} (z = {z}, {st.n} states, "
                                    f"{int(np.count_nonzero(st.transmat))} arcs) has no state sequence "
@@ -250,7 +327,7 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
             trials_before = _TRIALS[0]
             if model.trim and z > 0:
                 # Transition trimming: all candidates, then the weaker half, then a quarter.
-                flags = _core.transition_trim_candidates(st.transmat, xi, z)
+                flags = _core.transition_trim_candidates(st.transmat, ev.expected_transitions, z)
                 cand = np.argwhere(flags > 0)
                 if len(cand):
                     order = np.argsort(st.transmat[cand[:, 0], cand[:, 1]])
@@ -261,14 +338,14 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
                         f[sel[:, 0], sel[:, 1]] = 1.0
                         trial = _State(st.startprob, _core.trim_transitions(st.transmat, f), st.means,
                                        st.covars, cov)
-                        if _log_posterior(trial, log_b, lengths, z, gp) > lp:
-                            st, (lp, ll, post, xi, starts) = trial, _evaluate(trial, log_b, lengths, z, gp)
+                        if _log_posterior(trial, data, log_b, z, gp) > lp:
+                            st, (lp, ll, ev) = trial, _evaluate(trial, data, log_b, z, gp, shift)
                             arcs_trimmed = k
                             break
                         if k == 1:
                             break
                 # State trimming: best-scoring candidates first, each verified exactly.
-                scores = _state_trim_scores(st, log_b, post, z, gp)
+                scores = _state_trim_scores(st, ev, z, gp)
                 tried = 0
                 while st.n > 1 and tried < 3:
                     i = int(np.argmax(scores))
@@ -276,18 +353,18 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
                         break
                     tried += 1
                     scores[i] = -np.inf
-                    trial = _drop_state(st, i, int(_heirs(log_b, post)[i]))
+                    trial = _drop_state(st, i, int(ev.heirs()[i]))
                     if trial is None:
                         continue
-                    trial_log_b = np.ascontiguousarray(np.delete(log_b, i, axis=1))
+                    trial_log_b = data.drop_state(log_b, i)
                     try:
-                        accept = _log_posterior(trial, trial_log_b, lengths, z, gp) > lp
+                        accept = _log_posterior(trial, data, trial_log_b, z, gp) > lp
                     except RuntimeError:  # no allowed path without this state
                         continue
                     if accept:
-                        res = _evaluate(trial, trial_log_b, lengths, z, gp)
-                        st, log_b, (lp, ll, post, xi, starts) = trial, trial_log_b, res
-                        scores = _state_trim_scores(st, log_b, post, z, gp)
+                        res = _evaluate(trial, data, trial_log_b, z, gp, shift)
+                        st, log_b, (lp, ll, ev) = trial, trial_log_b, res
+                        scores = _state_trim_scores(st, ev, z, gp)
                         states_trimmed += 1
             _record(history, it, z, lp, lp_untrimmed, ll, st, arcs_trimmed, states_trimmed,
                     _TRIALS[0] - trials_before)
@@ -298,7 +375,8 @@ def fit_entropic(model, X, lengths=None) -> list[dict]:
                 break
             previous, previous_z = lp, z
             # Entropic M-step.
-            weight, ssum, outer = _core.gaussian_stats(X, post, shift, cov)
+            weight, ssum, outer = ev.gaussian_stats()
+            xi, starts = ev.expected_transitions, ev.expected_starts
             params = model.params
             if "s" in params:
                 st.startprob = _core.entropic_rows(starts[None, :], z, st.startprob[None, :])[0]

@@ -292,13 +292,27 @@ class GaussianHMM:
                 d = self.means_.shape[1]
                 self.covars_ = covars.reshape(n, d, d) if self.covariance == "full" else covars
 
-    def fit(self, X, lengths=None) -> "GaussianHMM":
+    def parameters(self) -> dict:
+        """The current parameters as a plain dict (what an E-step needs): ``startprob`` [N],
+        ``transmat`` [N,N], ``means`` [N,D], ``covars`` (full [N*D,D], diag [N,D]) and
+        ``covariance``."""
+        return {"startprob": self.startprob_, "transmat": self.transmat_, "means": self.means_,
+                "covars": self._covars_2d(), "covariance": self.covariance}
+
+    def fit(self, X, lengths=None, estep=None) -> "GaussianHMM":
         """Estimate the parameters by EM (Baum-Welch) from one or more sequences.
 
         Parameters
         ----------
         X : array_like, shape (T, D)
         lengths : array_like of int, shape (S,), optional
+        estep : object, optional
+            Where the E-step statistics come from (e.g. a cluster:
+            :class:`voicepuppet.distributed.DaskEStep`). ``None`` (default): computed here from
+            ``X``. Otherwise an object over the same ``X`` and ``lengths`` with
+            ``stats(params, shift) -> dict`` (the keys of :meth:`estep`, ``params`` as
+            :meth:`parameters` gives them) and, for ``prior="entropic"``, the methods of
+            :class:`voicepuppet.entropic.LocalData`. The initialisation and the M-step stay here.
 
         Returns
         -------
@@ -307,7 +321,7 @@ class GaussianHMM:
         if self.prior == "entropic":
             from voicepuppet.entropic import fit_entropic
 
-            fit_entropic(self, X, lengths)
+            fit_entropic(self, X, lengths, estep=estep)
             return self
         X, lengths = check_sequences(X, lengths)
         self._init(X)
@@ -322,7 +336,8 @@ class GaussianHMM:
             bar = tqdm(total=self.n_iter, desc="EM", unit="it")
         try:
             for it in range(self.n_iter):
-                stats = self.estep(X, lengths, shift)
+                stats = (self.estep(X, lengths, shift) if estep is None
+                         else estep.stats(self.parameters(), shift))
                 ll = float(stats["log_likelihood"])
                 delta = ll - previous
                 self.history_.append({"iteration": it, "log_likelihood": ll, "delta": delta})
