@@ -264,7 +264,7 @@ class DaskEvaluation:
         return self._heirs
 
     def gaussian_stats(self):
-        """``(weight [N], sum [N,D], outer)`` about the evaluation's shift."""
+        """``(weight [N], sum [N,D], outer)`` about the data's shift."""
         return self._stats
 
 
@@ -294,6 +294,7 @@ class DaskEStep:
         X, lengths = check_sequences(X, lengths)
         self.client, self.covariance = client, covariance
         self.n_frames, self.n_dims = X.shape
+        self.shift = X.mean(axis=0)  # as fit_entropic computes it (checked there)
         self.bounds = chunk_bounds(lengths, chunk_frames)
         starts = np.concatenate([[0], np.cumsum(lengths)])
         self._chunks = []
@@ -368,10 +369,10 @@ class DaskEStep:
         parts = self._map(_chunk_log_likelihood, params, gaussians)
         return _total(ll for p in parts for ll in p)
 
-    def evaluate(self, params: dict, gaussians: dict, shift) -> DaskEvaluation:
-        """Forward-backward on every chunk, reduced in chunk order."""
-        return DaskEvaluation(self._map(_chunk_evaluate, params, gaussians,
-                                        np.ascontiguousarray(shift, dtype=np.float64)))
+    def evaluate(self, params: dict, gaussians: dict) -> DaskEvaluation:
+        """Forward-backward on every chunk (Gaussian statistics about ``shift``), reduced in
+        chunk order."""
+        return DaskEvaluation(self._map(_chunk_evaluate, params, gaussians, self.shift))
 
 
 def fit(model, X, lengths=None, *, client=None, scheduler: str | None = None, workers: int | None = None,

@@ -149,11 +149,11 @@ class LocalEvaluation:
     expected_starts : ndarray, shape (N,)
     """
 
-    def __init__(self, data: "LocalData", log_b: np.ndarray, params: dict, shift: np.ndarray):
+    def __init__(self, data: "LocalData", log_b: np.ndarray, params: dict):
         ll, post, xi, starts, _ = _core.forward_backward(log_b, params["startprob"], params["transmat"],
                                                           data.lengths)
         self.log_likelihood, self.expected_transitions, self.expected_starts = float(ll), xi, starts
-        self._data, self._log_b, self._post, self._shift = data, log_b, post, shift
+        self._data, self._log_b, self._post = data, log_b, post
         self._heirs = None
 
     def exclusive_evidence(self) -> np.ndarray:
@@ -177,9 +177,9 @@ class LocalEvaluation:
         return self._heirs
 
     def gaussian_stats(self):
-        """γ-weighted Gaussian statistics ``(weight [N], sum [N,D], outer)`` about the shift
-        given to :meth:`LocalData.evaluate` (outer: full [N*D,D], diag [N,D])."""
-        return _core.gaussian_stats(self._data.X, self._post, self._shift, self._data.covariance)
+        """γ-weighted Gaussian statistics ``(weight [N], sum [N,D], outer)`` about the data's
+        ``shift`` (outer: full [N*D,D], diag [N,D])."""
+        return _core.gaussian_stats(self._data.X, self._post, self._data.shift, self._data.covariance)
 
 
 class LocalData:
@@ -193,15 +193,18 @@ class LocalData:
     - ``drop_state(handle, i) -> handle``: the same without state i;
     - ``log_likelihood(params, handle) -> float``: Σ over sequences of log p(x | params), a
       forward pass (raises ``RuntimeError`` when no state sequence explains the data);
-    - ``evaluate(params, handle, shift) -> evaluation``: forward-backward, with
-      ``log_likelihood``, ``expected_transitions``, ``expected_starts``, ``exclusive_evidence()``,
-      ``heirs()`` and ``gaussian_stats()`` (moments about ``shift`` [D]; see :class:`LocalEvaluation`).
+    - ``evaluate(params, handle) -> evaluation``: forward-backward, with ``log_likelihood``,
+      ``expected_transitions``, ``expected_starts``, ``exclusive_evidence()``, ``heirs()`` and
+      ``gaussian_stats()`` (see :class:`LocalEvaluation`);
+    - ``shift`` [D]: the mean of all frames, ``X.mean(axis=0)``, about which the Gaussian
+      statistics are taken.
 
     ``params`` are dicts as :meth:`voicepuppet.hmm.GaussianHMM.parameters` gives them.
     """
 
     def __init__(self, X: np.ndarray, lengths: np.ndarray, covariance: str):
         self.X, self.lengths, self.covariance = X, lengths, covariance
+        self.shift = X.mean(axis=0)
 
     def densities(self, params: dict) -> np.ndarray:
         return _core.gaussian_log_density(self.X, params["means"], params["covars"], self.covariance)
@@ -212,22 +215,22 @@ class LocalData:
     def log_likelihood(self, params: dict, log_b: np.ndarray) -> float:
         return float(_core.log_likelihood(log_b, params["startprob"], params["transmat"], self.lengths))
 
-    def evaluate(self, params: dict, log_b: np.ndarray, shift: np.ndarray) -> LocalEvaluation:
-        return LocalEvaluation(self, log_b, params, shift)
+    def evaluate(self, params: dict, log_b: np.ndarray) -> LocalEvaluation:
+        return LocalEvaluation(self, log_b, params)
 
 
 _TRIALS = [0]  # forward passes spent on trimming trials (reported per iteration in the history)
 
 
-def _log_posterior(st: _State, data, log_b, z, gp) -> float:
+def _log_posterior(st: _State, log_b, data, z, gp) -> float:
     """Exact log posterior at st from a forward pass only (for trimming trials)."""
     _TRIALS[0] += 1
     return data.log_likelihood(st.params(), log_b) + st.log_prior(z, gp)
 
 
-def _evaluate(st: _State, data, log_b, z, gp, shift):
+def _evaluate(st: _State, log_b, data, z, gp):
     """Forward-backward at st: (log posterior, log-likelihood, evaluation)."""
-    ev = data.evaluate(st.params(), log_b, shift)
+    ev = data.evaluate(st.params(), log_b)
     return ev.log_likelihood + st.log_prior(z, gp), ev.log_likelihood, ev
 
 
@@ -302,6 +305,9 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
     cov = model.covariance
     shift = X.mean(axis=0)
     data = LocalData(X, lengths, cov) if estep is None else estep
+    if not np.array_equal(np.asarray(data.shift), shift):
+        raise ValueError("estep holds other data than X (its shift, the mean frame, differs); build it "
+                         "from the same X and lengths")
     st = _State(model.startprob_.copy(), model.transmat_.copy(), model.means_.copy(),
                 model.covars_.copy(), cov)
     history: list[dict] = []
@@ -316,7 +322,7 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
             z = float(zs[it])
             log_b = data.densities(st.params())
             try:
-                lp, ll, ev = _evaluate(st, data, log_b, z, gp, shift)
+                lp, ll, ev = _evaluate(st, log_b, data, z, gp)
             except RuntimeError as exc:
                 raise RuntimeError(f"entropic training at iteration {it} (z = {z}, {st.n} states, "
                                    f"{int(np.count_nonzero(st.transmat))} arcs) has no state sequence "
@@ -338,8 +344,8 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
                         f[sel[:, 0], sel[:, 1]] = 1.0
                         trial = _State(st.startprob, _core.trim_transitions(st.transmat, f), st.means,
                                        st.covars, cov)
-                        if _log_posterior(trial, data, log_b, z, gp) > lp:
-                            st, (lp, ll, ev) = trial, _evaluate(trial, data, log_b, z, gp, shift)
+                        if _log_posterior(trial, log_b, data, z, gp) > lp:
+                            st, (lp, ll, ev) = trial, _evaluate(trial, log_b, data, z, gp)
                             arcs_trimmed = k
                             break
                         if k == 1:
@@ -358,11 +364,11 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
                         continue
                     trial_log_b = data.drop_state(log_b, i)
                     try:
-                        accept = _log_posterior(trial, data, trial_log_b, z, gp) > lp
+                        accept = _log_posterior(trial, trial_log_b, data, z, gp) > lp
                     except RuntimeError:  # no allowed path without this state
                         continue
                     if accept:
-                        res = _evaluate(trial, data, trial_log_b, z, gp, shift)
+                        res = _evaluate(trial, trial_log_b, data, z, gp)
                         st, log_b, (lp, ll, ev) = trial, trial_log_b, res
                         scores = _state_trim_scores(st, ev, z, gp)
                         states_trimmed += 1
