@@ -18,6 +18,7 @@ VERB_MODULES = [
     "voicepuppet.features_cli",
     "voicepuppet.render",
     "voicepuppet.export",
+    "voicepuppet.batch",
     "voicepuppet.bench",
 ]
 

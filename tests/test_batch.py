@@ -1,0 +1,200 @@
+"""voicepuppet.batch: folders tracked and animated on a Dask LocalCluster, outputs equal to the
+one-by-one outputs, resumable through the checksum manifest, per-file failures (unreadable,
+undecodable, full disk) reported without stopping the rest, clear errors for bad arguments."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from voicepuppet import batch
+from voicepuppet.distributed import connect
+
+cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")
+pytest.importorskip("skimage", reason="pip install scikit-image")
+
+from voicepuppet.bench.tracker import ASTRONAUT_POINTS, planted_face_sequence  # noqa: E402
+
+N_FRAMES = 8
+
+
+@pytest.fixture(scope="module")
+def client():
+    with connect(workers=2, timeout=60) as c:
+        yield c
+
+
+def write_video(path: Path, frames) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (640, 480), False)
+    for f in frames:
+        w.write(f)
+    w.release()
+
+
+@pytest.fixture(scope="module")
+def videos(tmp_path_factory):
+    """Three short videos (one in a sub-folder), a file that is not a video, a dangling link,
+    and the first-frame points."""
+    root = tmp_path_factory.mktemp("videos")
+    frames, _, _ = planted_face_sequence(3 * N_FRAMES, seed=1, occlusion=None, blur=None)
+    write_video(root / "a.avi", frames[:N_FRAMES])
+    write_video(root / "b.avi", frames[N_FRAMES:2 * N_FRAMES])
+    write_video(root / "sub" / "c.avi", frames[2 * N_FRAMES:])
+    (root / "broken.mp4").write_bytes(b"this is not a video\n" * 10)
+    os.symlink(root / "missing.avi", root / "gone.avi")
+    init = tmp_path_factory.mktemp("init") / "points.json"
+    init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist()}))
+    return root, init
+
+
+GOOD = ["a.avi", "b.avi", "sub/c.avi"]
+
+
+def npz_members(path: Path) -> dict:
+    with zipfile.ZipFile(path) as z:
+        return {n: z.read(n) for n in z.namelist()}
+
+
+def assert_same_file(a: Path, b: Path) -> None:
+    """Byte-identical; for .npz the archive members (numpy stamps the zip entries with the time)."""
+    if a.suffix == ".npz":
+        assert npz_members(a) == npz_members(b), a
+    else:
+        assert a.read_bytes() == b.read_bytes(), a
+
+
+@pytest.fixture(scope="module")
+def one_by_one(videos, tmp_path_factory):
+    """The reference: each video tracked on its own with the one-file code path."""
+    root, init = videos
+    ref = tmp_path_factory.mktemp("ref")
+    for rel in GOOD:
+        out = ref / Path(rel).with_suffix(".npz")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        batch.track_file(root / rel, out, init=str(init), passes=1)
+    return ref
+
+
+def outputs(out: Path) -> list[str]:
+    return sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
+
+
+def test_track_folder_equals_one_by_one_and_reports_failures(client, videos, one_by_one, tmp_path):
+    root, init = videos
+    out = tmp_path / "out"
+    s = batch.track_folder(root, out, init=str(init), passes=1, client=client, progress=False)
+    status = {f.input: f.status for f in s.files}
+    assert status == {"a.avi": "done", "b.avi": "done", "broken.mp4": "failed", "gone.avi": "failed",
+                      "sub/c.avi": "done"}
+    errors = {f.input: f.error for f in s.failed}
+    assert "cannot read the input" in errors["gone.avi"]
+    assert "broken.mp4" in errors["broken.mp4"] or "decod" in errors["broken.mp4"] or "open" in errors["broken.mp4"]
+    assert outputs(out) == sorted([batch.MANIFEST_NAME, batch.SUMMARY_NAME, "a.csv", "a.npz", "b.csv", "b.npz",
+                                   "sub/c.csv", "sub/c.npz"])  # nothing half-written left behind
+    for rel in ["a.npz", "a.csv", "b.npz", "b.csv", "sub/c.npz", "sub/c.csv"]:
+        assert_same_file(out / rel, one_by_one / rel)
+    summary = json.loads((out / batch.SUMMARY_NAME).read_text())
+    assert (summary["done"], summary["skipped"], summary["failed"]) == (3, 0, 2)
+    assert summary["media_seconds_done"] == pytest.approx(3 * N_FRAMES / 25.0)
+    assert {f["input"] for f in summary["files"] if f["status"] == "failed"} == {"broken.mp4", "gone.avi"}
+
+
+def test_rerun_skips_verified_outputs_and_redoes_damaged_ones(client, videos, one_by_one, tmp_path):
+    root, init = videos
+    out = tmp_path / "out"
+    batch.track_folder(root, out, init=str(init), passes=1, client=client, progress=False)
+    again = batch.track_folder(root, out, init=str(init), passes=1, client=client, progress=False)
+    assert (again.count("done"), again.count("skipped"), again.count("failed")) == (0, 3, 2)
+    # damage one output, delete another: exactly those inputs are redone, correctly
+    with open(out / "a.csv", "ab") as fh:
+        fh.write(b"0")
+    (out / "sub" / "c.npz").unlink()
+    third = batch.track_folder(root, out, init=str(init), passes=1, client=client, progress=False)
+    assert {f.input for f in third.files if f.status == "done"} == {"a.avi", "sub/c.avi"}
+    assert third.count("skipped") == 1
+    for rel in ["a.npz", "a.csv", "sub/c.npz", "sub/c.csv"]:
+        assert_same_file(out / rel, one_by_one / rel)
+    # other settings: everything is redone
+    fourth = batch.track_folder(root, out, init=str(init), passes=2, client=client, progress=False)
+    assert fourth.count("done") == 3
+
+
+def test_full_disk_is_reported_per_file_and_leaves_nothing_half_written(client, videos, monkeypatch, tmp_path):
+    root, init = videos
+    out = tmp_path / "out"
+    real = batch._write_file
+
+    def full_for_b(path, data):
+        if path.name.startswith("b."):
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, data)
+
+    monkeypatch.setattr(batch, "_write_file", full_for_b)
+    s = batch.track_folder(root, out, init=str(init), passes=1, client=client, progress=False)
+    b = next(f for f in s.files if f.input == "b.avi")
+    assert b.status == "failed" and "no space left on device" in b.error
+    assert {f.input for f in s.files if f.status == "done"} == {"a.avi", "sub/c.avi"}
+    assert not any(n.startswith("b.") or ".partial" in n for n in outputs(out))
+    monkeypatch.setattr(batch, "_write_file", real)  # space freed: the re-run completes it
+    s2 = batch.track_folder(root, out, init=str(init), passes=1, client=client, progress=False)
+    assert [f.input for f in s2.files if f.status == "done"] == ["b.avi"]
+
+
+def test_manifest_ignores_a_damaged_line(tmp_path):
+    m = batch.Manifest(tmp_path)
+    (tmp_path / "x.npz").write_bytes(b"abc")
+    m.record("x.wav", "in", "settings", {"x.npz": batch.sha256_file(tmp_path / "x.npz")})
+    with open(m.path, "a") as fh:
+        fh.write('{"input": "y.wav", "input_sha')  # an append cut short
+    m2 = batch.Manifest(tmp_path)
+    assert set(m2.entries) == {"x.wav"}
+    assert m2.finished("x.wav", "in", "settings", tmp_path)
+    assert not m2.finished("x.wav", "other input", "settings", tmp_path)
+    assert not m2.finished("x.wav", "in", "other settings", tmp_path)
+
+
+def test_cli_batch_track_reports_and_exits_nonzero_on_failure(videos, tmp_path, capsys):
+    from voicepuppet.cli import main
+
+    root, init = videos
+    out = tmp_path / "out"
+    rc = main(["batch", "track", str(root), "-o", str(out), "--init", str(init), "--passes", "1",
+               "--workers", "1"])
+    captured = capsys.readouterr()
+    assert rc == 1
+    assert "3 done, 0 skipped" in captured.out and "2 failed" in captured.out
+    assert "FAILED broken.mp4" in captured.out and "FAILED gone.avi" in captured.out
+    assert "batch track" in captured.err  # the progress bar
+    assert (out / "sub" / "c.npz").is_file()
+
+
+def test_bad_arguments_are_clear_errors(videos, tmp_path, capsys):
+    from voicepuppet.cli import main
+
+    root, init = videos
+    assert main(["batch", "track", str(tmp_path / "nope"), "-o", str(tmp_path / "o"), "--init", str(init),
+                 "--workers", "1"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    bad_init = tmp_path / "bad.json"
+    bad_init.write_text("{}")
+    assert main(["batch", "track", str(root), "-o", str(tmp_path / "o"), "--init", str(bad_init)]) == 2
+    assert "points" in capsys.readouterr().err
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    assert main(["batch", "track", str(root), "-o", str(tmp_path / "o"), "--init", str(init),
+                 "--scheduler", f"tcp://127.0.0.1:{port}", "--timeout", "2"]) == 2
+    assert "cannot reach the Dask scheduler" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="unknown export format"):
+        batch._format_tags(["npz", "mp3"])
+    with pytest.raises(ValueError, match="same file twice"):
+        batch._format_tags(["arkit", "arkit"])
