@@ -198,3 +198,92 @@ def test_bad_arguments_are_clear_errors(videos, tmp_path, capsys):
         batch._format_tags(["npz", "mp3"])
     with pytest.raises(ValueError, match="same file twice"):
         batch._format_tags(["arkit", "arkit"])
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_real_cluster_with_a_worker_killed_mid_run(tmp_path):
+    """A real `dask scheduler` and two `dask worker` processes on loopback; one worker is killed
+    (SIGKILL) while it holds tasks. Every output is produced exactly once and equals the
+    one-by-one output."""
+    import signal
+    import subprocess
+    import sys
+    import threading
+    import time
+
+    root = tmp_path / "videos"
+    frames, _, _ = planted_face_sequence(8 * 16, seed=2, occlusion=None, blur=None)
+    names = [f"v{i}.avi" for i in range(8)]
+    for i, n in enumerate(names):
+        write_video(root / n, frames[16 * i:16 * (i + 1)])
+    init = tmp_path / "points.json"
+    init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist()}))
+    env = dict(os.environ)
+    if env.get("PYTHONPATH"):
+        env["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p) for p in env["PYTHONPATH"].split(os.pathsep))
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    log = open(tmp_path / "cluster.log", "w")
+    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port",
+                               str(port), "--no-dashboard"], stdout=log, stderr=log, env=env)]
+    try:
+        for i in range(2):
+            procs.append(subprocess.Popen(
+                [sys.executable, "-m", "dask", "worker", address, "--nthreads", "1", "--no-nanny",
+                 "--no-dashboard", "--name", f"w{i}", "--local-directory", str(tmp_path / f"w{i}"),
+                 "--death-timeout", "60"], stdout=log, stderr=log, env=env))
+        out = tmp_path / "out"
+        with connect(address, workers=2, timeout=60) as client:
+            result = {}
+
+            def run():
+                result["summary"] = batch.track_folder(root, out, init=str(init), passes=1, client=client,
+                                                       progress=False)
+
+            t = threading.Thread(target=run)
+            t.start()
+            pids = client.run(os.getpid)  # worker address -> process id
+            victim = None
+            deadline = time.time() + 120
+            while victim is None and time.time() < deadline and t.is_alive():
+                busy = [w for w, keys in client.processing().items() if keys]
+                started = (out / batch.MANIFEST_NAME).is_file()
+                if started and busy:
+                    victim = busy[0]
+                    break
+                time.sleep(0.05)
+            assert victim is not None, "the batch finished before a worker could be killed; make it longer"
+            os.kill(pids[victim], signal.SIGKILL)
+            t.join(timeout=300)
+            assert not t.is_alive()
+            assert victim not in client.scheduler_info()["workers"]  # the worker really died
+        s = result["summary"]
+        assert [f.status for f in s.files] == ["done"] * 8, s.text()
+        lines = (out / batch.MANIFEST_NAME).read_text().splitlines()
+        assert sorted(json.loads(x)["input"] for x in lines) == names  # each input recorded exactly once
+        assert outputs(out) == sorted([batch.MANIFEST_NAME, batch.SUMMARY_NAME]
+                                      + [n.replace(".avi", e) for n in names for e in (".npz", ".csv")])
+        ref = tmp_path / "ref"
+        ref.mkdir()
+        for n in names:
+            batch.track_file(root / n, ref / n.replace(".avi", ".npz"), init=str(init), passes=1)
+            for e in (".npz", ".csv"):
+                assert_same_file(out / n.replace(".avi", e), ref / n.replace(".avi", e))
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=30)
+        log.close()
