@@ -9,6 +9,7 @@ void bind_hmm(py::module_& m);
 void bind_tracker(py::module_& m);
 void bind_trajectory(py::module_& m);
 void bind_entropic(py::module_& m);
+void bind_puppet(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "voicepuppet's C++ kernels (private: use the voicepuppet package)";
@@ -26,4 +27,5 @@ PYBIND11_MODULE(_core, m) {
   bind_tracker(m);
   bind_trajectory(m);
   bind_entropic(m);
+  bind_puppet(m);
 }

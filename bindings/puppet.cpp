@@ -1,0 +1,131 @@
+// Python bindings of the puppet file (puppet_io.hpp) and the C++ puppet (puppet.hpp). Arrays
+// cross as numpy arrays (float64 or int64, any number of dimensions); the public API is
+// voicepuppet.puppet.
+#include <pybind11/eigen.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include "voicepuppet/puppet.hpp"
+#include "voicepuppet/puppet_io.hpp"
+
+namespace py = pybind11;
+using namespace voicepuppet;
+
+namespace {
+
+PuppetFile to_file(const std::string& metadata, const py::dict& arrays) {
+  PuppetFile f;
+  f.metadata = metadata;
+  for (auto item : arrays) {
+    const std::string name = py::cast<std::string>(item.first);
+    py::array raw = py::array::ensure(item.second);
+    if (!raw) throw std::invalid_argument("puppet array '" + name + "' is not array-like");
+    PuppetArray a;
+    const char kind = raw.dtype().kind();
+    if (kind == 'i' || kind == 'u' || kind == 'b') {
+      auto c = py::array_t<std::int64_t, py::array::c_style | py::array::forcecast>::ensure(raw);
+      a.dtype = PuppetArray::DType::Int64;
+      a.i64.assign(c.data(), c.data() + c.size());
+    } else if (kind == 'f') {
+      auto c = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(raw);
+      a.f64.assign(c.data(), c.data() + c.size());
+    } else {
+      throw std::invalid_argument("puppet array '" + name + "' has dtype " +
+                                  py::cast<std::string>(py::str(raw.dtype())) +
+                                  "; only numbers (float64, int64) are stored: put text in the metadata");
+    }
+    for (py::ssize_t k = 0; k < raw.ndim(); ++k) a.shape.push_back(static_cast<std::uint64_t>(raw.shape(k)));
+    f.arrays.emplace(name, std::move(a));
+  }
+  return f;
+}
+
+py::tuple from_file(const PuppetFile& f) {
+  py::dict arrays;
+  for (const auto& [name, a] : f.arrays) {
+    std::vector<py::ssize_t> shape(a.shape.begin(), a.shape.end());
+    if (a.dtype == PuppetArray::DType::Int64) {
+      py::array_t<std::int64_t> out(shape);
+      std::copy(a.i64.begin(), a.i64.end(), out.mutable_data());
+      arrays[py::str(name)] = out;
+    } else {
+      py::array_t<double> out(shape);
+      std::copy(a.f64.begin(), a.f64.end(), out.mutable_data());
+      arrays[py::str(name)] = out;
+    }
+  }
+  return py::make_tuple(f.metadata, arrays);
+}
+
+py::dict result(const AnimateResult& r) {
+  py::dict d;
+  d["points"] = r.points;
+  d["face"] = r.face;
+  d["states"] = r.states;
+  d["log_likelihood"] = r.log_likelihood;
+  return d;
+}
+
+}  // namespace
+
+void bind_puppet(py::module_& m) {
+  m.attr("PUPPET_FORMAT_VERSION") = kPuppetFormatVersion;
+  m.def("crc32", [](const py::bytes& data, std::uint32_t crc) {
+          const std::string s = data;
+          return crc32(s.data(), s.size(), crc);
+        }, py::arg("data"), py::arg("crc") = 0, "CRC-32 as zlib.crc32.");
+  m.def("encode_puppet", [](const std::string& metadata, const py::dict& arrays) {
+          return py::bytes(encode_puppet(to_file(metadata, arrays)));
+        }, py::arg("metadata"), py::arg("arrays"), "Puppet container bytes from JSON text and arrays.");
+  m.def("decode_puppet", [](const py::bytes& data, const std::string& source) {
+          return from_file(decode_puppet(std::string(data), source));
+        }, py::arg("data"), py::arg("source") = "puppet data", "(metadata, arrays) from container bytes.");
+  m.def("write_puppet_file", [](const std::string& path, const std::string& metadata, const py::dict& arrays) {
+          PuppetFile f = to_file(metadata, arrays);
+          py::gil_scoped_release release;
+          write_puppet_file(path, f);
+        }, py::arg("path"), py::arg("metadata"), py::arg("arrays"), "Write a puppet file atomically.");
+  m.def("read_puppet_file", [](const std::string& path) { return from_file(read_puppet_file(path)); },
+        py::arg("path"), "(metadata, arrays) of a puppet file, validated.");
+
+  py::class_<Puppet>(m, "Puppet", "The C++ voice puppet (puppet.hpp).")
+      .def(py::init([](const std::string& metadata, const py::dict& arrays) {
+             return Puppet(to_file(metadata, arrays));
+           }), py::arg("metadata"), py::arg("arrays"))
+      .def_static("load", &Puppet::load, py::arg("path"))
+      .def_property_readonly("fps", &Puppet::fps)
+      .def_property_readonly("n_features", &Puppet::n_features)
+      .def_property_readonly("n_points", &Puppet::n_points)
+      .def_property_readonly("n_parts", &Puppet::n_parts)
+      .def_property_readonly("n_dims", &Puppet::n_dims)
+      .def_property_readonly("metadata", [](const Puppet& p) { return p.file().metadata; })
+      .def("n_states", [](const Puppet& p, Index part) { return p.part(part).n_states(); }, py::arg("part") = 0)
+      .def("startprob", [](const Puppet& p, Index part) { return p.part(part).startprob; }, py::arg("part") = 0)
+      .def("transmat", [](const Puppet& p, Index part) { return p.part(part).transmat; }, py::arg("part") = 0)
+      .def("standardize", &Puppet::standardize, py::arg("raw"))
+      .def("vocal_log_density", &Puppet::vocal_log_density, py::arg("standardized"), py::arg("part") = 0,
+           py::call_guard<py::gil_scoped_release>())
+      .def("trajectory_model", &Puppet::trajectory_model, py::arg("out_fps") = 0.0, py::arg("part") = 0)
+      .def("to_points", &Puppet::to_points, py::arg("face"))
+      .def("animate", [](const Puppet& p, const MatrixRef& raw, double fps, bool posterior) {
+             AnimateOptions o;
+             o.fps = fps;
+             o.posterior = posterior;
+             AnimateResult r;
+             {
+               py::gil_scoped_release release;
+               r = p.animate(raw, o);
+             }
+             return result(r);
+           }, py::arg("raw_features"), py::arg("fps") = 0.0, py::arg("posterior") = false)
+      .def("animate_states", [](const Puppet& p, const Eigen::Ref<const IndexMatrix>& states, double states_fps,
+                                double fps) {
+             AnimateResult r;
+             {
+               py::gil_scoped_release release;
+               r = p.animate_states(states, states_fps, fps);
+             }
+             return result(r);
+           }, py::arg("states"), py::arg("states_fps"), py::arg("fps") = 0.0);
+}

@@ -1,0 +1,108 @@
+#pragma once
+/// @file puppet.hpp
+/// The voice puppet (Voice Puppetry §4.4–4.5): everything needed to turn audio feature frames
+/// into facial landmarks, read from a puppet file (puppet_io.hpp), with no Python involved.
+///
+/// Analysis and synthesis, per face part (one part, or upper and lower face, §5.1):
+///   raw features [T, A] ─ standardise ─► vocal log densities [T, N] ─ Viterbi (or forward-
+///   backward posteriors) ─► facial states ─ resample to the output rate ─► closed-form
+///   trajectory (trajectory.hpp) ─► face coordinates [T', K_p] ─► shape (mean + basis) ─► pose
+///   (the training mean pose) ─► pixel landmarks [T', 2P] (x0, y0, x1, y1, ...).
+///
+/// Arrays of the puppet file read here (N states, A audio columns, P points, K_p coordinates of
+/// part p; the metadata JSON is for tools and is not interpreted by C++):
+///   fps [1]                           training (analysis) frame rate
+///   audio/mean [A], audio/std [A]     feature standardisation
+///   face/mean_shape [P, 2]            normalised mean shape
+///   face/mean_pose [4]                (log s, θ, tx, ty): pixel = s·R(θ)·shape + t
+///   face/part{p}/points [P_p] (int)   the part's point indices (the parts partition the points)
+///   face/part{p}/basis [K_p, 2P_p]    orthonormal rows; shape_p = mean_p + y · basis
+///   hmm/part{p}/startprob [N], hmm/part{p}/transmat [N, N]
+///   hmm/part{p}/face_means [N, 2K_p]  [pose, velocity] means
+///   hmm/part{p}/face_covars [N, 2K_p, 2K_p]
+///   hmm/part{p}/vocal_means [N, A]
+///   hmm/part{p}/vocal_covars [N, A, A] (full) or [N, A] (diagonal)
+
+#include "voicepuppet/hmm_gaussian.hpp"
+#include "voicepuppet/puppet_io.hpp"
+#include "voicepuppet/trajectory.hpp"
+#include "voicepuppet/types.hpp"
+
+#include <string>
+#include <vector>
+
+namespace voicepuppet {
+
+using IndexMatrix = Eigen::Matrix<Index, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+/// One face part: its points, shape basis and the facial/vocal HMM sharing one state machine.
+struct PuppetPart {
+  VectorXi points;            ///< #P_p point indices
+  RowMatrixXd mean_shape;     ///< #P_p by 2
+  RowMatrixXd basis;          ///< #K_p by 2·P_p
+  VectorXd startprob;         ///< #N
+  RowMatrixXd transmat;       ///< #N by #N
+  RowMatrixXd face_means;     ///< #N by 2·K_p
+  RowMatrixXd face_covars;    ///< #N·2K_p by 2K_p
+  RowMatrixXd vocal_means;    ///< #N by #A
+  RowMatrixXd vocal_covars;   ///< full: #N·A by A; diagonal: #N by A
+  CovarianceType vocal_type = CovarianceType::Full;
+  Index n_states() const { return startprob.size(); }
+  Index n_dims() const { return basis.rows(); }
+};
+
+struct AnimateOptions {
+  double fps = 0;          ///< output frame rate; 0: the puppet's own rate
+  bool posterior = false;  ///< posterior-weighted synthesis (§5) instead of the Viterbi path
+};
+
+struct AnimateResult {
+  RowMatrixXd points;      ///< #T' by 2P pixel landmarks at the output rate
+  RowMatrixXd face;        ///< #T' by K face coordinates (parts side by side)
+  IndexMatrix states;      ///< #T by #parts Viterbi states at the analysis rate
+  double log_likelihood = 0;  ///< Viterbi log p(path, audio), or log p(audio) with posterior
+};
+
+class Puppet {
+ public:
+  /// Validates every array (shapes, finiteness, probabilities, positive definite covariances).
+  /// @throws std::invalid_argument naming what is wrong.
+  explicit Puppet(PuppetFile file);
+  /// Reads and validates a .vpp file (puppet_io.hpp errors for unreadable or corrupt files).
+  static Puppet load(const std::string& path);
+
+  double fps() const { return fps_; }
+  Index n_features() const { return audio_mean_.size(); }
+  Index n_points() const { return mean_shape_.rows(); }
+  Index n_parts() const { return static_cast<Index>(parts_.size()); }
+  Index n_dims() const;  ///< K, all parts
+  const PuppetPart& part(Index p) const;
+  const PuppetFile& file() const { return file_; }
+  const VectorXd& mean_pose() const { return mean_pose_; }
+
+  /// (raw − mean) / std; #T by #A. @throws std::invalid_argument on a column mismatch or NaN.
+  RowMatrixXd standardize(const MatrixRef& raw) const;
+  /// log N(a_t; vocal Gaussian of state n) of part p; #T by #N.
+  RowMatrixXd vocal_log_density(const MatrixRef& standardized, Index p = 0) const;
+  /// The trajectory blocks of part p for synthesis at `out_fps` (0: the puppet's rate).
+  TrajectoryModel trajectory_model(double out_fps = 0, Index p = 0) const;
+  /// Face coordinates #T by K → pixel landmarks #T by 2P at the mean training pose.
+  RowMatrixXd to_points(const MatrixRef& face) const;
+
+  /// Analysis and synthesis from raw audio feature frames at the puppet's rate.
+  AnimateResult animate(const MatrixRef& raw_features, const AnimateOptions& options = {}) const;
+  /// Synthesis from given (e.g. edited) states #T by #parts at `states_fps`.
+  AnimateResult animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
+                               double out_fps = 0) const;
+
+ private:
+  double out_rate(double fps) const;
+  PuppetFile file_;
+  double fps_ = 0;
+  VectorXd audio_mean_, audio_std_, mean_pose_;
+  RowMatrixXd mean_shape_;
+  std::vector<PuppetPart> parts_;
+  std::vector<TrajectoryModel> native_;  ///< trajectory blocks at the puppet's own rate
+};
+
+}  // namespace voicepuppet

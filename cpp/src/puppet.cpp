@@ -1,0 +1,249 @@
+#include "voicepuppet/puppet.hpp"
+
+#include "voicepuppet/hmm.hpp"
+
+#include <cmath>
+#include <string>
+#include <utility>
+
+namespace voicepuppet {
+namespace {
+
+/// The array `name`, checked to have `ndim` dimensions whose sizes match `dims` (−1: any).
+const PuppetArray& array(const PuppetFile& f, const std::string& name, std::vector<long long> dims,
+                         PuppetArray::DType dtype = PuppetArray::DType::Float64) {
+  const PuppetArray& a = f.at(name);
+  bool ok = a.shape.size() == dims.size() && a.dtype == dtype;
+  for (size_t k = 0; ok && k < dims.size(); ++k) {
+    ok = dims[k] < 0 || static_cast<long long>(a.shape[k]) == dims[k];
+  }
+  if (!ok) {
+    std::string want, got;
+    for (auto d : dims) want += (want.empty() ? "" : ", ") + (d < 0 ? std::string("*") : std::to_string(d));
+    for (auto d : a.shape) got += (got.empty() ? "" : ", ") + std::to_string(d);
+    fail_argument("puppet array '", name, "' must be ",
+                  dtype == PuppetArray::DType::Int64 ? "int64" : "float64", " of shape (", want,
+                  "), got ", a.dtype == PuppetArray::DType::Int64 ? "int64" : "float64", " (", got,
+                  "); the file is damaged or from an incompatible tool");
+  }
+  if (dtype == PuppetArray::DType::Float64) {
+    for (double v : a.f64) {
+      if (!std::isfinite(v)) fail_argument("puppet array '", name, "' contains NaN or infinite values");
+    }
+  }
+  return a;
+}
+
+/// The parts' face coordinates side by side.
+RowMatrixXd side_by_side(const std::vector<RowMatrixXd>& faces, Index n_dims) {
+  RowMatrixXd out(faces.front().rows(), n_dims);
+  Index col = 0;
+  for (const auto& y : faces) {
+    out.middleCols(col, y.cols()) = y;
+    col += y.cols();
+  }
+  return out;
+}
+
+}  // namespace
+
+Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
+  const auto& f = file_;
+  fps_ = array(f, "fps", {1}).f64[0];
+  if (!(fps_ > 0)) fail_argument("puppet fps must be positive, got ", fps_);
+  audio_mean_ = array(f, "audio/mean", {-1}).matrix().row(0).transpose();
+  const Index A = audio_mean_.size();
+  audio_std_ = array(f, "audio/std", {A}).matrix().row(0).transpose();
+  if (A < 1 || (audio_std_.array() <= 0).any()) {
+    fail_argument("puppet audio standardisation needs at least one column and positive std");
+  }
+  mean_shape_ = array(f, "face/mean_shape", {-1, 2}).matrix();
+  const Index P = mean_shape_.rows();
+  mean_pose_ = array(f, "face/mean_pose", {4}).matrix().row(0).transpose();
+
+  std::vector<int> seen(static_cast<size_t>(P), 0);
+  for (Index p = 0; f.arrays.count("face/part" + std::to_string(p) + "/points"); ++p) {
+    const std::string fp = "face/part" + std::to_string(p) + "/", hp = "hmm/part" + std::to_string(p) + "/";
+    PuppetPart part;
+    const auto& pts = array(f, fp + "points", {-1}, PuppetArray::DType::Int64);
+    part.points = Eigen::Map<const VectorXi>(pts.i64.data(), static_cast<Index>(pts.i64.size()));
+    const Index Pp = part.points.size();
+    part.mean_shape.resize(Pp, 2);
+    for (Index i = 0; i < Pp; ++i) {
+      const Index q = part.points(i);
+      if (q < 0 || q >= P) fail_argument("puppet part ", p, " names point ", q, " of ", P);
+      ++seen[static_cast<size_t>(q)];
+      part.mean_shape.row(i) = mean_shape_.row(q);
+    }
+    part.basis = array(f, fp + "basis", {-1, 2 * Pp}).matrix();
+    const Index K = part.basis.rows();
+    part.startprob = array(f, hp + "startprob", {-1}).matrix().row(0).transpose();
+    const Index N = part.startprob.size();
+    part.transmat = array(f, hp + "transmat", {N, N}).matrix();
+    make_transitions(part.startprob, part.transmat);  // validates the probabilities
+    part.face_means = array(f, hp + "face_means", {N, 2 * K}).matrix();
+    part.face_covars = array(f, hp + "face_covars", {N, 2 * K, 2 * K}).matrix();
+    part.vocal_means = array(f, hp + "vocal_means", {N, A}).matrix();
+    const PuppetArray& vc = f.at(hp + "vocal_covars");
+    if (vc.shape.size() == 3) {
+      part.vocal_covars = array(f, hp + "vocal_covars", {N, A, A}).matrix();
+      part.vocal_type = CovarianceType::Full;
+    } else {
+      part.vocal_covars = array(f, hp + "vocal_covars", {N, A}).matrix();
+      part.vocal_type = CovarianceType::Diagonal;
+    }
+    check_covariances(part.vocal_covars, N, A, part.vocal_type);
+    native_.emplace_back(part.face_means.leftCols(K), part.face_means.rightCols(K), part.face_covars,
+                         CovarianceType::Full, 1.0);
+    parts_.push_back(std::move(part));
+  }
+  if (parts_.empty()) fail_argument("the puppet has no face part (no array 'face/part0/points')");
+  for (Index q = 0; q < P; ++q) {
+    if (seen[static_cast<size_t>(q)] != 1) {
+      fail_argument("puppet parts must partition the ", P, " points; point ", q, " is in ",
+                    seen[static_cast<size_t>(q)], " parts");
+    }
+  }
+}
+
+Puppet Puppet::load(const std::string& path) {
+  try {
+    return Puppet(read_puppet_file(path));
+  } catch (const std::invalid_argument& e) {
+    const std::string msg = e.what();
+    if (msg.find(path) != std::string::npos) throw;
+    fail_argument(path, ": ", msg);
+  }
+}
+
+Index Puppet::n_dims() const {
+  Index k = 0;
+  for (const auto& p : parts_) k += p.n_dims();
+  return k;
+}
+
+const PuppetPart& Puppet::part(Index p) const {
+  if (p < 0 || p >= n_parts()) fail_argument("part index ", p, " out of range [0, ", n_parts(), ")");
+  return parts_[static_cast<size_t>(p)];
+}
+
+RowMatrixXd Puppet::standardize(const MatrixRef& raw) const {
+  if (raw.cols() != n_features()) {
+    fail_argument("audio features have ", raw.cols(), " columns but the puppet was trained on ",
+                  n_features(), "; extract them with the puppet's feature set");
+  }
+  if (raw.rows() < 1) fail_argument("no audio feature frames (the audio is empty)");
+  require_finite(raw, "audio features");
+  RowMatrixXd z = raw;
+  z.rowwise() -= audio_mean_.transpose();
+  z.array().rowwise() /= audio_std_.transpose().array();
+  return z;
+}
+
+RowMatrixXd Puppet::vocal_log_density(const MatrixRef& standardized, Index p) const {
+  const PuppetPart& pt = part(p);
+  return gaussian_log_density(standardized, pt.vocal_means, pt.vocal_covars, pt.vocal_type);
+}
+
+double Puppet::out_rate(double fps) const {
+  if (fps == 0) return fps_;
+  if (!(fps > 0) || !std::isfinite(fps)) fail_argument("output fps must be positive, got ", fps);
+  return fps;
+}
+
+TrajectoryModel Puppet::trajectory_model(double out_fps, Index p) const {
+  const PuppetPart& pt = part(p);
+  const double out = out_rate(out_fps);
+  if (out == fps_) return native_[static_cast<size_t>(p)];
+  const Index K = pt.n_dims();
+  return TrajectoryModel(pt.face_means.leftCols(K), pt.face_means.rightCols(K), pt.face_covars,
+                         CovarianceType::Full, fps_ / out);
+}
+
+RowMatrixXd Puppet::to_points(const MatrixRef& face) const {
+  if (face.cols() != n_dims()) {
+    fail_argument("face coordinates must have ", n_dims(), " columns, got ", face.cols());
+  }
+  const Index T = face.rows(), P = n_points();
+  RowMatrixXd shape(T, 2 * P);
+  Index col = 0;
+  for (const auto& pt : parts_) {
+    const Index K = pt.n_dims(), Pp = pt.points.size();
+    RowMatrixXd s = face.middleCols(col, K) * pt.basis;  // T × 2P_p
+    for (Index i = 0; i < Pp; ++i) {
+      const Index q = pt.points(i);
+      shape.col(2 * q) = s.col(2 * i).array() + pt.mean_shape(i, 0);
+      shape.col(2 * q + 1) = s.col(2 * i + 1).array() + pt.mean_shape(i, 1);
+    }
+    col += K;
+  }
+  const double s = std::exp(mean_pose_(0)), c = std::cos(mean_pose_(1)) * s, n = std::sin(mean_pose_(1)) * s;
+  RowMatrixXd out(T, 2 * P);
+  for (Index q = 0; q < P; ++q) {
+    out.col(2 * q) = c * shape.col(2 * q) - n * shape.col(2 * q + 1);
+    out.col(2 * q).array() += mean_pose_(2);
+    out.col(2 * q + 1) = n * shape.col(2 * q) + c * shape.col(2 * q + 1);
+    out.col(2 * q + 1).array() += mean_pose_(3);
+  }
+  return out;
+}
+
+AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOptions& options) const {
+  const double out = out_rate(options.fps);
+  const RowMatrixXd z = standardize(raw_features);
+  const Index T = z.rows();
+  const VectorXi no_lengths;
+  AnimateResult r;
+  r.states.resize(T, n_parts());
+  std::vector<RowMatrixXd> faces;
+  for (Index p = 0; p < n_parts(); ++p) {
+    const PuppetPart& pt = parts_[static_cast<size_t>(p)];
+    const RowMatrixXd log_b = vocal_log_density(z, p);
+    const ViterbiResult vit = viterbi(log_b, pt.startprob, pt.transmat, no_lengths);
+    r.states.col(p) = vit.path;
+    const TrajectoryModel model = trajectory_model(out, p);
+    if (options.posterior) {
+      const ForwardBackwardResult fb = forward_backward(log_b, pt.startprob, pt.transmat, no_lengths);
+      r.log_likelihood += fb.log_likelihood;
+      faces.push_back(solve_trajectory_weighted(
+          model, out == fps_ ? fb.posteriors : resample_weights(fb.posteriors, fps_, out)));
+    } else {
+      r.log_likelihood += vit.log_probability;
+      faces.push_back(solve_trajectory(model, out == fps_ ? vit.path : resample_states(vit.path, fps_, out)));
+    }
+  }
+  r.face = side_by_side(faces, n_dims());
+  r.points = to_points(r.face);
+  return r;
+}
+
+AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
+                                     double out_fps) const {
+  const double out = out_rate(out_fps);
+  if (!(states_fps > 0) || !std::isfinite(states_fps)) {
+    fail_argument("states_fps must be positive, got ", states_fps);
+  }
+  if (states.rows() < 1 || states.cols() != n_parts()) {
+    fail_argument("states must have at least one frame and one column per face part (", n_parts(),
+                  "), got ", shape_of(states));
+  }
+  AnimateResult r;
+  r.states = states;
+  std::vector<RowMatrixXd> faces;
+  for (Index p = 0; p < n_parts(); ++p) {
+    const PuppetPart& pt = parts_[static_cast<size_t>(p)];
+    const VectorXi s = states.col(p);
+    if ((s.array() < 0).any() || (s.array() >= pt.n_states()).any()) {
+      fail_argument("states of part ", p, " must lie in [0, ", pt.n_states(), ")");
+    }
+    // The trajectory model's velocities are per training frame; states at another rate are
+    // first brought to the output rate.
+    faces.push_back(solve_trajectory(trajectory_model(out, p),
+                                     states_fps == out ? s : resample_states(s, states_fps, out)));
+  }
+  r.face = side_by_side(faces, n_dims());
+  r.points = to_points(r.face);
+  return r;
+}
+
+}  // namespace voicepuppet
