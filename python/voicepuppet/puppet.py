@@ -1,0 +1,339 @@
+"""The voice puppet: train from a talking face, animate from any audio (Voice Puppetry §4).
+
+Training (:meth:`Puppet.train`), one pass, no back and forth:
+
+1. Face vectors: landmarks → head pose removed (:class:`voicepuppet.face.FaceSpace`) → principal
+   components → observations ``o_t = [y_t, y_t − y_{t−1}]``.
+2. Facial HMM: a Gaussian HMM with full covariance over pose and velocity, trained by entropic
+   MAP-EM (:mod:`voicepuppet.entropic`), starting from ``n_states`` fully connected states and
+   trimming what the data do not support.
+3. Occupancy γ [T, N] of the training frames under the facial HMM.
+4. Remap (§4.3): each state's vocal Gaussian is the γ-weighted mean and covariance of the
+   synchronous, standardised audio features; the vocal HMM shares the facial state machine.
+   Covariances are shrunk towards the pooled covariance by ``A`` frames' worth of evidence
+   (A = audio dimensions), so a rarely visited state still has a usable Gaussian.
+
+Animation runs in C++ (:class:`voicepuppet._core.Puppet`, ``cpp/include/voicepuppet/puppet.hpp``):
+features → standardise → vocal log densities → Viterbi (or posteriors) → closed-form trajectory at
+the output rate → landmarks at the training mean pose. The puppet file (``.vpp``) is written and
+read by C++ too (magic number, format version, CRC-32), so a C++ program animates without Python.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from voicepuppet import _core
+from voicepuppet.animation import Animation, check_output_path
+from voicepuppet.face import FaceSpace, check_landmarks, observations
+
+#: What ``Puppet.train`` uses unless told otherwise (recorded in each puppet's metadata).
+TRAIN_DEFAULTS = {
+    "n_states": 40,          # Brand: start large and fully connected, let the prior trim
+    "n_iter": 40,
+    "prior": "entropic",     # or "ml": conventional Baum-Welch (for comparison)
+    "z": 1.0,                # entropic prior weight (1: minimum entropy)
+    "anneal": True,          # ramp z from -1 to 1 over the first half of the iterations
+    "n_components": 0.98,    # face basis: variance kept per part
+    "max_components": 12,
+    "parts": None,           # or "upper_lower" (iBUG 68) / dict name -> points
+    "feature_set": "puppet",
+    "vocal_covariance": "full",
+    "min_covar": 1e-3,
+    "seed": 0,
+}
+
+
+@dataclass
+class Animated:
+    """What :meth:`Puppet.animate` returns.
+
+    Attributes
+    ----------
+    animation : Animation
+        Landmarks [T', P, 2] at the output rate.
+    face : ndarray (T', K)
+        Face coordinates (the model's own space).
+    states : ndarray (T, parts) of int
+        Facial states per analysis frame (Viterbi), one column per face part.
+    states_fps : float
+        Rate of ``states`` (the puppet's rate).
+    log_likelihood : float
+        Viterbi log p(path, audio), or log p(audio) for posterior synthesis.
+    """
+
+    animation: Animation
+    face: np.ndarray
+    states: np.ndarray
+    states_fps: float
+    log_likelihood: float
+
+
+class Puppet:
+    """A trained voice puppet. Build with :meth:`train` or :func:`load`."""
+
+    def __init__(self, metadata: dict, arrays: dict):
+        self.metadata = dict(metadata)
+        self.arrays = {k: np.asarray(v) for k, v in arrays.items()}
+        self._core = _core.Puppet(json.dumps(self.metadata), self.arrays)
+        self.face_space = FaceSpace.from_arrays(self.arrays, self.metadata["parts"])
+
+    # ------------------------------------------------------------------------- properties
+    @property
+    def fps(self) -> float:
+        return float(self._core.fps)
+
+    @property
+    def feature_set(self):
+        from voicepuppet.audio import FeatureSet
+
+        return FeatureSet.from_json(self.metadata["feature_set"])
+
+    @property
+    def n_points(self) -> int:
+        return int(self._core.n_points)
+
+    @property
+    def part_names(self) -> list:
+        return list(self.metadata["parts"])
+
+    def n_states(self, part: int = 0) -> int:
+        return int(self._core.n_states(part))
+
+    def part_arrays(self, part: int = 0) -> dict:
+        """The HMM arrays of one part: startprob, transmat, face_means, face_covars, vocal_means,
+        vocal_covars."""
+        pre = f"hmm/part{part}/"
+        return {k[len(pre):]: v for k, v in self.arrays.items() if k.startswith(pre)}
+
+    def __repr__(self) -> str:
+        parts = ", ".join(f"{n}: {self.n_states(i)} states" for i, n in enumerate(self.part_names))
+        return (f"<Puppet {self.n_points} points, {self.face_space.n_dims} face dims, "
+                f"{self._core.n_features} audio features at {self.fps:g} fps; {parts}>")
+
+    # --------------------------------------------------------------------------- training
+    @classmethod
+    def train(cls, points_list, audio_list=None, *, features_list=None, fps: float = 29.97,
+              progress: bool = False, **options) -> "Puppet":
+        """Train a puppet from synchronous landmark tracks and audio.
+
+        Parameters
+        ----------
+        points_list : array (T, P, 2) or list of them
+            Landmarks per training sequence (pixels), e.g. from :func:`voicepuppet.tracking.track_video`.
+        audio_list : path, :class:`voicepuppet.audio.Audio`, or a list of them
+            The audio of each sequence (audio files or videos with sound), starting at frame 0.
+        features_list : array (T, A) or list of them, optional
+            Instead of ``audio_list``: raw audio features, one row per landmark frame (then the
+            puppet is animated with ``animate(features=...)`` from features made the same way).
+        fps : float
+            Frame rate of the landmarks; the audio features are computed at this rate.
+        progress : bool
+            Progress bars (features, entropic EM).
+        **options
+            Overrides of :data:`TRAIN_DEFAULTS`.
+
+        Returns
+        -------
+        Puppet
+        """
+        from voicepuppet import audio as vaudio
+        from voicepuppet.entropic import anneal_schedule, diagnostics
+        from voicepuppet.hmm import GaussianHMM
+
+        unknown = set(options) - set(TRAIN_DEFAULTS)
+        if unknown:
+            raise ValueError(f"unknown training options {sorted(unknown)}; known: {sorted(TRAIN_DEFAULTS)}")
+        opt = {**TRAIN_DEFAULTS, **options}
+        if isinstance(points_list, np.ndarray) or not isinstance(points_list, (list, tuple)):
+            points_list = [points_list]
+        if (audio_list is None) == (features_list is None):
+            raise ValueError("give either audio_list or features_list")
+        sources = audio_list if audio_list is not None else features_list
+        if isinstance(sources, np.ndarray) or not isinstance(sources, (list, tuple)):
+            sources = [sources]
+        if len(points_list) != len(sources) or not points_list:
+            raise ValueError(f"give one audio per landmark sequence: {len(points_list)} landmark "
+                             f"sequences, {len(sources)} audio")
+        points_list = [check_landmarks(p, f"landmarks of sequence {i}") for i, p in enumerate(points_list)]
+        lengths = np.array([len(p) for p in points_list])
+        if lengths.sum() < 10 * opt["n_states"]:
+            raise ValueError(f"{lengths.sum()} training frames are too few for {opt['n_states']} states; "
+                             "give at least 10 frames per state (more video, or fewer n_states)")
+
+        fset = vaudio.as_feature_set(opt["feature_set"])
+        if audio_list is not None:
+            feats = [vaudio.extract(a, fps=fps, features=fset, n_out=int(n), progress=progress)
+                     for a, n in zip(sources, lengths)]
+            names = list(feats[0].names)
+        else:
+            feats = [np.asarray(f, dtype=np.float64) for f in sources]
+            for i, (f, n) in enumerate(zip(feats, lengths)):
+                if f.ndim != 2 or len(f) != n or f.shape[1] != feats[0].shape[1]:
+                    raise ValueError(f"features_list[{i}] must have shape ({n}, A) with the same A "
+                                     f"for all sequences (one row per landmark frame); got {f.shape}")
+            names = [f"feature{j}" for j in range(feats[0].shape[1])]
+        std = vaudio.Standardizer.fit(feats if audio_list is not None else np.vstack(feats))
+        A = np.vstack([std.transform(f) for f in feats])
+
+        fs = FaceSpace.fit(points_list, opt["n_components"], max_components=opt["max_components"],
+                           parts=opt["parts"])
+        Y = np.vstack([fs.encode(p)[0] for p in points_list])
+        arrays = {"fps": np.array([float(fps)]), "audio/mean": std.mean, "audio/std": std.std}
+        arrays.update(fs.to_arrays())
+        report = []
+        if opt["prior"] not in ("entropic", "ml"):
+            raise ValueError(f"prior must be 'entropic' or 'ml', got {opt['prior']!r}")
+        z = anneal_schedule(opt["n_iter"]) * opt["z"] if opt["anneal"] else opt["z"]
+        prior = dict(prior="entropic", z=z, trim=True) if opt["prior"] == "entropic" else {}
+        for k, sl in enumerate(fs.part_slices):
+            O = observations(Y[:, sl], lengths)
+            hmm = GaussianHMM(opt["n_states"], "full", n_iter=opt["n_iter"], min_covar=opt["min_covar"],
+                              random_state=opt["seed"], progress=progress, **prior)
+            hmm.fit(O, lengths)
+            gamma = hmm.predict_proba(O, lengths)
+            vm, vc = remap(gamma, A, opt["vocal_covariance"])
+            pre = f"hmm/part{k}/"
+            arrays.update({pre + "startprob": hmm.startprob_, pre + "transmat": hmm.transmat_,
+                           pre + "face_means": hmm.means_, pre + "face_covars": hmm.covars_,
+                           pre + "vocal_means": vm, pre + "vocal_covars": vc})
+            diag = diagnostics(hmm, O, lengths)
+            report.append({"part": fs.part_names[k], "states": hmm.n_states,
+                           "arcs": int(np.count_nonzero(hmm.transmat_)), "face_dims": sl.stop - sl.start,
+                           "iterations": len(hmm.history_),
+                           **{key: float(v) for key, v in diag.items() if np.isscalar(v)}})
+        from voicepuppet import __version__
+
+        metadata = {"format": "voicepuppet puppet", "created_by": f"voicepuppet {__version__}",
+                    "fps": float(fps), "n_points": int(points_list[0].shape[1]),
+                    "parts": fs.part_names, "feature_set": fset.to_json(),
+                    "feature_names": names, "training": {
+                        "frames": int(lengths.sum()), "sequences": int(len(lengths)),
+                        "options": {k: v for k, v in opt.items()}, "parts": report}}
+        return cls(metadata, arrays)
+
+    # -------------------------------------------------------------------------- animation
+    def audio_features(self, audio, n_out: int | None = None, progress: bool = False) -> np.ndarray:
+        """Raw (unstandardised) features [T, A] of ``audio`` at the puppet's rate, with the
+        puppet's feature set."""
+        from voicepuppet import audio as vaudio
+
+        return vaudio.extract(audio, fps=self.fps, features=self.feature_set, n_out=n_out,
+                              progress=progress).values
+
+    def animate(self, audio=None, *, fps: float | None = None, posterior: bool = False,
+                features=None, states=None, states_fps: float | None = None,
+                progress: bool = False) -> Animated:
+        """Facial animation for novel audio (any voice, any language).
+
+        Parameters
+        ----------
+        audio : path or :class:`voicepuppet.audio.Audio`, optional
+            What to animate (audio file or video with sound).
+        fps : float, optional
+            Output frame rate (default: the puppet's).
+        posterior : bool
+            Posterior-weighted synthesis (all state sequences, weighted) instead of the Viterbi path.
+        features : array (T, A), optional
+            Raw features at the puppet's rate instead of ``audio``.
+        states : array (T,) or (T, parts) of int, optional
+            A (possibly edited) state sequence to synthesise from, instead of analysing audio.
+        states_fps : float, optional
+            Rate of ``states`` (default: the puppet's).
+        """
+        out_fps = float(fps) if fps is not None else self.fps
+        if out_fps <= 0 or not np.isfinite(out_fps):
+            raise ValueError(f"fps must be positive, got {fps!r}")
+        given = sum(x is not None for x in (audio, features, states))
+        if given != 1:
+            raise ValueError("give exactly one of audio, features or states")
+        if states is not None:
+            s = np.asarray(states)
+            if s.ndim == 1:
+                s = s[:, None]
+            if s.ndim != 2 or not np.issubdtype(s.dtype, np.integer):
+                raise ValueError(f"states must be integers of shape (T,) or (T, parts); got {s.dtype} {s.shape}")
+            sf = self.fps if states_fps is None else float(states_fps)
+            r = self._core.animate_states(np.ascontiguousarray(s, dtype=np.int64), sf, out_fps)
+        else:
+            if features is None:
+                features = self.audio_features(audio, progress=progress)
+            r = self._core.animate(np.ascontiguousarray(features, dtype=np.float64), out_fps, posterior)
+            sf = self.fps
+        pts = r["points"].reshape(len(r["points"]), -1, 2)
+        return Animated(Animation(pts, out_fps), r["face"], r["states"], sf, float(r["log_likelihood"]))
+
+    # ---------------------------------------------------------------------------- storage
+    def save(self, path) -> Path:
+        """Write the puppet file (``.vpp``) atomically."""
+        p = check_output_path(path, (".vpp",), "puppet file")
+        _core.write_puppet_file(os.fspath(p), json.dumps(self.metadata), self.arrays)
+        return p
+
+
+def load(path) -> Puppet:
+    """Read a puppet file (``.vpp``); ValueError names what is wrong with a damaged one."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"puppet file {str(p)!r} does not exist")
+    metadata, arrays = _core.read_puppet_file(os.fspath(p))
+    try:
+        meta = json.loads(metadata)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"puppet file {str(p)!r} has unreadable metadata ({exc}); the file is damaged") from None
+    if not isinstance(meta, dict) or "parts" not in meta or "feature_set" not in meta:
+        raise ValueError(f"puppet file {str(p)!r} lacks its part list or feature set; it was not written "
+                         "by voicepuppet train")
+    return Puppet(meta, arrays)
+
+
+def remap(gamma, features, covariance: str = "full", floor: float = 1e-3):
+    """Vocal Gaussians per state from occupancies and synchronous features (§4.3).
+
+    Parameters
+    ----------
+    gamma : array (T, N)
+        State occupancies of the training frames under the facial HMM.
+    features : array (T, A)
+        Standardised audio features of the same frames.
+    covariance : {"full", "diag"}
+    floor : float
+        Added to every variance (the features are standardised, so this is relative).
+
+    Returns
+    -------
+    means : (N, A)
+    covars : (N, A, A) for "full", (N, A) for "diag"
+        ``(S_i + κ Σ) / (w_i + κ)``: the weighted scatter ``S_i`` of state i shrunk towards the
+        pooled covariance ``Σ`` with ``κ = A`` frames of evidence, plus ``floor``.
+    """
+    g = np.asarray(gamma, dtype=np.float64)
+    X = np.asarray(features, dtype=np.float64)
+    if g.ndim != 2 or X.ndim != 2 or len(g) != len(X):
+        raise ValueError(f"gamma (T, N) and features (T, A) must have the same frames; got {g.shape} "
+                         f"and {X.shape}")
+    if covariance not in ("full", "diag"):
+        raise ValueError(f"covariance must be 'full' or 'diag', got {covariance!r}")
+    A = X.shape[1]
+    kappa = float(A)
+    w = g.sum(axis=0)
+    mu_all = X.mean(axis=0)
+    pooled = np.cov(X, rowvar=False, bias=True).reshape(A, A)
+    means = (g.T @ X + kappa * mu_all) / (w + kappa)[:, None]
+    if covariance == "diag":
+        covs = np.empty((g.shape[1], A))
+        for i in range(g.shape[1]):
+            d = X - means[i]
+            covs[i] = (g[:, i] @ (d * d) + kappa * np.diag(pooled)) / (w[i] + kappa) + floor
+        return means, covs
+    covs = np.empty((g.shape[1], A, A))
+    for i in range(g.shape[1]):
+        d = X - means[i]
+        covs[i] = ((d * g[:, i:i + 1]).T @ d + kappa * pooled) / (w[i] + kappa) + floor * np.eye(A)
+        covs[i] = 0.5 * (covs[i] + covs[i].T)
+    return means, covs

@@ -1,0 +1,150 @@
+"""The voice puppet end to end on planted data: training recovers a planted state machine, animation
+equals the kernels composed by hand, the puppet file round-trips and refuses damage."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from voicepuppet import _core, puppet as vpuppet
+from voicepuppet.face import observations
+from voicepuppet.puppet import Puppet, load, remap
+
+
+def _planted(rng, T=900, P=12):
+    """Three facial states (rest, open, round) visited in runs; the audio says which one. The
+    world (shapes, audio means) is fixed; ``rng`` draws the sequence and the noise."""
+    world = np.random.default_rng(1)
+    base = np.stack([np.cos(np.linspace(0, 2 * np.pi, P, endpoint=False)),
+                     np.sin(np.linspace(0, 2 * np.pi, P, endpoint=False))], axis=1) * 50 + 160
+    modes = np.zeros((3, P, 2))
+    modes[1, P // 4, 1] = 25.0       # one point drops (jaw open)
+    modes[2, :, 0] = (base[:, 0] - 160) * -0.3  # narrow (rounding)
+    states = np.repeat(rng.integers(0, 3, T // 15), 15)[:T]
+    shape = base + modes[states] + rng.normal(0, 0.3, (T, P, 2))
+    # Smooth the switches a little, as faces do.
+    k = np.array([0.25, 0.5, 0.25])
+    shape = np.apply_along_axis(lambda v: np.convolve(np.pad(v, 1, mode="edge"), k, "valid"), 0, shape)
+    audio_means = world.normal(0, 3, (3, 5))
+    feats = audio_means[states] + rng.normal(0, 1.0, (T, 5))
+    return shape, feats, states
+
+
+@pytest.fixture(scope="module")
+def trained():
+    rng = np.random.default_rng(7)
+    pts, feats, states = _planted(rng)
+    p = Puppet.train([pts], features_list=[feats], fps=30.0, n_states=8, n_iter=25, n_components=3)
+    test_pts, test_feats, test_states = _planted(np.random.default_rng(8), T=300)
+    return p, (pts, feats, states), (test_pts, test_feats, test_states)
+
+
+def test_planted_machine_is_recovered(trained):
+    p, _, (pts, feats, states) = trained
+    r = p.animate(features=feats)
+    decoded = r.states[:, 0]
+    # Each decoded state belongs to one planted state (purity), and the face follows.
+    purity = sum(np.bincount(states[decoded == s]).max() for s in np.unique(decoded)) / len(states)
+    assert purity > 0.95
+    truth, _ = p.face_space.encode(pts)
+    err = np.sum((r.face - truth) ** 2) / np.sum((truth - truth.mean(0)) ** 2)
+    assert err < 0.1
+    assert p.n_states() <= 8 and p.metadata["training"]["parts"][0]["states"] == p.n_states()
+
+
+def test_animate_is_the_kernels_composed(trained):
+    p, _, (_, feats, _) = trained
+    arr = p.part_arrays(0)
+    z = (feats - p.arrays["audio/mean"]) / p.arrays["audio/std"]
+    n, a = arr["vocal_means"].shape
+    log_b = _core.gaussian_log_density(z, arr["vocal_means"], arr["vocal_covars"].reshape(n * a, a), "full")
+    _, path = _core.viterbi(log_b, arr["startprob"], arr["transmat"], np.array([len(z)]))
+    d = arr["face_means"].shape[1] // 2
+    model = _core.TrajectoryModel(arr["face_means"][:, :d], arr["face_means"][:, d:],
+                                  arr["face_covars"].reshape(-1, 2 * d), "full", 1.0)
+    Y = _core.solve_trajectory(model, path)
+    r = p.animate(features=feats)
+    np.testing.assert_array_equal(r.states[:, 0], path)
+    np.testing.assert_allclose(r.animation.points, p.face_space.decode(Y), atol=1e-9)
+    # Other output rates: twice the frames; edited states read back give the same animation.
+    assert p.animate(features=feats, fps=60.0).animation.n_frames == 2 * len(feats)
+    again = p.animate(states=r.states)
+    np.testing.assert_allclose(again.animation.points, r.animation.points, atol=1e-12)
+    post = p.animate(features=feats, posterior=True)
+    assert post.animation.n_frames == len(feats) and post.log_likelihood >= r.log_likelihood - 1e-6
+
+
+def test_save_load_round_trip_and_damage(trained, tmp_path):
+    p, _, (_, feats, _) = trained
+    path = p.save(tmp_path / "p.vpp")
+    q = load(path)
+    np.testing.assert_array_equal(q.animate(features=feats).animation.points,
+                                  p.animate(features=feats).animation.points)
+    assert q.metadata == json.loads(json.dumps(p.metadata))
+    data = path.read_bytes()
+    (tmp_path / "trunc.vpp").write_bytes(data[:-100])
+    with pytest.raises(ValueError, match="truncated"):
+        load(tmp_path / "trunc.vpp")
+    flipped = bytearray(data)
+    flipped[-50] ^= 1
+    (tmp_path / "flip.vpp").write_bytes(bytes(flipped))
+    with pytest.raises(ValueError, match="checksum"):
+        load(tmp_path / "flip.vpp")
+    newer = bytearray(data)
+    newer[8] = 99
+    (tmp_path / "new.vpp").write_bytes(bytes(newer))
+    with pytest.raises(ValueError, match="newer"):
+        load(tmp_path / "new.vpp")
+    (tmp_path / "x.vpp").write_bytes(b"not a puppet at all, just some text that is long enough")
+    with pytest.raises(ValueError, match="not a voicepuppet"):
+        load(tmp_path / "x.vpp")
+    with pytest.raises(ValueError, match="does not exist"):
+        load(tmp_path / "missing.vpp")
+    with pytest.raises(ValueError, match=".vpp"):
+        p.save(tmp_path / "p.txt")
+    assert sorted(os.listdir(tmp_path)) == ["flip.vpp", "new.vpp", "p.vpp", "trunc.vpp", "x.vpp"]
+
+
+def test_remap_is_the_weighted_gaussian(rng):
+    T, N, A = 400, 3, 4
+    X = rng.normal(size=(T, A))
+    g = rng.dirichlet(np.ones(N), size=T)
+    means, covs = remap(g, X, "full", floor=0.0)
+    kappa, mu, pooled = A, X.mean(0), np.cov(X, rowvar=False, bias=True)
+    for i in range(N):
+        w = g[:, i]
+        m = (w @ X + kappa * mu) / (w.sum() + kappa)
+        np.testing.assert_allclose(means[i], m, rtol=1e-12)
+        d = X - m
+        np.testing.assert_allclose(covs[i], ((d.T * w) @ d + kappa * pooled) / (w.sum() + kappa), rtol=1e-10)
+        np.linalg.cholesky(covs[i])
+    _, diag = remap(g, X, "diag", floor=0.0)
+    np.testing.assert_allclose(diag, np.array([np.diag(c) for c in covs]), rtol=1e-10)
+
+
+def test_bad_training_input(rng):
+    pts = rng.normal(size=(100, 5, 2)) * 10 + 100
+    with pytest.raises(ValueError, match="too few"):
+        Puppet.train([pts], features_list=[rng.normal(size=(100, 3))], n_states=40)
+    with pytest.raises(ValueError, match="one audio per landmark"):
+        Puppet.train([pts, pts], features_list=[rng.normal(size=(100, 3))], n_states=4)
+    with pytest.raises(ValueError, match="unknown training options"):
+        Puppet.train([pts], features_list=[rng.normal(size=(100, 3))], n_state=4)
+    bad = pts.copy()
+    bad[10, 2, 1] = np.nan
+    with pytest.raises(ValueError, match="frame 10, point 2"):
+        Puppet.train([bad], features_list=[rng.normal(size=(100, 3))], n_states=4)
+    with pytest.raises(ValueError, match="shape"):
+        Puppet.train([pts], features_list=[rng.normal(size=(90, 3))], n_states=4)
+
+
+def test_bad_animation_input(trained):
+    p, _, (_, feats, _) = trained
+    with pytest.raises(ValueError, match="columns"):
+        p.animate(features=feats[:, :3])
+    with pytest.raises(ValueError, match="exactly one"):
+        p.animate()
+    with pytest.raises(ValueError, match=r"\[0, "):
+        p.animate(states=np.full(10, 99))
+    with pytest.raises(ValueError, match="NaN"):
+        p.animate(features=np.full((5, feats.shape[1]), np.nan))
