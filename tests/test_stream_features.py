@@ -1,0 +1,181 @@
+"""Streaming audio features (voicepuppet.audio.stream) against the offline front end.
+
+The reference is ``extract(prepare(x, rate, target_rate=None, remove_dc=False))`` on the whole
+signal: the stream must give the same frames for any chunking, including one sample at a time,
+zero-length chunks, chunks of seconds and stretches of silence.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.signal import resample_poly
+
+from voicepuppet.audio import extract, load_audio, prepare, samples
+from voicepuppet.audio.stream import (STREAMABLE, StreamingFeatures, StreamResampler,
+                                      pcm_to_float)
+
+SEED = 20261123
+RATE = 16000
+
+
+@pytest.fixture(scope="module")
+def speech():
+    """CMU ARCTIC a0009 (3.4 s) with 0.5 s of silence inserted, and 0.3 s of silence in front
+    (the formant tracker's leading gap)."""
+    x = load_audio(samples.arctic_a0009()).samples
+    return np.concatenate([np.zeros(4800), x[:20000], np.zeros(8000), x[20000:]])
+
+
+def offline(x, fps=29.97, features="puppet"):
+    return extract(prepare(x, RATE, target_rate=None, remove_dc=False), fps=fps,
+                   features=features)
+
+
+def stream(x, chunks, fps=29.97, features="puppet", **kw):
+    s = StreamingFeatures(features, fps=fps, rate=RATE, **kw)
+    out = [s.push(x[a:b]) for a, b in chunks]
+    out.append(s.flush())
+    for o in out:
+        assert o.ndim == 2 and o.shape[1] == s.n_features
+    return np.vstack(out), s
+
+
+def chunking(n, kind, rng):
+    if kind == "random":  # 0 .. 3000 samples, zero-length chunks included
+        edges = np.cumsum(rng.integers(0, 3000, size=n // 1000 + 10))
+    elif kind == "seconds":
+        edges = np.arange(0, n + 40000, 40000)  # 2.5 s chunks
+    else:
+        edges = np.arange(0, n + kind, kind)
+    edges = np.concatenate([[0], np.minimum(edges, n), [n]])
+    return list(zip(edges[:-1], edges[1:]))
+
+
+@pytest.mark.parametrize("kind", [160, 7, "random", "seconds"])
+def test_puppet_set_equals_offline_for_any_chunking(speech, kind):
+    rng = np.random.default_rng(SEED)
+    print("seed", SEED)
+    ref = offline(speech)
+    got, s = stream(speech, chunking(speech.shape[0], kind, rng))
+    assert s.names == ref.names
+    assert got.shape == ref.values.shape
+    # every feature of the default set, column by column
+    for j, name in enumerate(ref.names):
+        np.testing.assert_allclose(got[:, j], ref.values[:, j], rtol=1e-9, atol=1e-9,
+                                   err_msg=name)
+
+
+def test_one_sample_at_a_time(speech):
+    x = speech[:12000]  # 0.75 s: silence, then speech onset
+    ref = offline(x)
+    got, _ = stream(x, [(i, i + 1) for i in range(x.shape[0])])
+    np.testing.assert_allclose(got, ref.values, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("features,fps", [(list(STREAMABLE), 29.97), ("mfcc_deltas", 100.0),
+                                          ("puppet", 25.0), ("puppet", 60.0)])
+def test_every_streamable_feature_and_rates(speech, features, fps):
+    rng = np.random.default_rng(SEED + 1)
+    ref = offline(speech, fps, features)
+    got, s = stream(speech, chunking(speech.shape[0], "random", rng), fps, features)
+    assert s.names == ref.names
+    np.testing.assert_allclose(got, ref.values, rtol=1e-9, atol=1e-9)
+
+
+def test_frames_arrive_once_their_window_is_full(speech):
+    """Without formants, every frame is out as soon as the right half of its window has
+    arrived (bounded latency), whatever the signal."""
+    s = StreamingFeatures("mfcc", fps=29.97, rate=RATE)
+    la = s.lookahead_s()
+    # window max(25 ms, 1 / fps) = 534 samples in a 540-point FFT frame centred on the frame time
+    assert math.isclose(la, (540 - 270) / RATE)
+    n_out = 0
+    for a in range(0, speech.shape[0], 160):
+        n_out += s.push(speech[a:a + 160]).shape[0]
+        t = (a + 160) / RATE
+        # frames k with k / fps + lookahead <= t must be out, and no frame beyond
+        expect = math.floor((t - la) * 29.97 + 1e-9) + 1
+        assert abs(n_out - expect) <= 1, (t, n_out, expect)
+
+
+def test_bounded_formant_lag(speech):
+    """formant_lag bounds the wait of the formant tracker: frames leave within the bound;
+    columns other than the formants stay exact."""
+    lag = 3
+    s = StreamingFeatures("puppet", fps=29.97, rate=RATE, formant_lag=lag)
+    la = s.lookahead_s()
+    out = []
+    for a in range(0, speech.shape[0], 160):
+        out.append(s.push(speech[a:a + 160]))
+        t = (a + 160) / RATE
+        n_out = sum(o.shape[0] for o in out)
+        assert n_out >= math.floor((t - la) * 29.97) - 1, (t, n_out)
+    out.append(s.flush())
+    got = np.vstack(out)
+    ref = offline(speech)
+    fcols = [ref.names.index(c) for c in ("f1", "f2", "f3")]
+    other = [j for j in range(len(ref.names)) if j not in fcols]
+    np.testing.assert_allclose(got[:, other], ref.values[:, other], rtol=1e-9, atol=1e-9)
+    # formants: most frames agree exactly (the tracker usually converges within the bound)
+    same = np.all(np.abs(got[:, fcols] - ref.values[:, fcols]) < 1e-6, axis=1)
+    assert same.mean() > 0.7
+    assert np.all(np.isfinite(got))
+
+
+def test_exact_formants_wait_for_the_tracker(speech):
+    """In exact mode (formant_lag=None) the formant columns may lag, but never emit a frame
+    the offline tracker would assign differently (checked against offline above); here: the
+    stream holds frames back in the leading silence until speech arrives."""
+    s = StreamingFeatures("puppet", fps=29.97, rate=RATE)
+    n = s.push(speech[:4000]).shape[0]  # 0.25 s of silence: no formant yet, nothing final
+    assert n == 0
+    n += s.push(speech[4000:16000]).shape[0]  # speech started at 0.3 s
+    assert n > 0
+
+
+def test_int16_chunks_equal_float(speech):
+    pcm = np.round(speech[:16000] * 20000).astype(np.int16)
+    a = StreamingFeatures("mfcc")
+    b = StreamingFeatures("mfcc")
+    ya = np.vstack([a.push(pcm[i:i + 500]) for i in range(0, 16000, 500)] + [a.flush()])
+    xf = pcm.astype(np.float64) / 32768.0
+    yb = np.vstack([b.push(xf)] + [b.flush()])
+    np.testing.assert_allclose(ya, yb, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("rates", [(48000, 16000), (16000, 11000), (22050, 16000)])
+def test_stream_resampler_equals_resample_poly(rates):
+    rng = np.random.default_rng(SEED + 2)
+    x = rng.standard_normal(30011)
+    r = StreamResampler(*rates)
+    edges = np.concatenate([[0], np.cumsum(rng.integers(0, 2000, size=40))])
+    edges = np.minimum(np.concatenate([edges, [x.shape[0]]]), x.shape[0])
+    got = np.concatenate([r.push(x[a:b]) for a, b in zip(edges[:-1], edges[1:])] + [r.flush()])
+    from fractions import Fraction
+
+    f = Fraction(rates[1], rates[0])
+    ref = resample_poly(x, f.numerator, f.denominator)
+    assert got.shape == ref.shape
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="cannot be computed on a stream"):
+        StreamingFeatures("prosody")
+    with pytest.raises(ValueError, match="rate"):
+        StreamingFeatures("mfcc", rate=4000)
+    with pytest.raises(ValueError, match="formant_lag"):
+        StreamingFeatures("puppet", formant_lag=-1)
+    s = StreamingFeatures("mfcc")
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        s.push(np.array([0.0, np.nan]))
+    with pytest.raises(ValueError, match="numbers"):
+        s.push(np.array(["a", "b"]))
+    with pytest.raises(ValueError, match="shape"):
+        s.push(np.zeros((2, 2, 2)))
+    assert s.flush().shape == (0, 13)  # nothing pushed: no frames
+    s.push(np.zeros(100))
+    assert s.flush().shape == (1, 13)  # a stream that stops mid-frame: its frame, zero padded
+    with pytest.raises(ValueError, match="2 channels|channels"):
+        pcm_to_float(np.zeros((3, 0)))
