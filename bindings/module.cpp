@@ -10,6 +10,7 @@ void bind_tracker(py::module_& m);
 void bind_trajectory(py::module_& m);
 void bind_entropic(py::module_& m);
 void bind_puppet(py::module_& m);
+void bind_streaming(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "voicepuppet's C++ kernels (private: use the voicepuppet package)";
@@ -28,4 +29,5 @@ PYBIND11_MODULE(_core, m) {
   bind_trajectory(m);
   bind_entropic(m);
   bind_puppet(m);
+  bind_streaming(m);
 }
