@@ -29,4 +29,38 @@ void bind_streaming(py::module_& m) {
       .def_property_readonly("frames_pushed", &FixedLagDecoder::frames_pushed)
       .def_property_readonly("frames_emitted", &FixedLagDecoder::frames_emitted)
       .def_property_readonly("log_likelihood", &FixedLagDecoder::log_likelihood);
+
+  py::class_<StreamedFrames>(m, "StreamedFrames", "Face frames emitted by a streaming puppet.")
+      .def_readonly("first_frame", &StreamedFrames::first_frame)
+      .def_readonly("points", &StreamedFrames::points)
+      .def_readonly("face", &StreamedFrames::face)
+      .def("__len__", &StreamedFrames::size);
+  py::class_<StreamingPuppet>(m, "StreamingPuppet",
+                              "A Puppet driven frame by frame with bounded latency (streaming.hpp).")
+      .def(py::init([](const Puppet& puppet, Index decode_lag, Index trajectory_lag, double fps,
+                       bool posterior) {
+             StreamingOptions o;
+             o.decode_lag = decode_lag;
+             o.trajectory_lag = trajectory_lag;
+             o.fps = fps;
+             o.posterior = posterior;
+             return StreamingPuppet(puppet, o);
+           }),
+           py::arg("puppet"), py::arg("decode_lag") = 2, py::arg("trajectory_lag") = 2,
+           py::arg("fps") = 0.0, py::arg("posterior") = false)
+      .def("push", &StreamingPuppet::push, py::arg("raw_features"),
+           py::call_guard<py::gil_scoped_release>(),
+           "Push raw audio feature frames [K, A]; returns the face frames completed.")
+      .def("flush", &StreamingPuppet::flush, py::call_guard<py::gil_scoped_release>(),
+           "Emit the held-back frames (from the whole stream), then reset.")
+      .def("reset", &StreamingPuppet::reset)
+      .def_property_readonly("output_fps", &StreamingPuppet::output_fps)
+      .def_property_readonly("latency_seconds", &StreamingPuppet::latency_seconds)
+      .def_property_readonly("frames_pushed", &StreamingPuppet::frames_pushed)
+      .def_property_readonly("frames_emitted", &StreamingPuppet::frames_emitted)
+      .def_property_readonly("log_likelihood", &StreamingPuppet::log_likelihood)
+      .def_property_readonly("decode_lag", [](const StreamingPuppet& s) { return s.options().decode_lag; })
+      .def_property_readonly("trajectory_lag",
+                             [](const StreamingPuppet& s) { return s.options().trajectory_lag; })
+      .def_property_readonly("posterior", [](const StreamingPuppet& s) { return s.options().posterior; });
 }

@@ -188,4 +188,199 @@ DecodedFrames FixedLagDecoder::flush() {
   return out;
 }
 
+// ------------------------------------------------------------------ StreamingPuppet
+namespace {
+
+/// Output frames of a resampled sequence of n input frames (as trajectory.cpp's
+/// resample_states / resample_weights: every output time inside the input's duration).
+Index resampled_count(Index n, double fps_in, double fps_out) {
+  const double x = static_cast<double>(n) * fps_out / fps_in;
+  return std::max<Index>(1, static_cast<Index>(std::ceil(x - 1e-9 * std::max(1.0, x))));
+}
+
+std::vector<TrajectoryModel> part_models(const Puppet& puppet, double fps) {
+  std::vector<TrajectoryModel> m;
+  for (Index p = 0; p < puppet.n_parts(); ++p) m.push_back(puppet.trajectory_model(fps, p));
+  return m;
+}
+
+}  // namespace
+
+StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& options)
+    : puppet_(puppet), options_(options) {
+  if (options.decode_lag < 0) fail_argument("decode_lag must be >= 0 frames, got ", options.decode_lag);
+  if (options.trajectory_lag < 0) {
+    fail_argument("trajectory_lag must be >= 0 frames, got ", options.trajectory_lag);
+  }
+  if (!(options.fps >= 0) || !std::isfinite(options.fps)) {
+    fail_argument("fps must be 0 (the puppet's rate) or a positive frame rate, got ", options.fps);
+  }
+  out_fps_ = options.fps == 0 ? puppet_.fps() : options.fps;
+  const auto models = part_models(puppet_, out_fps_);
+  for (Index p = 0; p < puppet_.n_parts(); ++p) {
+    const PuppetPart& pt = puppet_.part(p);
+    parts_.push_back(PartStream{FixedLagDecoder(pt.startprob, pt.transmat, options.decode_lag),
+                                FixedLagTrajectory(models[static_cast<size_t>(p)], options.trajectory_lag),
+                                {}, {}, 0, 0, 0});
+  }
+}
+
+double StreamingPuppet::latency_seconds() const {
+  return static_cast<double>(options_.decode_lag) / puppet_.fps() +
+         static_cast<double>(options_.trajectory_lag) / out_fps_;
+}
+
+double StreamingPuppet::log_likelihood() const {
+  double s = 0;
+  for (const auto& ps : parts_) s += ps.decoder.log_likelihood();
+  return s;
+}
+
+void StreamingPuppet::reset() {
+  for (auto& ps : parts_) {
+    ps.decoder.reset();
+    ps.trajectory.flush();  // discards the held-back frames and resets
+    ps.states.clear();
+    ps.weights.clear();
+    ps.first = ps.decided = ps.next_out = 0;
+  }
+  pushed_ = emitted_ = 0;
+}
+
+RowMatrixXd StreamingPuppet::feed(PartStream& ps, const DecodedFrames& f, bool final_pass) {
+  const double fin = puppet_.fps(), fout = out_fps_;
+  const bool post = options_.posterior;
+  for (Index k = 0; k < f.size(); ++k) {
+    if (post) {
+      ps.weights.emplace_back(f.posteriors.row(k).transpose());
+    } else {
+      ps.states.push_back(f.states[k]);
+    }
+  }
+  ps.decided += f.size();
+  const Index n = ps.decided;
+  const Index m_total = final_pass ? resampled_count(n, fin, fout) : -1;
+  // Output frames whose input frames are decided, resampled as resample_states/_weights do.
+  std::vector<Index> out_states;
+  std::vector<VectorXd> out_weights;
+  for (;; ++ps.next_out) {
+    const Index k = ps.next_out;
+    if (final_pass && k >= m_total) break;
+    if (fin == fout) {
+      if (k >= n) break;
+      if (post) {
+        out_weights.push_back(ps.weights[static_cast<size_t>(k - ps.first)]);
+      } else {
+        out_states.push_back(ps.states[static_cast<size_t>(k - ps.first)]);
+      }
+      continue;
+    }
+    if (!post) {
+      const double u = static_cast<double>(k) * fin / fout;
+      Index j = static_cast<Index>(std::floor(u + 1e-9 * std::max(1.0, u)));
+      if (final_pass) j = std::min(j, n - 1);
+      if (j >= n) break;
+      out_states.push_back(ps.states[static_cast<size_t>(j - ps.first)]);
+    } else {
+      double u = static_cast<double>(k) * fin / fout;
+      if (final_pass) u = std::min(u, static_cast<double>(n - 1));
+      const Index j = final_pass ? std::min(static_cast<Index>(std::floor(u)), n - 1)
+                                 : static_cast<Index>(std::floor(u));
+      const double fr = u - static_cast<double>(j);
+      const bool interp = fr > 0.0 && (final_pass ? j + 1 < n : true);
+      if (j >= n || (interp && j + 1 >= n)) break;
+      const VectorXd& a = ps.weights[static_cast<size_t>(j - ps.first)];
+      out_weights.push_back(interp ? VectorXd((1.0 - fr) * a +
+                                              fr * ps.weights[static_cast<size_t>(j + 1 - ps.first)])
+                                   : a);
+    }
+  }
+  // Forget input frames no later output frame needs.
+  {
+    const double u = static_cast<double>(ps.next_out) * fin / fout;
+    const Index keep = std::max<Index>(ps.first, std::min<Index>(static_cast<Index>(std::floor(u)) - 1, n));
+    const auto drop = static_cast<std::ptrdiff_t>(keep - ps.first);
+    if (post) {
+      ps.weights.erase(ps.weights.begin(), ps.weights.begin() + std::min<std::ptrdiff_t>(drop, ps.weights.size()));
+    } else {
+      ps.states.erase(ps.states.begin(), ps.states.begin() + std::min<std::ptrdiff_t>(drop, ps.states.size()));
+    }
+    ps.first = keep;
+  }
+  RowMatrixXd face;
+  if (post) {
+    RowMatrixXd w(static_cast<Index>(out_weights.size()), ps.decoder.n_states());
+    for (size_t i = 0; i < out_weights.size(); ++i) w.row(static_cast<Index>(i)) = out_weights[i].transpose();
+    face = ps.trajectory.push_weights(w);
+  } else {
+    VectorXi st(static_cast<Index>(out_states.size()));
+    for (size_t i = 0; i < out_states.size(); ++i) st[static_cast<Index>(i)] = out_states[i];
+    face = ps.trajectory.push_states(st);
+  }
+  if (final_pass) {
+    const RowMatrixXd rest = ps.trajectory.flush();
+    RowMatrixXd all(face.rows() + rest.rows(), rest.cols());
+    if (face.rows()) all.topRows(face.rows()) = face;
+    if (rest.rows()) all.bottomRows(rest.rows()) = rest;
+    face = std::move(all);
+  }
+  return face;
+}
+
+StreamedFrames StreamingPuppet::assemble(std::vector<RowMatrixXd>& faces) {
+  StreamedFrames out;
+  out.first_frame = emitted_;
+  const Index m = faces.empty() ? 0 : faces.front().rows();
+  Index K = 0;
+  for (const auto& f : faces) {
+    if (f.rows() != m) fail_numeric("streaming puppet: face parts emitted different frame counts");  // a bug
+    K += f.cols();
+  }
+  out.face.resize(m, puppet_.n_dims());
+  Index col = 0;
+  for (const auto& f : faces) {
+    if (m > 0) out.face.middleCols(col, f.cols()) = f;
+    col += f.cols();
+  }
+  out.points = m > 0 ? puppet_.to_points(out.face) : RowMatrixXd(0, 2 * puppet_.n_points());
+  emitted_ += m;
+  return out;
+}
+
+StreamedFrames StreamingPuppet::push(const MatrixRef& raw_features) {
+  if (raw_features.cols() != puppet_.n_features()) {
+    fail_argument("raw_features must have ", puppet_.n_features(), " columns (the puppet's audio "
+                  "features), got ", shape_of(raw_features));
+  }
+  require_finite(raw_features, "raw_features");
+  std::vector<RowMatrixXd> faces;
+  if (raw_features.rows() == 0) {
+    for (Index p = 0; p < puppet_.n_parts(); ++p) faces.emplace_back(0, puppet_.part(p).n_dims());
+    return assemble(faces);
+  }
+  const RowMatrixXd z = puppet_.standardize(raw_features);
+  for (Index p = 0; p < puppet_.n_parts(); ++p) {
+    PartStream& ps = parts_[static_cast<size_t>(p)];
+    const DecodedFrames f = ps.decoder.push(puppet_.vocal_log_density(z, p));
+    faces.push_back(feed(ps, f, false));
+  }
+  pushed_ += raw_features.rows();
+  return assemble(faces);
+}
+
+StreamedFrames StreamingPuppet::flush() {
+  std::vector<RowMatrixXd> faces;
+  if (pushed_ == 0) {
+    for (Index p = 0; p < puppet_.n_parts(); ++p) faces.emplace_back(0, puppet_.part(p).n_dims());
+    StreamedFrames out = assemble(faces);
+    reset();
+    return out;
+  }
+  for (auto& ps : parts_) faces.push_back(feed(ps, ps.decoder.flush(), true));
+  StreamedFrames out = assemble(faces);
+  reset();
+  return out;
+}
+
 }  // namespace voicepuppet
+

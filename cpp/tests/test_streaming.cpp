@@ -166,3 +166,193 @@ TEST_CASE("fixed-lag decoder: bad input") {
   CHECK(d.flush().size() == 1);
   CHECK(d.flush().size() == 0);  // nothing pushed
 }
+
+// ------------------------------------------------------------------ StreamingPuppet
+namespace {
+
+PuppetArray f64(std::vector<std::uint64_t> shape, std::vector<double> v) {
+  PuppetArray a;
+  a.shape = std::move(shape);
+  a.f64 = std::move(v);
+  return a;
+}
+
+/// A random two-part puppet: 6 points (parts {0,2,4} and {1,3,5}), N states, A audio columns,
+/// K face coordinates per part; sticky transitions, random SPD covariances.
+PuppetFile random_puppet(Index N, Index A, Index K, unsigned seed, double fps = 30.0) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> u(0.05, 1.0);
+  auto spd = [&](Index d, double scale) {
+    Eigen::MatrixXd M(d, d);
+    for (Index i = 0; i < d; ++i)
+      for (Index j = 0; j < d; ++j) M(i, j) = g(rng);
+    Eigen::MatrixXd S = M * M.transpose() / static_cast<double>(d) + Eigen::MatrixXd::Identity(d, d);
+    return Eigen::MatrixXd(S * scale);
+  };
+  PuppetFile f;
+  f.metadata = R"({"kind": "test"})";
+  f.arrays["fps"] = f64({1}, {fps});
+  std::vector<double> mean, sd;
+  for (Index a = 0; a < A; ++a) {
+    mean.push_back(g(rng));
+    sd.push_back(0.5 + u(rng));
+  }
+  f.arrays["audio/mean"] = f64({static_cast<std::uint64_t>(A)}, mean);
+  f.arrays["audio/std"] = f64({static_cast<std::uint64_t>(A)}, sd);
+  std::vector<double> shape;
+  for (int i = 0; i < 12; ++i) shape.push_back(g(rng));
+  f.arrays["face/mean_shape"] = f64({6, 2}, shape);
+  f.arrays["face/mean_pose"] = f64({4}, {std::log(50.0), 0.1, 100, 80});
+  for (int p = 0; p < 2; ++p) {
+    const std::string pre = "part" + std::to_string(p);
+    PuppetArray pts;
+    pts.dtype = PuppetArray::DType::Int64;
+    pts.shape = {3};
+    pts.i64 = {p, p + 2, p + 4};
+    f.arrays["face/" + pre + "/points"] = pts;
+    // orthonormal rows: K unit vectors of the 6 coordinates
+    std::vector<double> basis(static_cast<size_t>(K * 6), 0.0);
+    for (Index k = 0; k < K; ++k) basis[static_cast<size_t>(k * 6 + (k * 2 + p) % 6)] = 1.0;
+    f.arrays["face/" + pre + "/basis"] = f64({static_cast<std::uint64_t>(K), 6}, basis);
+    std::vector<double> pi(static_cast<size_t>(N), 1.0 / static_cast<double>(N)), A_(static_cast<size_t>(N * N));
+    for (Index i = 0; i < N; ++i) {
+      double s = 0;
+      for (Index j = 0; j < N; ++j) {
+        const double v = (i == j ? 8.0 : 0.0) + (u(rng) < 0.4 ? 0.0 : u(rng));
+        A_[static_cast<size_t>(i * N + j)] = v;
+        s += v;
+      }
+      for (Index j = 0; j < N; ++j) A_[static_cast<size_t>(i * N + j)] /= s;
+    }
+    f.arrays["hmm/" + pre + "/startprob"] = f64({static_cast<std::uint64_t>(N)}, pi);
+    f.arrays["hmm/" + pre + "/transmat"] = f64({static_cast<std::uint64_t>(N), static_cast<std::uint64_t>(N)}, A_);
+    std::vector<double> fm, fc, vm, vc;
+    for (Index n = 0; n < N; ++n) {
+      for (Index k = 0; k < K; ++k) fm.push_back(2.0 * g(rng));
+      for (Index k = 0; k < K; ++k) fm.push_back(0.0);
+      const Eigen::MatrixXd C = spd(2 * K, 0.3);
+      for (Index i = 0; i < 2 * K; ++i)
+        for (Index j = 0; j < 2 * K; ++j) fc.push_back(C(i, j));
+      for (Index a = 0; a < A; ++a) vm.push_back(1.5 * g(rng));
+      const Eigen::MatrixXd V = spd(A, 0.5);
+      for (Index i = 0; i < A; ++i)
+        for (Index j = 0; j < A; ++j) vc.push_back(V(i, j));
+    }
+    const auto n_ = static_cast<std::uint64_t>(N), k2 = static_cast<std::uint64_t>(2 * K),
+               a_ = static_cast<std::uint64_t>(A);
+    f.arrays["hmm/" + pre + "/face_means"] = f64({n_, k2}, fm);
+    f.arrays["hmm/" + pre + "/face_covars"] = f64({n_, k2, k2}, fc);
+    f.arrays["hmm/" + pre + "/vocal_means"] = f64({n_, a_}, vm);
+    f.arrays["hmm/" + pre + "/vocal_covars"] = f64({n_, a_, a_}, vc);
+  }
+  return f;
+}
+
+/// Raw features from a sticky walk over the first part's vocal means (in raw units).
+RowMatrixXd walk_features(const Puppet& pp, Index T, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g(0.0, 0.7);
+  std::uniform_int_distribution<Index> pick(0, pp.part(0).n_states() - 1);
+  const PuppetPart& pt = pp.part(0);
+  const RowMatrixXd& mean = pp.file().at("audio/mean").matrix();
+  const RowMatrixXd& sd = pp.file().at("audio/std").matrix();
+  RowMatrixXd X(T, pp.n_features());
+  Index s = pick(rng);
+  for (Index t = 0; t < T; ++t) {
+    if (t % 6 == 0) s = pick(rng);
+    for (Index a = 0; a < X.cols(); ++a) X(t, a) = (pt.vocal_means(s, a) + g(rng)) * sd(0, a) + mean(0, a);
+  }
+  return X;
+}
+
+RowMatrixXd stream_points(StreamingPuppet& sp, const RowMatrixXd& X, Index chunk) {
+  std::vector<RowMatrixXd> rows;
+  Index next = 0;
+  auto take = [&](const StreamedFrames& f) {
+    REQUIRE(f.first_frame == next);
+    next += f.size();
+    rows.push_back(f.points);
+  };
+  for (Index t = 0; t < X.rows(); t += chunk) take(sp.push(X.middleRows(t, std::min(chunk, X.rows() - t))));
+  take(sp.flush());
+  RowMatrixXd all(next, 2 * sp.puppet().n_points());
+  Index r = 0;
+  for (const auto& m : rows) {
+    if (m.rows()) all.middleRows(r, m.rows()) = m;
+    r += m.rows();
+  }
+  return all;
+}
+
+}  // namespace
+
+TEST_CASE("streaming puppet: lags covering the stream give Puppet::animate exactly") {
+  const Puppet pp(random_puppet(6, 3, 2, 17));
+  const RowMatrixXd X = walk_features(pp, 70, 4);
+  for (bool posterior : {false, true}) {
+    for (double fps : {0.0, 60.0, 25.0}) {
+      StreamingOptions o;
+      o.decode_lag = 80;
+      o.trajectory_lag = 200;
+      o.fps = fps;
+      o.posterior = posterior;
+      StreamingPuppet sp(pp, o);
+      AnimateOptions ao;
+      ao.fps = fps;
+      ao.posterior = posterior;
+      const AnimateResult ref = pp.animate(X, ao);
+      for (Index chunk : {Index(1), Index(13)}) {
+        const RowMatrixXd got = stream_points(sp, X, chunk);
+        REQUIRE(got.rows() == ref.points.rows());
+        CHECK((got - ref.points).cwiseAbs().maxCoeff() < 1e-8 * (1.0 + ref.points.cwiseAbs().maxCoeff()));
+      }
+    }
+  }
+}
+
+TEST_CASE("streaming puppet: bounded lags emit frame k after input k + lags; chunking is invisible") {
+  const Puppet pp(random_puppet(5, 4, 2, 23));
+  const RowMatrixXd X = walk_features(pp, 60, 9);
+  for (bool posterior : {false, true}) {
+    StreamingOptions o;
+    o.decode_lag = 2;
+    o.trajectory_lag = 3;
+    o.posterior = posterior;
+    StreamingPuppet sp(pp, o);
+    CHECK(std::abs(sp.latency_seconds() - 5.0 / 30.0) < 1e-12);
+    for (Index t = 0; t < X.rows(); ++t) {
+      const StreamedFrames f = sp.push(X.middleRows(t, 1));
+      // input t decides frame t - 2, which completes output frame t - 5
+      CHECK(f.size() == (t >= 5 ? 1 : 0));
+      if (f.size()) CHECK(f.first_frame == t - 5);
+    }
+    CHECK(sp.flush().size() == 5);
+    const RowMatrixXd one = stream_points(sp, X, 1);
+    const RowMatrixXd all = stream_points(sp, X, X.rows());
+    CHECK((one - all).cwiseAbs().maxCoeff() < 1e-10);
+    // small lags differ from the offline solve, but stay close on a sticky walk
+    AnimateOptions ao;
+    ao.posterior = posterior;
+    const RowMatrixXd ref = pp.animate(X, ao).points;
+    CHECK((one - ref).cwiseAbs().maxCoeff() > 0.0);
+    CHECK(std::isfinite(one.sum()));
+  }
+}
+
+TEST_CASE("streaming puppet: bad input") {
+  const Puppet pp(random_puppet(4, 3, 1, 5));
+  StreamingOptions o;
+  o.decode_lag = -1;
+  CHECK_THROWS_WITH_AS(StreamingPuppet(pp, o), doctest::Contains("decode_lag"), std::invalid_argument);
+  o.decode_lag = 1;
+  o.fps = -5;
+  CHECK_THROWS_WITH_AS(StreamingPuppet(pp, o), doctest::Contains("fps"), std::invalid_argument);
+  StreamingPuppet sp(pp);
+  CHECK_THROWS_WITH_AS(sp.push(RowMatrixXd::Zero(2, 5)), doctest::Contains("3 columns"), std::invalid_argument);
+  RowMatrixXd bad = RowMatrixXd::Zero(2, 3);
+  bad(1, 1) = std::numeric_limits<double>::infinity();
+  CHECK_THROWS_WITH_AS(sp.push(bad), doctest::Contains("NaN or infinite"), std::invalid_argument);
+  CHECK(sp.push(RowMatrixXd::Zero(0, 3)).size() == 0);
+  CHECK(sp.flush().size() == 0);
+}

@@ -1,7 +1,8 @@
 #pragma once
 /// @file streaming.hpp
-/// Live analysis with a bounded latency: fixed-lag decoding of an HMM over per-frame log
-/// densities (fixed-lag Viterbi and fixed-lag smoothed posteriors).
+/// Live voice puppetry with a bounded latency: fixed-lag decoding of an HMM over per-frame log
+/// densities (fixed-lag Viterbi and fixed-lag smoothed posteriors), and `StreamingPuppet`,
+/// which drives a `Puppet` (puppet.hpp) from audio feature frames as they arrive.
 ///
 /// A frame t is decided once frame t + L has been pushed (L = lag, in frames):
 ///  - its Viterbi state is the state at t of the best path ending at t + L (the best partial
@@ -13,6 +14,8 @@
 /// the offline `viterbi` and `forward_backward` (hmm.hpp) on the whole sequence.
 
 #include "voicepuppet/hmm.hpp"
+#include "voicepuppet/puppet.hpp"
+#include "voicepuppet/trajectory.hpp"
 #include "voicepuppet/types.hpp"
 
 #include <cstdint>
@@ -76,6 +79,86 @@ class FixedLagDecoder {
   RowMatrixXd log_b_;                     ///< ring of log densities (L+1 by N)
   Eigen::Matrix<std::int32_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> back_;  ///< ring
   VectorXd beta_, beta_next_, scratch_;
+};
+
+/// Options of a StreamingPuppet.
+struct StreamingOptions {
+  Index decode_lag = 2;      ///< look-ahead of the state decoder, frames at the puppet's rate
+  Index trajectory_lag = 2;  ///< look-ahead of the trajectory solve, frames at the output rate
+  double fps = 0;            ///< output frame rate; 0: the puppet's own rate
+  bool posterior = false;    ///< posterior-weighted synthesis instead of the fixed-lag path
+};
+
+/// Face frames emitted by a push or a flush.
+struct StreamedFrames {
+  Index first_frame = 0;  ///< output index of the first row
+  RowMatrixXd points;     ///< #M by 2P pixel landmarks (x0, y0, x1, y1, ...) at the mean pose
+  RowMatrixXd face;       ///< #M by K face coordinates (parts side by side)
+  Index size() const { return points.rows(); }
+};
+
+/// The voice puppet on a stream: raw audio feature frames in (at the puppet's rate, in the
+/// puppet's feature columns), face frames out, state carried between calls.
+///
+/// Per face part: standardise → vocal log densities → FixedLagDecoder (frame t decided after
+/// t + decode_lag) → states (or posteriors) resampled to the output rate as they are decided
+/// (sample and hold, or linear interpolation, exactly as resample_states / resample_weights) →
+/// FixedLagTrajectory (output frame k emitted after k + trajectory_lag) → face coordinates →
+/// Puppet::to_points. Work per frame is O(decode_lag · arcs + D³ + trajectory_lag · D²),
+/// independent of the stream's length. With lags covering the whole stream (or for the frames
+/// still held back at `flush`) the output equals Puppet::animate.
+///
+/// Latency (seconds of audio after a frame's time before it is emitted):
+/// decode_lag / puppet fps + trajectory_lag / output fps (+ the feature window's look-ahead,
+/// which is the front end's).
+class StreamingPuppet {
+ public:
+  /// @param[in] puppet   copied: the stream does not depend on the caller's object
+  /// @param[in] options  lags (≥ 0), output rate (≥ 0), synthesis mode
+  /// @throws std::invalid_argument for a negative lag or a bad rate.
+  explicit StreamingPuppet(const Puppet& puppet, const StreamingOptions& options = {});
+
+  /// Pushes raw (unstandardised) audio feature frames at the puppet's rate.
+  /// @param[in] raw_features  #K by #A (A = puppet.n_features()), K ≥ 0, finite
+  /// @return the face frames completed by these frames (possibly none)
+  /// @throws std::invalid_argument on a wrong column count or non-finite values.
+  StreamedFrames push(const MatrixRef& raw_features);
+
+  /// Ends the stream: emits every frame still held back (from the whole stream, as offline),
+  /// then resets for a new stream. Output length: that of Puppet::animate on the frames pushed.
+  StreamedFrames flush();
+
+  /// Forgets the stream.
+  void reset();
+
+  const Puppet& puppet() const { return puppet_; }
+  const StreamingOptions& options() const { return options_; }
+  double output_fps() const { return out_fps_; }
+  Index frames_pushed() const { return pushed_; }
+  Index frames_emitted() const { return emitted_; }
+  /// Algorithmic latency in seconds: decode_lag / fps + trajectory_lag / output fps.
+  double latency_seconds() const;
+  /// log p(features so far) under each part's vocal HMM, summed over parts.
+  double log_likelihood() const;
+
+ private:
+  struct PartStream {
+    FixedLagDecoder decoder;
+    FixedLagTrajectory trajectory;
+    std::vector<Index> states;           ///< decided input frames not yet fully resampled
+    std::vector<VectorXd> weights;       ///< likewise, posterior mode
+    Index first = 0;                     ///< input index of states[0] / weights[0]
+    Index decided = 0;                   ///< input frames decided so far
+    Index next_out = 0;                  ///< next output frame to resample
+  };
+  RowMatrixXd feed(PartStream& ps, const DecodedFrames& f, bool final_pass);
+  StreamedFrames assemble(std::vector<RowMatrixXd>& faces);
+
+  Puppet puppet_;
+  StreamingOptions options_;
+  double out_fps_ = 0;
+  std::vector<PartStream> parts_;
+  Index pushed_ = 0, emitted_ = 0;
 };
 
 }  // namespace voicepuppet
