@@ -89,6 +89,8 @@ void bind_puppet(py::module_& m) {
   m.def("read_puppet_file", [](const std::string& path) { return from_file(read_puppet_file(path)); },
         py::arg("path"), "(metadata, arrays) of a puppet file, validated.");
 
+  m.def("append_deltas", &append_deltas, py::arg("x"), py::arg("width"),
+        "[x, regression deltas over +-width frames] (puppet.hpp).");
   py::class_<Puppet>(m, "Puppet", "The C++ voice puppet (puppet.hpp).")
       .def(py::init([](const std::string& metadata, const py::dict& arrays) {
              return Puppet(to_file(metadata, arrays));
@@ -99,6 +101,7 @@ void bind_puppet(py::module_& m) {
       .def_property_readonly("n_points", &Puppet::n_points)
       .def_property_readonly("n_parts", &Puppet::n_parts)
       .def_property_readonly("n_dims", &Puppet::n_dims)
+      .def_property_readonly("delta_width", &Puppet::delta_width)
       .def_property_readonly("metadata", [](const Puppet& p) { return p.file().metadata; })
       .def("n_states", [](const Puppet& p, Index part) { return p.part(part).n_states(); }, py::arg("part") = 0)
       .def("startprob", [](const Puppet& p, Index part) { return p.part(part).startprob; }, py::arg("part") = 0)

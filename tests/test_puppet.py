@@ -55,7 +55,12 @@ def test_planted_machine_is_recovered(trained):
 def test_animate_is_the_kernels_composed(trained):
     p, _, (_, feats, _) = trained
     arr = p.part_arrays(0)
-    z = (feats - p.arrays["audio/mean"]) / p.arrays["audio/std"]
+    w = int(p.arrays["audio/delta_width"][0])
+    assert w == 2
+    T = len(feats)
+    at = lambda k: feats[np.clip(np.arange(T) + k, 0, T - 1)]  # noqa: E731
+    deltas = sum(k * (at(k) - at(-k)) for k in (1, 2)) / 10.0
+    z = (np.hstack([feats, deltas]) - p.arrays["audio/mean"]) / p.arrays["audio/std"]
     n, a = arr["vocal_means"].shape
     log_b = _core.gaussian_log_density(z, arr["vocal_means"], arr["vocal_covars"].reshape(n * a, a), "full")
     _, path = _core.viterbi(log_b, arr["startprob"], arr["transmat"], np.array([len(z)]))

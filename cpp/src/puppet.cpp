@@ -2,6 +2,7 @@
 
 #include "voicepuppet/hmm.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <utility>
@@ -47,12 +48,35 @@ RowMatrixXd side_by_side(const std::vector<RowMatrixXd>& faces, Index n_dims) {
 
 }  // namespace
 
+RowMatrixXd append_deltas(const MatrixRef& x, Index width) {
+  if (width < 0) fail_argument("delta width must be >= 0, got ", width);
+  if (width == 0) return x;
+  const Index T = x.rows(), A = x.cols();
+  RowMatrixXd out(T, 2 * A);
+  out.leftCols(A) = x;
+  out.rightCols(A).setZero();
+  double norm = 0;
+  for (Index k = 1; k <= width; ++k) norm += 2.0 * static_cast<double>(k * k);
+  for (Index t = 0; t < T; ++t) {
+    for (Index k = 1; k <= width; ++k) {
+      const Index ahead = std::min(t + k, T - 1), behind = std::max(t - k, Index(0));
+      out.row(t).rightCols(A) += (static_cast<double>(k) / norm) * (x.row(ahead) - x.row(behind));
+    }
+  }
+  return out;
+}
+
 Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
   const auto& f = file_;
   fps_ = array(f, "fps", {1}).f64[0];
   if (!(fps_ > 0)) fail_argument("puppet fps must be positive, got ", fps_);
+  if (f.arrays.count("audio/delta_width")) {
+    delta_width_ = array(f, "audio/delta_width", {1}, PuppetArray::DType::Int64).i64[0];
+    if (delta_width_ < 0 || delta_width_ > 100) fail_argument("puppet audio/delta_width must be in [0, 100], got ", delta_width_);
+  }
   audio_mean_ = array(f, "audio/mean", {-1}).matrix().row(0).transpose();
   const Index A = audio_mean_.size();
+  if (delta_width_ > 0 && A % 2) fail_argument("puppet audio/mean must hold features and their deltas (an even count), got ", A);
   audio_std_ = array(f, "audio/std", {A}).matrix().row(0).transpose();
   if (A < 1 || (audio_std_.array() <= 0).any()) {
     fail_argument("puppet audio standardisation needs at least one column and positive std");
@@ -134,7 +158,7 @@ RowMatrixXd Puppet::standardize(const MatrixRef& raw) const {
   }
   if (raw.rows() < 1) fail_argument("no audio feature frames (the audio is empty)");
   require_finite(raw, "audio features");
-  RowMatrixXd z = raw;
+  RowMatrixXd z = append_deltas(raw, delta_width_);
   z.rowwise() -= audio_mean_.transpose();
   z.array().rowwise() /= audio_std_.transpose().array();
   return z;

@@ -156,3 +156,34 @@ TEST_CASE("animate equals standardise, Viterbi, trajectory and the pose, compose
   bad(3, 0) = 7;
   CHECK(throws_with([&] { puppet.animate_states(bad, 30); }, "[0, 2)"));
 }
+
+TEST_CASE("regression deltas: a ramp has unit slope inside, edges repeat the end frames") {
+  RowMatrixXd x(8, 2);
+  for (Index t = 0; t < 8; ++t) {
+    x(t, 0) = static_cast<double>(t);
+    x(t, 1) = 5.0;
+  }
+  const RowMatrixXd d = append_deltas(x, 2);
+  REQUIRE(d.cols() == 4);
+  CHECK((d.leftCols(2) - x).cwiseAbs().maxCoeff() == 0.0);
+  for (Index t = 2; t < 6; ++t) CHECK(d(t, 2) == doctest::Approx(1.0));
+  // t = 0: (1·(1 − 0) + 2·(2 − 0)) / 10 = 0.5
+  CHECK(d(0, 2) == doctest::Approx(0.5));
+  CHECK(d.col(3).cwiseAbs().maxCoeff() == 0.0);
+  CHECK(append_deltas(x, 0).cols() == 2);
+  // A puppet with deltas takes raw features and standardises [x, Δx].
+  PuppetFile f = tiny_puppet();
+  PuppetArray w;
+  w.dtype = PuppetArray::DType::Int64;
+  w.shape = {1};
+  w.i64 = {1};
+  f.arrays["audio/delta_width"] = w;
+  f.arrays["audio/mean"] = arr({4}, {1, -1, 0, 0});
+  f.arrays["audio/std"] = arr({4}, {2, 0.5, 1, 1});
+  f.arrays["hmm/part0/vocal_means"] = arr({2, 4}, {-1, 0, 0, 0, 1, 0, 0, 0});
+  f.arrays["hmm/part0/vocal_covars"] = arr({2, 4}, {0.2, 1, 1, 1, 0.2, 1, 1, 1});
+  const Puppet p(f);
+  CHECK(p.n_features() == 2);
+  CHECK(p.standardize(x).cols() == 4);
+  CHECK(p.standardize(x)(4, 2) == doctest::Approx(1.0));
+}

@@ -14,7 +14,9 @@ import sys
 # Order is the order shown in --help.
 VERB_MODULES = [
     "voicepuppet.info",
+    "voicepuppet.demo",
     "voicepuppet.tracking",
+    "voicepuppet.puppet_cli",
     "voicepuppet.features_cli",
     "voicepuppet.render",
     "voicepuppet.export",

@@ -9,8 +9,9 @@ Training (:meth:`Puppet.train`), one pass, no back and forth:
    trimming what the data do not support.
 3. Occupancy γ [T, N] of the training frames under the facial HMM.
 4. Remap (§4.3): each state's vocal Gaussian is the γ-weighted mean and covariance of the
-   synchronous, standardised audio features; the vocal HMM shares the facial state machine.
-   Covariances are shrunk towards the pooled covariance by ``A`` frames' worth of evidence
+   synchronous, standardised audio features (with their regression deltas over ±2 frames, so
+   each frame carries its local dynamics); the vocal HMM shares the facial state machine.
+   Means and covariances are shrunk towards the pooled ones by ``A`` frames' worth of evidence
    (A = audio dimensions), so a rarely visited state still has a usable Gaussian.
 
 Animation runs in C++ (:class:`voicepuppet._core.Puppet`, ``cpp/include/voicepuppet/puppet.hpp``):
@@ -43,6 +44,7 @@ TRAIN_DEFAULTS = {
     "max_components": 12,
     "parts": None,           # or "upper_lower" (iBUG 68) / dict name -> points
     "feature_set": "puppet",
+    "audio_deltas": 2,       # append regression deltas over +-2 frames to the audio features
     "vocal_covariance": "full",
     "min_covar": 1e-3,
     "seed": 0,
@@ -178,13 +180,19 @@ class Puppet:
                     raise ValueError(f"features_list[{i}] must have shape ({n}, A) with the same A "
                                      f"for all sequences (one row per landmark frame); got {f.shape}")
             names = [f"feature{j}" for j in range(feats[0].shape[1])]
-        std = vaudio.Standardizer.fit(feats if audio_list is not None else np.vstack(feats))
-        A = np.vstack([std.transform(f) for f in feats])
+        w = int(opt["audio_deltas"])
+        if w < 0 or w != opt["audio_deltas"]:
+            raise ValueError(f"audio_deltas must be an integer >= 0, got {opt['audio_deltas']!r}")
+        raw = [f.values if hasattr(f, "values") else f for f in feats]
+        ext = [_core.append_deltas(np.ascontiguousarray(f, dtype=np.float64), w) for f in raw]
+        std = vaudio.Standardizer.fit(np.vstack(ext))
+        A = np.vstack([std.transform(f) for f in ext])
 
         fs = FaceSpace.fit(points_list, opt["n_components"], max_components=opt["max_components"],
                            parts=opt["parts"])
         Y = np.vstack([fs.encode(p)[0] for p in points_list])
-        arrays = {"fps": np.array([float(fps)]), "audio/mean": std.mean, "audio/std": std.std}
+        arrays = {"fps": np.array([float(fps)]), "audio/mean": std.mean, "audio/std": std.std,
+                  "audio/delta_width": np.array([w], dtype=np.int64)}
         arrays.update(fs.to_arrays())
         report = []
         if opt["prior"] not in ("entropic", "ml"):

@@ -12,7 +12,9 @@
 /// Arrays of the puppet file read here (N states, A audio columns, P points, K_p coordinates of
 /// part p; the metadata JSON is for tools and is not interpreted by C++):
 ///   fps [1]                           training (analysis) frame rate
-///   audio/mean [A], audio/std [A]     feature standardisation
+///   audio/delta_width [1] (int)       w: append regression deltas over ±w frames (0: none;
+///                                     absent in older files means 0)
+///   audio/mean [A'], audio/std [A']   standardisation of [features, deltas] (A' = A or 2A)
 ///   face/mean_shape [P, 2]            normalised mean shape
 ///   face/mean_pose [4]                (log s, θ, tx, ty): pixel = s·R(θ)·shape + t
 ///   face/part{p}/points [P_p] (int)   the part's point indices (the parts partition the points)
@@ -51,6 +53,10 @@ struct PuppetPart {
   Index n_dims() const { return basis.rows(); }
 };
 
+/// Regression deltas d_t = Σ_{k=1..w} k (x_{t+k} − x_{t−k}) / (2 Σ k²), frames beyond the ends
+/// repeating the first or last frame; returns [x, d] side by side (#T by 2·#A), or x if w = 0.
+RowMatrixXd append_deltas(const MatrixRef& x, Index width);
+
 struct AnimateOptions {
   double fps = 0;          ///< output frame rate; 0: the puppet's own rate
   bool posterior = false;  ///< posterior-weighted synthesis (§5) instead of the Viterbi path
@@ -72,7 +78,9 @@ class Puppet {
   static Puppet load(const std::string& path);
 
   double fps() const { return fps_; }
-  Index n_features() const { return audio_mean_.size(); }
+  /// Raw audio feature columns A the puppet is animated from.
+  Index n_features() const { return audio_mean_.size() / (delta_width_ > 0 ? 2 : 1); }
+  Index delta_width() const { return delta_width_; }
   Index n_points() const { return mean_shape_.rows(); }
   Index n_parts() const { return static_cast<Index>(parts_.size()); }
   Index n_dims() const;  ///< K, all parts
@@ -80,7 +88,8 @@ class Puppet {
   const PuppetFile& file() const { return file_; }
   const VectorXd& mean_pose() const { return mean_pose_; }
 
-  /// (raw − mean) / std; #T by #A. @throws std::invalid_argument on a column mismatch or NaN.
+  /// ([raw, deltas] − mean) / std; #T by #A'. @throws std::invalid_argument on a column
+  /// mismatch or NaN.
   RowMatrixXd standardize(const MatrixRef& raw) const;
   /// log N(a_t; vocal Gaussian of state n) of part p; #T by #N.
   RowMatrixXd vocal_log_density(const MatrixRef& standardized, Index p = 0) const;
@@ -99,6 +108,7 @@ class Puppet {
   double out_rate(double fps) const;
   PuppetFile file_;
   double fps_ = 0;
+  Index delta_width_ = 0;
   VectorXd audio_mean_, audio_std_, mean_pose_;
   RowMatrixXd mean_shape_;
   std::vector<PuppetPart> parts_;

@@ -26,6 +26,7 @@ SUITES = {
     "trajectory": "voicepuppet.bench.trajectory",
     "entropic": "voicepuppet.bench.entropic",
     "synth": "voicepuppet.bench.synth",
+    "pipeline": "voicepuppet.bench.pipeline",
 }
 
 

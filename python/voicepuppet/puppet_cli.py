@@ -1,0 +1,191 @@
+"""The ``train`` and ``animate`` verbs (see :mod:`voicepuppet.puppet` for what they drive)."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+#: A frame whose share of lost points exceeds this is not used for training.
+MAX_LOST_SHARE = 0.3
+#: Shortest run of usable frames kept for training.
+MIN_SEGMENT = 10
+
+
+def usable_segments(points, lost=None, audio=None, fps: float = 29.97, where: str = ""):
+    """Split a tracked sequence where the face was lost; returns ``[(points, audio), ...]``.
+
+    Frames with more than :data:`MAX_LOST_SHARE` of their points flagged lost are dropped, and
+    runs shorter than :data:`MIN_SEGMENT` frames too; a warning says how much was dropped. The
+    audio of each kept run is cut to match (``audio`` is an :class:`voicepuppet.audio.Audio`).
+    """
+    from dataclasses import replace
+
+    T = len(points)
+    if lost is None:
+        return [(points, audio)]
+    bad = np.asarray(lost, dtype=bool).reshape(T, -1).mean(axis=1) > MAX_LOST_SHARE
+    if not bad.any():
+        return [(points, audio)]
+    runs, start = [], None
+    for t in range(T + 1):
+        ok = t < T and not bad[t]
+        if ok and start is None:
+            start = t
+        elif not ok and start is not None:
+            if t - start >= MIN_SEGMENT:
+                runs.append((start, t))
+            start = None
+    kept = sum(b - a for a, b in runs)
+    if not runs:
+        raise ValueError(f"{where}the face is lost in {int(bad.sum())} of {T} frames, leaving no run of "
+                         f"{MIN_SEGMENT} usable frames; check the video or the tracker's init points")
+    warnings.warn(f"{where}the face was lost in {int(bad.sum())} of {T} frames; training on the "
+                  f"{len(runs)} stretch(es) where it was found ({kept} frames)", stacklevel=2)
+    out = []
+    for a, b in runs:
+        s0, s1 = int(round(a / fps * audio.rate)), int(round(b / fps * audio.rate))
+        out.append((points[a:b], replace(audio, samples=audio.samples[s0:s1])))
+    return out
+
+
+def _train(args) -> int:
+    from voicepuppet import audio as vaudio
+    from voicepuppet.animation import check_output_path
+    from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet
+    from voicepuppet.tracking import load_landmarks, track_video
+
+    out = check_output_path(args.output, (".vpp",), "puppet file")
+    videos, marks, audios = list(args.video), list(args.landmarks or []), list(args.audio or [])
+    if not videos and not marks:
+        raise ValueError("give training videos, or --landmarks with --audio")
+    if marks and videos and len(marks) != len(videos):
+        raise ValueError(f"{len(marks)} --landmarks files for {len(videos)} videos; give one per video")
+    if audios and len(audios) != max(len(videos), len(marks)):
+        raise ValueError(f"{len(audios)} --audio files for {max(len(videos), len(marks))} sequences; give one each")
+    if marks and not videos and not audios:
+        raise ValueError("--landmarks needs --audio (or the videos they were tracked from)")
+    n = max(len(videos), len(marks))
+    points_list, audio_list, fps = [], [], None
+    for i in range(n):
+        if marks:
+            data = load_landmarks(marks[i])
+            if "points" not in data:
+                raise ValueError(f"{marks[i]}: no 'points' array; expected landmarks from voicepuppet track")
+            pts, f = data["points"], float(np.asarray(data.get("fps", 29.97)).reshape(-1)[0])
+            lost = data.get("lost")
+            where = f"{marks[i]}: "
+        else:
+            print(f"tracking {videos[i]} ...")
+            res = track_video(videos[i], init=args.init, progress=not args.quiet)
+            pts, f, lost, where = res.points, res.fps, res.lost, f"{videos[i]}: "
+        if fps is None:
+            fps = f
+        elif abs(f - fps) > 1e-3:
+            raise ValueError(f"sequence {i} runs at {f:g} fps but the first at {fps:g}; use one frame rate")
+        src = audios[i] if audios else videos[i]
+        snd = vaudio.load_audio(src)
+        for seg in usable_segments(pts, lost, snd, f, where):
+            points_list.append(seg[0])
+            audio_list.append(seg[1])
+    options = {k: v for k, v in {"n_states": args.states, "n_iter": args.iterations, "parts": args.parts,
+                                  "prior": args.prior, "feature_set": args.feature_set,
+                                  "seed": args.seed}.items() if v is not None}
+    puppet = Puppet.train(points_list, audio_list, fps=fps, progress=not args.quiet, **options)
+    puppet.save(out)
+    for part in puppet.metadata["training"]["parts"]:
+        print(f"part {part['part']}: {part['states']} states (from {options.get('n_states', TRAIN_DEFAULTS['n_states'])}), "
+              f"{part['arcs']} arcs, perplexity {part['perplexity']:.3g}, context memory "
+              f"{part['context_memory']:.3g} frames, {part['face_dims']} face dims")
+    print(f"trained on {sum(len(p) for p in points_list)} frames at {fps:g} fps; wrote {out}")
+    return 0
+
+
+def save_states(path, states: np.ndarray, fps: float) -> Path:
+    """Write a state sequence as CSV ``frame,time,part0[,part1...]``, atomically."""
+    from voicepuppet.animation import atomic_path
+
+    T, n_parts = states.shape
+    table = np.column_stack([np.arange(T), np.arange(T) / fps, states])
+    with atomic_path(path, (".csv",), "states file") as tmp:
+        np.savetxt(tmp, table, fmt=["%d", "%.9g"] + ["%d"] * n_parts, delimiter=",",
+                   header="frame,time," + ",".join(f"part{k}" for k in range(n_parts)), comments="")
+    return Path(path)
+
+
+def load_states(path) -> tuple[np.ndarray, float]:
+    """Read a states CSV written by :func:`save_states` (possibly edited): ``(states, fps)``."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"states file {str(p)!r} does not exist")
+    try:
+        table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+    except ValueError as exc:
+        raise ValueError(f"states file {str(p)!r} is not a 'frame,time,part0,...' CSV: {exc}") from None
+    if table.shape[0] < 2 or table.shape[1] < 3:
+        raise ValueError(f"states file {str(p)!r} needs at least 2 rows of frame,time,part0[,...]")
+    states = table[:, 2:]
+    if not np.all(states == np.round(states)):
+        raise ValueError(f"states file {str(p)!r} holds non-integer states")
+    fps = 1.0 / float(np.median(np.diff(table[:, 1])))
+    return states.astype(np.int64), fps
+
+
+def _animate(args) -> int:
+    from voicepuppet.animation import check_output_path, exaggerate, save_animation
+    from voicepuppet.puppet import load
+
+    out = check_output_path(args.output, (".npz", ".csv"), "animation file")
+    puppet = load(args.puppet)
+    if args.states_in:
+        states, sfps = load_states(args.states_in)
+        result = puppet.animate(states=states, states_fps=sfps, fps=args.fps)
+    else:
+        if args.audio is None:
+            raise ValueError("give the AUDIO to animate (or --states-in)")
+        result = puppet.animate(args.audio, fps=args.fps, posterior=args.posterior, progress=not args.quiet)
+    anim = result.animation
+    if args.exaggerate is not None:
+        anim = exaggerate(anim, args.exaggerate)
+    save_animation(anim, out)
+    written = [out]
+    if args.states_out:
+        written.append(save_states(args.states_out, result.states, result.states_fps))
+    print(f"animated {anim.duration:.2f} s ({anim.n_frames} frames at {anim.fps:g} fps); "
+          f"wrote {', '.join(str(w) for w in written)}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("train", help="train a voice puppet from video of a talking face",
+                       description="Track the face (unless --landmarks are given), learn the facial "
+                                   "state machine by entropic estimation, remap it to the audio "
+                                   "(Voice Puppetry §4) and write the puppet file.")
+    p.add_argument("video", nargs="*", help="training videos with sound (the face talking)")
+    p.add_argument("-o", "--output", required=True, metavar="PUPPET.vpp", help="puppet file to write")
+    p.add_argument("--landmarks", nargs="+", metavar="L.npz", help="landmarks (from voicepuppet track) instead of tracking")
+    p.add_argument("--audio", nargs="+", metavar="AUDIO", help="the sound of each sequence (default: the video's)")
+    p.add_argument("--init", default="auto", help="tracker init points for the videos (default: auto)")
+    p.add_argument("--states", type=int, help="initial states of the facial HMM (default 40; entropic training trims)")
+    p.add_argument("--iterations", type=int, help="EM iterations (default 40)")
+    p.add_argument("--parts", choices=["upper_lower"], help="separate upper- and lower-face models (§5.1; 68-point landmarks)")
+    p.add_argument("--prior", choices=["entropic", "ml"], help="entropic MAP (default) or conventional Baum-Welch")
+    p.add_argument("--feature-set", help="audio feature set (default: puppet)")
+    p.add_argument("--seed", type=int, help="random seed (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_train)
+
+    a = sub.add_parser("animate", help="animate a puppet from audio",
+                       description="Analyse the audio with the puppet's vocal HMM (Viterbi, or posteriors) "
+                                   "and synthesise the most probable facial trajectory (§4.4-4.5).")
+    a.add_argument("puppet", help="puppet file (.vpp)")
+    a.add_argument("audio", nargs="?", help="audio file or video with sound")
+    a.add_argument("-o", "--output", required=True, metavar="ANIM.npz", help="landmark animation (.npz or .csv)")
+    a.add_argument("--fps", type=float, help="output frame rate (default: the puppet's)")
+    a.add_argument("--posterior", action="store_true", help="posterior-weighted synthesis instead of the Viterbi path")
+    a.add_argument("--exaggerate", type=float, help="scale the motion about the mean face (1: as is)")
+    a.add_argument("--states-out", metavar="S.csv", help="also write the facial state sequence (for editing)")
+    a.add_argument("--states-in", metavar="S.csv", help="synthesise from this (edited) state sequence instead of audio")
+    a.add_argument("--quiet", action="store_true", help="no progress bars")
+    a.set_defaults(func=_animate)

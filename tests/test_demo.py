@@ -1,0 +1,30 @@
+"""The demo end to end on a small corpus (the full one is `voicepuppet demo`)."""
+import json
+
+import numpy as np
+import pytest
+
+from voicepuppet import demo, synth
+
+pytestmark = pytest.mark.skipif(not synth.espeak_available(),
+                                reason="the synthetic performer needs espeak-ng (apt-get install espeak-ng)")
+
+
+@pytest.mark.slow
+def test_demo_writes_everything(tmp_path):
+    logs = []
+    s = demo.run(tmp_path, train_seconds=12, n_test=1, n_states=6, compare_conventional=False,
+                 progress=False, log=logs.append)
+    for name in ("puppet.vpp", "animation.npz", "heldout.wav", "demo.mp4", "metrics.json", "results.md"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    saved = json.loads((tmp_path / "metrics.json").read_text())
+    assert saved["train_frames"] == s["train_frames"] > 300
+    rows = saved["models"]["entropic"]["rows"]
+    assert set(rows) == {"states", "voice", "voice-posterior", "mean-face", "ridge"}
+    for row in rows.values():
+        assert all(np.isfinite(v) for split in row.values() for v in split.values())
+    assert rows["mean-face"]["train"]["err"] == pytest.approx(1.0, abs=0.05)
+    assert 0 < saved["tracker_rmse_iod"] < 0.2
+    assert any("[5/5]" in line for line in logs)
+    with pytest.raises(ValueError, match="train_on"):
+        demo.run(tmp_path, train_on="guess")

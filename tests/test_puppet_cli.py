@@ -1,0 +1,115 @@
+"""The train and animate verbs on planted data (tones that say which face to make), the states
+round trip for editing, the C++ example that animates without Python, and bad input."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import soundfile as sf
+
+from voicepuppet.cli import main
+
+FPS = 25.0
+RATE = 16000
+TONES = (220.0, 700.0, 1800.0)
+
+
+def _performance(rng, T):
+    """Landmarks of a 10-point face making one of three shapes, and audio: a tone per shape."""
+    P = 10
+    ang = np.linspace(0, 2 * np.pi, P, endpoint=False)
+    base = np.stack([np.cos(ang), np.sin(ang)], axis=1) * 40 + 120
+    jaw = np.zeros((P, 2))
+    jaw[2, 1] = 20.0
+    shapes = np.stack([base, base + jaw, base * [0.7, 1.0] + [36, 0]])
+    states = np.repeat(rng.integers(0, 3, T // 10 + 1), 10)[:T]
+    pts = shapes[states] + rng.normal(0, 0.2, (T, P, 2))
+    n = int(round(T / FPS * RATE))
+    t = np.arange(n) / RATE
+    frame_state = states[np.minimum((t * FPS).astype(int), T - 1)]
+    audio = 0.3 * np.sin(2 * np.pi * np.asarray(TONES)[frame_state] * t) + 0.003 * rng.normal(size=n)
+    return pts, audio, states
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    rng = np.random.default_rng(3)
+    pts, audio, _ = _performance(rng, 600)
+    np.savez(d / "train.npz", points=pts, fps=FPS)
+    sf.write(d / "train.wav", audio, RATE)
+    test_pts, test_audio, test_states = _performance(rng, 200)
+    sf.write(d / "test.wav", test_audio, RATE)
+    np.save(d / "test_states.npy", test_states)
+    assert main(["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"),
+                 "-o", str(d / "p.vpp"), "--states", "6", "--iterations", "12", "--quiet"]) == 0
+    return d
+
+
+def test_train_and_animate(workdir, capsys):
+    d = workdir
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "a.npz"),
+                 "--states-out", str(d / "s.csv"), "--quiet"]) == 0
+    with np.load(d / "a.npz") as z:
+        pts, fps = z["points"], float(z["fps"])
+    assert pts.shape == (200, 10, 2) and fps == FPS
+    # The tones say which shape to make: decoded states are pure with respect to the planted ones.
+    states = np.loadtxt(d / "s.csv", delimiter=",", skiprows=1)[:, 2].astype(int)
+    truth = np.load(d / "test_states.npy")
+    purity = sum(np.bincount(truth[states == s]).max() for s in np.unique(states)) / len(truth)
+    assert purity > 0.9
+    # Read back (edited or not), the states give the same animation.
+    assert main(["animate", str(d / "p.vpp"), "--states-in", str(d / "s.csv"), "-o", str(d / "b.npz")]) == 0
+    with np.load(d / "b.npz") as z:
+        np.testing.assert_allclose(z["points"], pts, atol=1e-9)
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "c.csv"), "--fps", "50",
+                 "--posterior", "--quiet"]) == 0
+    assert np.loadtxt(d / "c.csv", delimiter=",", skiprows=1).shape == (400, 22)
+
+
+def test_cpp_example_animates_like_python(workdir):
+    exe = Path(__file__).resolve().parents[1] / "build" / "example" / "voicepuppet_animate"
+    if not exe.exists():
+        pytest.skip("build examples/cpp first (bash .ci/test does): " + str(exe))
+    from voicepuppet.puppet import load
+
+    d = workdir
+    p = load(d / "p.vpp")
+    feats = p.audio_features(str(d / "test.wav"))
+    np.savetxt(d / "f.csv", feats, delimiter=",", header=",".join(f"c{i}" for i in range(feats.shape[1])))
+    out = subprocess.run([str(exe), str(d / "p.vpp"), str(d / "f.csv"), str(d / "cpp.csv")],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    cpp = np.loadtxt(d / "cpp.csv", delimiter=",", skiprows=1)[:, 2:]
+    py = p.animate(features=feats).animation.points.reshape(len(feats), -1)
+    np.testing.assert_allclose(cpp, py, rtol=1e-9, atol=1e-9)
+    bad = subprocess.run([str(exe), str(d / "f.csv"), str(d / "f.csv"), str(d / "x.csv")],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "not a voicepuppet puppet file" in bad.stderr
+    assert not (d / "x.csv").exists()
+
+
+def test_bad_input_is_reported_and_writes_nothing(workdir, tmp_path, capsys):
+    d = workdir
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "a.txt")]) == 2
+    assert "animation file" in capsys.readouterr().err
+    data = (d / "p.vpp").read_bytes()
+    (tmp_path / "cut.vpp").write_bytes(data[: len(data) // 2])
+    assert main(["animate", str(tmp_path / "cut.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "a.npz")]) == 2
+    assert "truncated" in capsys.readouterr().err
+    assert main(["animate", str(d / "p.vpp"), "-o", str(tmp_path / "a.npz")]) == 2
+    assert "AUDIO" in capsys.readouterr().err
+    assert main(["train", "--landmarks", str(d / "train.npz"), "-o", str(tmp_path / "q.vpp")]) == 2
+    assert "--audio" in capsys.readouterr().err
+    assert main(["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"),
+                 "-o", str(tmp_path / "q.vpp"), "--states", "200", "--quiet"]) == 2
+    assert "too few" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["cut.vpp"]
+
+
+def test_command_line_entry_point(workdir):
+    out = subprocess.run([sys.executable, "-m", "voicepuppet.cli", "animate", "--help"], capture_output=True,
+                         text=True)
+    assert out.returncode == 0 and "--states-in" in out.stdout
