@@ -153,3 +153,21 @@ def test_bad_animation_input(trained):
         p.animate(states=np.full(10, 99))
     with pytest.raises(ValueError, match="NaN"):
         p.animate(features=np.full((5, feats.shape[1]), np.nan))
+
+
+def test_separate_face_parts():
+    pts, feats, states = _planted(np.random.default_rng(7))
+    parts = {"upper": range(0, 6), "lower": range(6, 12)}
+    p = Puppet.train([pts], features_list=[feats], fps=30.0, n_states=5, n_iter=10, n_components=2,
+                     parts=parts)
+    assert p.part_names == ["upper", "lower"] and p._core.n_parts == 2
+    r = p.animate(features=feats)
+    assert r.states.shape == (len(feats), 2) and r.face.shape == (len(feats), p.face_space.n_dims)
+    # Each part is synthesised from its own machine: the whole equals the parts side by side.
+    for k, sl in enumerate(p.face_space.part_slices):
+        arr = p.part_arrays(k)
+        d = arr["face_means"].shape[1] // 2
+        model = _core.TrajectoryModel(arr["face_means"][:, :d], arr["face_means"][:, d:],
+                                      arr["face_covars"].reshape(-1, 2 * d), "full", 1.0)
+        np.testing.assert_allclose(r.face[:, sl], _core.solve_trajectory(model, r.states[:, k]), atol=1e-9)
+    np.testing.assert_allclose(p.animate(states=r.states).animation.points, r.animation.points, atol=1e-12)

@@ -113,3 +113,18 @@ def test_command_line_entry_point(workdir):
     out = subprocess.run([sys.executable, "-m", "voicepuppet.cli", "animate", "--help"], capture_output=True,
                          text=True)
     assert out.returncode == 0 and "--states-in" in out.stdout
+
+
+def test_tiny_and_silent_audio(workdir, tmp_path, capsys):
+    from voicepuppet.audio import AudioWarning
+    from voicepuppet.puppet import load
+
+    d = workdir
+    sf.write(tmp_path / "blip.wav", 0.1 * np.sin(np.arange(100) / 3.0), RATE)  # 6 ms: under one frame
+    assert main(["animate", str(d / "p.vpp"), str(tmp_path / "blip.wav"), "-o", str(tmp_path / "a.npz"), "--quiet"]) == 0
+    with np.load(tmp_path / "a.npz") as z:
+        assert z["points"].shape == (1, 10, 2)
+    sf.write(tmp_path / "silence.wav", np.zeros(RATE), RATE)
+    with pytest.warns(AudioWarning, match="silent"):
+        out = load(d / "p.vpp").animate(str(tmp_path / "silence.wav"))
+    assert out.animation.n_frames == int(np.ceil(FPS)) and np.all(np.isfinite(out.animation.points))

@@ -222,7 +222,7 @@ class Puppet:
                     "parts": fs.part_names, "feature_set": fset.to_json(),
                     "feature_names": names, "training": {
                         "frames": int(lengths.sum()), "sequences": int(len(lengths)),
-                        "options": {k: v for k, v in opt.items()}, "parts": report}}
+                        "options": _jsonable(opt), "parts": report}}
         return cls(metadata, arrays)
 
     # -------------------------------------------------------------------------- animation
@@ -282,6 +282,17 @@ class Puppet:
         p = check_output_path(path, (".vpp",), "puppet file")
         _core.write_puppet_file(os.fspath(p), json.dumps(self.metadata), self.arrays)
         return p
+
+
+def _jsonable(value):
+    """Options as plain JSON values (ranges, arrays and dicts of them become lists and dicts)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (range, list, tuple, np.ndarray)):
+        return [_jsonable(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
 
 
 def load(path) -> Puppet:
