@@ -21,6 +21,7 @@ VERB_MODULES = [
     "voicepuppet.render",
     "voicepuppet.export",
     "voicepuppet.batch",
+    "voicepuppet.live",
     "voicepuppet.bench",
 ]
 

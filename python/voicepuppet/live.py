@@ -1,0 +1,503 @@
+"""Live voice puppetry: audio in as it is heard, face frames out with a latency you choose.
+
+:class:`LivePuppet` composes the streaming front end (:mod:`voicepuppet.audio.stream`) and the
+C++ streaming puppet (``voicepuppet::StreamingPuppet``, ``cpp/include/voicepuppet/streaming.hpp``:
+fixed-lag Viterbi or posteriors, then the fixed-lag trajectory solve):
+
+>>> live = LivePuppet(voicepuppet.load("me.vpp"), lag_ms=150)     # doctest: +SKIP
+>>> frames = live.push(chunk)          # any number of samples -> LiveFrames (M frames, M >= 0)
+>>> frames.points.shape                # (M, P, 2) pixel landmarks                # doctest: +SKIP
+>>> rest = live.flush()                # end of the stream: the frames still held back
+
+Latency. A face frame ``k`` shows the sound at time ``k / fps``. It can be emitted once the
+analysis windows around that time are full (``window_s``: about 17 ms after it for the spectra,
+26 ms for the formants), plus the look-ahead given to the formant tracker, the state decoder and
+the trajectory solve. ``lag_ms`` is the budget for all of it: the windows take what they need
+and the rest (whole frames) is split between the three look-aheads (see :func:`split_lag`).
+Below the windows' own look-ahead (``lag_ms`` under ~26 ms) nothing is left to split and the
+latency is the windows'.
+
+``voicepuppet live PUPPET [--input FILE|-] [--lag-ms 150]`` runs it on a file played at real-time
+pace or on raw PCM from standard input, writes JSON lines and optionally sends the frames over a
+WebSocket (with a viewer page on the same port) or OSC. See docs/streaming.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from voicepuppet.audio.stream import StreamingFeatures, StreamResampler, pcm_to_float
+
+#: Sample rate of the analysis (the rate puppets are trained at: load_audio's default).
+ANALYSIS_RATE = 16000
+
+__all__ = ["LivePuppet", "LiveFrames", "split_lag", "add_parser"]
+
+
+@dataclass
+class LiveFrames:
+    """Face frames emitted by :meth:`LivePuppet.push` or :meth:`LivePuppet.flush`.
+
+    Attributes
+    ----------
+    first_frame : int
+        Output index of the first frame.
+    points : ndarray, shape (M, P, 2)
+        Pixel landmarks (x, y) at the training mean pose.
+    face : ndarray, shape (M, K)
+        Face coordinates (parts side by side).
+    fps : float
+        Output frame rate; frame ``k`` shows the sound at ``k / fps`` seconds.
+    """
+
+    first_frame: int
+    points: np.ndarray
+    face: np.ndarray
+    fps: float
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def frames(self) -> np.ndarray:
+        """Output indices, shape (M,)."""
+        return np.arange(self.first_frame, self.first_frame + len(self))
+
+    @property
+    def times(self) -> np.ndarray:
+        """Times in seconds of the sound each frame shows, shape (M,)."""
+        return self.frames / self.fps
+
+
+def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool) -> tuple:
+    """Split a latency budget into look-aheads (frames at ``fps``).
+
+    The analysis windows take ``window_s``; the whole frames left, ``B = floor((lag_ms / 1000 -
+    window_s) fps)``, go to the state decoder and the trajectory solve (half each, the decoder
+    getting the odd frame), and, if the feature set has formants, one frame in four (at most 2)
+    to the formant tracker.
+
+    Returns
+    -------
+    (formant_lag, decode_lag, trajectory_lag) : tuple of int
+    """
+    if not (isinstance(lag_ms, (int, float)) and math.isfinite(lag_ms) and lag_ms >= 0):
+        raise ValueError(f"lag_ms must be a non-negative number of milliseconds, got {lag_ms!r}")
+    budget = max(0, int(math.floor((lag_ms / 1000.0 - window_s) * fps + 1e-9)))
+    f = min(2, budget // 4) if formants else 0
+    rest = budget - f
+    decode = (rest + 1) // 2
+    return f, decode, rest - decode
+
+
+class LivePuppet:
+    """A voice puppet driven live: push audio chunks, get face frames.
+
+    Parameters
+    ----------
+    puppet : voicepuppet.puppet.Puppet or str
+        The puppet (or the path of a ``.vpp`` file). Its feature set must be streamable
+        (``voicepuppet.audio.stream.STREAMABLE``: every named set except those with F0).
+    lag_ms : float
+        Latency budget in milliseconds (see :func:`split_lag`); ignored for the look-aheads given
+        explicitly below.
+    fps : float, optional
+        Output frame rate (default: the puppet's).
+    posterior : bool
+        Posterior-weighted synthesis (fixed-lag smoothed posteriors) instead of the fixed-lag
+        Viterbi path.
+    rate : int
+        Sample rate of the pushed audio; other rates than 16000 are resampled on the stream with
+        ``resample_poly``'s filter.
+    formant_lag, decode_lag, trajectory_lag : int, optional
+        Explicit look-aheads in frames. ``formant_lag=-1`` waits for the formant tracker's
+        exact decisions (unbounded latency; with large decode and trajectory lags the output is
+        then exactly ``puppet.animate`` of the same audio).
+    """
+
+    def __init__(self, puppet, lag_ms: float = 150.0, *, fps: float | None = None,
+                 posterior: bool = False, rate: int = ANALYSIS_RATE, formant_lag: int | None = None,
+                 decode_lag: int | None = None, trajectory_lag: int | None = None):
+        from voicepuppet import _core
+
+        if isinstance(puppet, (str, os.PathLike)):
+            from voicepuppet.puppet import load
+
+            puppet = load(puppet)
+        core = getattr(puppet, "_core", None)
+        if core is None or not hasattr(puppet, "feature_set"):
+            raise ValueError(f"puppet must be a voicepuppet Puppet or a .vpp path, got "
+                             f"{type(puppet).__name__}")
+        self.puppet = puppet
+        fset = puppet.feature_set
+        names = list(puppet.metadata.get("feature_names", []))
+        self.features = StreamingFeatures(fset, fps=puppet.fps, rate=ANALYSIS_RATE)
+        if names and list(self.features.names) != names:
+            raise ValueError(f"this puppet was trained on features the stream cannot compute "
+                             f"(columns {names[:3]}...; the stream makes "
+                             f"{list(self.features.names)[:3]}...): train it from audio with a "
+                             "streamable feature set")
+        if int(core.n_features) != self.features.n_features:
+            raise ValueError(f"puppet expects {core.n_features} audio features, its feature set "
+                             f"gives {self.features.n_features}; the puppet file is inconsistent")
+        has_formants = "formants" in fset.features
+        window = self.features.lookahead_s()
+        f, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants)
+        f = f if formant_lag is None else formant_lag
+        d = d if decode_lag is None else decode_lag
+        t = t if trajectory_lag is None else trajectory_lag
+        for name, v in (("formant_lag", f), ("decode_lag", d), ("trajectory_lag", t)):
+            if not isinstance(v, (int, np.integer)) or v < (-1 if name == "formant_lag" else 0):
+                raise ValueError(f"{name} must be a whole number of frames >= 0, got {v!r}")
+        self.formant_lag = None if f < 0 else int(f)
+        if has_formants:
+            self.features = StreamingFeatures(fset, fps=puppet.fps, rate=ANALYSIS_RATE,
+                                              formant_lag=self.formant_lag)
+        out_fps = 0.0 if fps is None else float(fps)
+        if fps is not None and not (math.isfinite(out_fps) and out_fps > 0):
+            raise ValueError(f"fps must be positive, got {fps!r}")
+        self.core = _core.StreamingPuppet(core, int(d), int(t), out_fps, bool(posterior))
+        self.fps = float(self.core.output_fps)
+        try:
+            rate_i = int(rate)
+        except (TypeError, ValueError):
+            raise ValueError(f"rate must be a whole number of Hz, got {rate!r}") from None
+        if rate_i != rate or rate_i < 8000:
+            raise ValueError(f"rate must be a whole number of Hz >= 8000, got {rate!r}")
+        self.rate = rate_i
+        self.resampler = None if rate_i == ANALYSIS_RATE else StreamResampler(rate_i, ANALYSIS_RATE)
+        self.lag_ms = float(lag_ms)
+        self.samples_in = 0
+
+    @property
+    def decode_lag(self) -> int:
+        return int(self.core.decode_lag)
+
+    @property
+    def trajectory_lag(self) -> int:
+        return int(self.core.trajectory_lag)
+
+    @property
+    def latency_s(self) -> float:
+        """Algorithmic latency in seconds: analysis windows + formant tracker bound + decoder
+        and trajectory look-aheads (compute time not included). Unbounded (inf) when the
+        formant tracker waits for exact decisions."""
+        if self.formant_lag is None and "formants" in self.puppet.feature_set.features:
+            return math.inf
+        return self.features.lookahead_s() + self.core.latency_seconds
+
+    def push(self, samples) -> LiveFrames:
+        """Feed audio samples (any number, at ``rate``; floats in full scale or integer PCM).
+
+        Returns
+        -------
+        LiveFrames
+            The face frames completed by this chunk (possibly none).
+        """
+        x = pcm_to_float(samples)
+        self.samples_in += x.shape[0]
+        if self.resampler is not None:
+            x = self.resampler.push(x)
+        feats = self.features.push(x)
+        return self._frames(self.core.push(feats))
+
+    def flush(self) -> LiveFrames:
+        """End of the stream: every frame still held back (windows past the end see silence,
+        as offline). Then the puppet is ready for a new stream."""
+        if self.resampler is not None:
+            tail = self.resampler.flush()
+            rows = [self.features.push(tail)] if tail.size else []
+        else:
+            rows = []
+        rows.append(self.features.flush())
+        a = self.core.push(np.vstack(rows))
+        b = self.core.flush()
+        self.samples_in = 0
+        out_a, out_b = self._frames(a), self._frames(b)
+        return LiveFrames(out_a.first_frame, np.concatenate([out_a.points, out_b.points]),
+                          np.concatenate([out_a.face, out_b.face]), self.fps)
+
+    def _frames(self, r) -> LiveFrames:
+        pts = np.asarray(r.points)
+        return LiveFrames(int(r.first_frame), pts.reshape(pts.shape[0], pts.shape[1] // 2, 2),
+                          np.asarray(r.face), self.fps)
+
+
+# ------------------------------------------------------------------------------------ CLI
+def _host_port(text: str, what: str) -> tuple:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not (0 < int(port) < 65536):
+        raise ValueError(f"--{what} must be HOST:PORT (e.g. 127.0.0.1:8765), got {text!r}")
+    return host or "127.0.0.1", int(port)
+
+
+class _WebSocketOut:
+    """A WebSocket server on a local address broadcasting frames (JSON text messages) to every
+    connected client; a GET of ``/`` serves the viewer page. Runs in its own thread; clients
+    come and go without disturbing the stream."""
+
+    def __init__(self, host: str, port: int):
+        import asyncio
+
+        self._loop = asyncio.new_event_loop()
+        self._ready = threading.Event()
+        self._error = None
+        self._server = None
+        self.clients = 0
+        self._thread = threading.Thread(target=self._run, args=(host, port), daemon=True)
+        self._thread.start()
+        self._ready.wait(10)
+        if self._error is not None:
+            raise ValueError(f"cannot serve WebSocket on {host}:{port}: {self._error}")
+        self.port = self._server.sockets[0].getsockname()[1] if self._server else port
+
+    def _run(self, host, port):
+        import asyncio
+        from http import HTTPStatus
+
+        from websockets.asyncio.server import serve
+
+        page = _viewer_page()
+
+        def process_request(connection, request):
+            if request.headers.get("Upgrade", "").lower() == "websocket":
+                return None
+            if request.path in ("/", "/index.html"):
+                resp = connection.respond(HTTPStatus.OK, page)
+                resp.headers["Content-Type"] = "text/html; charset=utf-8"
+                return resp
+            return connection.respond(HTTPStatus.NOT_FOUND, "not found\n")
+
+        async def handler(ws):
+            try:
+                await ws.wait_closed()
+            finally:
+                pass
+
+        async def main():
+            try:
+                self._server = await serve(handler, host, port, process_request=process_request)
+            except OSError as exc:
+                self._error = exc
+                self._ready.set()
+                return
+            self._ready.set()
+            await self._server.wait_closed()
+
+        asyncio.set_event_loop(self._loop)
+        try:
+            self._loop.run_until_complete(main())
+        finally:
+            self._loop.close()
+
+    def send(self, message: str) -> None:
+        from websockets.asyncio.server import broadcast
+
+        def _do():
+            if self._server is not None:
+                conns = list(self._server.connections)
+                self.clients = len(conns)
+                broadcast(conns, message)  # skips closed or closing clients
+        if self._loop.is_running():
+            self._loop.call_soon_threadsafe(_do)
+
+    def close(self) -> None:
+        if self._server is not None and self._loop.is_running():
+            self._loop.call_soon_threadsafe(self._server.close)
+        self._thread.join(5)
+
+
+def _viewer_page() -> str:
+    from importlib import resources
+
+    return resources.files("voicepuppet").joinpath("live_web", "index.html").read_text("utf-8")
+
+
+class _OscOut:
+    def __init__(self, host: str, port: int):
+        from pythonosc.udp_client import SimpleUDPClient
+
+        self.client = SimpleUDPClient(host, port)
+
+    def send(self, frame: int, t: float, points: np.ndarray) -> None:
+        try:
+            self.client.send_message("/voicepuppet/frame",
+                                     [int(frame), float(t)] + [float(v) for v in points.ravel()])
+        except OSError:  # UDP: nobody listening is not an error worth stopping for
+            pass
+
+
+def _read_pcm(stream, fmt: str, channels: int, block_bytes: int):
+    """Yield sample arrays (n, channels) from raw PCM; a trailing partial sample is reported."""
+    dtype = {"s16le": "<i2", "f32le": "<f4", "s32le": "<i4"}[fmt]
+    width = np.dtype(dtype).itemsize * channels
+    rest = b""
+    first = True
+    while True:
+        data = stream.read(block_bytes) if hasattr(stream, "read") else b""
+        if first and data[:4] == b"RIFF":
+            raise ValueError("standard input looks like a WAV file; give it as --input FILE, or "
+                             "send raw PCM, e.g. ffmpeg -i IN -f s16le -ac 1 -ar 16000 -")
+        first = False
+        if not data:
+            if rest:
+                print(f"voicepuppet live: warning: the stream stopped mid-sample; {len(rest)} "
+                      f"trailing byte(s) ignored", file=sys.stderr)
+            return
+        data = rest + data
+        n = len(data) // width
+        rest = data[n * width:]
+        if n:
+            a = np.frombuffer(data[:n * width], dtype=dtype).reshape(n, channels)
+            if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+                raise ValueError("malformed PCM: NaN or infinite float samples; check --format "
+                                 "(s16le, s32le or f32le) and --channels")
+            yield a
+
+
+def run_live(args, out=None) -> int:
+    """The ``live`` verb (see ``add_parser``)."""
+    out = out or sys.stdout
+    live = LivePuppet(args.puppet, lag_ms=args.lag_ms, fps=args.fps, posterior=args.posterior,
+                      rate=args.rate if args.input == "-" else ANALYSIS_RATE)
+    ws = _WebSocketOut(*_host_port(args.websocket, "websocket")) if args.websocket else None
+    osc = _OscOut(*_host_port(args.osc, "osc")) if args.osc else None
+    if ws is not None:
+        print(f"voicepuppet live: viewer at http://{args.websocket.rpartition(':')[0] or '127.0.0.1'}"
+              f":{ws.port}/ (WebSocket on the same port)", file=sys.stderr)
+    chunk = max(1, int(round(args.chunk_ms / 1000.0 * live.rate)))
+    latencies, computes = [], []
+    t0 = None
+    n_frames = 0
+
+    def emit(frames: LiveFrames, now: float, compute: float):
+        nonlocal n_frames
+        if len(frames) == 0:
+            return
+        per = compute / len(frames)
+        for k, t, pts in zip(frames.frames, frames.times, frames.points):
+            lat = now - (t0 + t)  # wall time since the sound of this frame was delivered
+            latencies.append(lat)
+            computes.append(per)
+            rec = {"frame": int(k), "time": round(float(t), 6), "latency_ms": round(lat * 1e3, 3),
+                   "points": np.round(pts, 2).tolist()}
+            line = json.dumps(rec, separators=(",", ":"))
+            try:
+                out.write(line + "\n")
+            except BrokenPipeError:
+                raise SystemExit(0)
+            if ws is not None:
+                ws.send(line)
+            if osc is not None:
+                osc.send(int(k), float(t), pts)
+        n_frames += len(frames)
+        try:
+            out.flush()
+        except BrokenPipeError:
+            raise SystemExit(0)
+
+    def source():
+        if args.input == "-":
+            pcm = _read_pcm(sys.stdin.buffer, args.format, args.channels,
+                            chunk * args.channels * 4)
+            for a in pcm:
+                yield a, False
+        else:
+            from voicepuppet.audio import load_audio
+
+            x = load_audio(args.input).samples
+            for i in range(0, x.shape[0], chunk):
+                yield x[i:i + chunk], not args.no_realtime
+
+    pushed = 0
+    err = None
+    try:
+        for samples, pace in source():
+            if t0 is None:
+                t0 = time.perf_counter()
+            if pace:  # play the file at real-time pace: this chunk is "heard" when it ends
+                wait = t0 + (pushed + samples.shape[0]) / live.rate - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+            pushed += samples.shape[0]
+            c0 = time.perf_counter()
+            frames = live.push(samples)
+            c1 = time.perf_counter()
+            if not pace:  # unpaced input: the audio time base is when it arrived
+                pass
+            emit(frames, c1, c1 - c0)
+    except ValueError as exc:
+        err = exc
+    if t0 is None:
+        t0 = time.perf_counter()
+    c0 = time.perf_counter()
+    frames = live.flush()
+    c1 = time.perf_counter()
+    emit(frames, c1, c1 - c0)
+    if ws is not None:
+        time.sleep(0.05)
+        ws.close()
+    lat = np.array(latencies) * 1e3 if latencies else np.zeros(1)
+    comp = np.array(computes) * 1e3 if computes else np.zeros(1)
+    summary = {"frames": n_frames, "audio_s": round(pushed / live.rate, 3),
+               "lag_ms": live.lag_ms,
+               "algorithmic_latency_ms": round(live.latency_s * 1e3, 2),
+               "formant_lag": live.formant_lag, "decode_lag": live.decode_lag,
+               "trajectory_lag": live.trajectory_lag,
+               "latency_ms_p50": round(float(np.percentile(lat, 50)), 2),
+               "latency_ms_p99": round(float(np.percentile(lat, 99)), 2),
+               "compute_ms_per_frame_p50": round(float(np.percentile(comp, 50)), 4),
+               "compute_ms_per_frame_p99": round(float(np.percentile(comp, 99)), 4)}
+    print("voicepuppet live: " + json.dumps(summary), file=sys.stderr)
+    if err is not None:
+        raise err
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("live", help="animate live audio with a bounded latency (JSON lines, "
+                       "WebSocket, OSC)", description=__doc__.split("\n\n")[0])
+    p.add_argument("puppet", help="puppet file (.vpp)")
+    p.add_argument("--input", default="-", metavar="FILE|-",
+                   help="audio or video file played at real-time pace, or - for raw PCM on "
+                        "standard input (default -)")
+    p.add_argument("--lag-ms", type=float, default=150.0,
+                   help="latency budget in ms (analysis windows + look-aheads; default 150)")
+    p.add_argument("--fps", type=float, default=None, help="output frame rate (default: the "
+                   "puppet's)")
+    p.add_argument("--posterior", action="store_true",
+                   help="posterior-weighted synthesis instead of the fixed-lag Viterbi path")
+    p.add_argument("--rate", type=int, default=ANALYSIS_RATE,
+                   help="sample rate of the PCM on standard input (default 16000)")
+    p.add_argument("--format", choices=["s16le", "s32le", "f32le"], default="s16le",
+                   help="sample format of the PCM on standard input (default s16le)")
+    p.add_argument("--channels", type=int, default=1, help="interleaved channels on standard "
+                   "input, averaged (default 1)")
+    p.add_argument("--chunk-ms", type=float, default=10.0,
+                   help="audio pushed per step, in ms (default 10)")
+    p.add_argument("--no-realtime", action="store_true",
+                   help="with --input FILE: process as fast as possible instead of at real-time "
+                        "pace")
+    p.add_argument("--websocket", metavar="HOST:PORT",
+                   help="serve the frames over WebSocket (and a viewer page) on a local address")
+    p.add_argument("--osc", metavar="HOST:PORT",
+                   help="send each frame as an OSC message /voicepuppet/frame to this address")
+    p.set_defaults(func=_check_and_run)
+
+
+def _check_and_run(args) -> int:
+    if args.channels < 1:
+        raise ValueError(f"--channels must be >= 1, got {args.channels}")
+    if not (args.chunk_ms > 0 and math.isfinite(args.chunk_ms)):
+        raise ValueError(f"--chunk-ms must be positive, got {args.chunk_ms}")
+    if args.input != "-" and not os.path.exists(args.input):
+        raise FileNotFoundError(f"--input {args.input!r} does not exist")
+    return run_live(args)
