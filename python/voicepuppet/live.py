@@ -176,6 +176,8 @@ class LivePuppet:
         self.resampler = None if rate_i == ANALYSIS_RATE else StreamResampler(rate_i, ANALYSIS_RATE)
         self.lag_ms = float(lag_ms)
         self.samples_in = 0
+        self._n_points = int(core.n_points)
+        self._n_dims = int(core.n_dims)
 
     @property
     def decode_lag(self) -> int:
@@ -207,6 +209,9 @@ class LivePuppet:
         if self.resampler is not None:
             x = self.resampler.push(x)
         feats = self.features.push(x)
+        if feats.shape[0] == 0:  # no new feature frame: nothing can be decided
+            return LiveFrames(int(self.core.frames_emitted), np.zeros((0, self._n_points, 2)),
+                              np.zeros((0, self._n_dims)), self.fps)
         return self._frames(self.core.push(feats))
 
     def flush(self) -> LiveFrames:

@@ -1,0 +1,334 @@
+"""Live voice puppetry (voicepuppet.live, voicepuppet::StreamingPuppet): the stream against the
+offline puppet, latency bounds, the ``live`` verb (file, raw PCM on stdin, WebSocket, viewer in
+headless Chromium) and bad input.
+
+The test puppet is trained on CMU ARCTIC a0009 (real speech) with a face whose mouth and jaw
+follow the speech's loudness (a planted audio-visual link), small enough to train in seconds.
+"""
+
+import io
+import json
+import math
+import os
+import socket
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from voicepuppet.animation import neutral_landmarks
+from voicepuppet.audio import load_audio, prepare, samples
+from voicepuppet.live import LivePuppet, split_lag
+
+SEED = 20261123
+FPS = 30000 / 1001
+
+
+@pytest.fixture(scope="module")
+def speech():
+    """0.2 s of silence, a0009, 0.4 s of silence, a0009 again (two passes for training)."""
+    x = load_audio(samples.arctic_a0009()).samples
+    return np.concatenate([np.zeros(3200), x, np.zeros(6400), x])
+
+
+@pytest.fixture(scope="module")
+def puppet(speech, tmp_path_factory):
+    from voicepuppet.audio import extract
+    from voicepuppet.puppet import Puppet
+
+    rng = np.random.default_rng(SEED)
+    au = prepare(speech, 16000, target_rate=None, remove_dc=False)
+    energy = extract(au, fps=FPS, features="prosody").column("log_energy")
+    T = energy.shape[0]
+    open_ = np.clip((energy - energy.min()) / (np.ptp(energy) + 1e-9), 0, 1)
+    open_ = np.convolve(open_, np.ones(3) / 3, mode="same")
+    base = neutral_landmarks()
+    pts = np.repeat(base[None], T, axis=0)
+    pts[:, 57:60, 1] += 14 * open_[:, None]   # lower lip down
+    pts[:, 65:68, 1] += 10 * open_[:, None]
+    pts[:, 6:11, 1] += 8 * open_[:, None]     # jaw
+    pts[:, 48, 0] += 3 * open_                # mouth corners in
+    pts[:, 54, 0] -= 3 * open_
+    pts += rng.normal(0, 0.3, pts.shape)
+    p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0)
+    path = tmp_path_factory.mktemp("live") / "test.vpp"
+    p.save(path)
+    return p, path
+
+
+def stream_all(live, x, chunks):
+    out = []
+    first = None
+    for a, b in chunks:
+        f = live.push(x[a:b])
+        if len(f):
+            assert first is None or f.first_frame == first
+            first = f.first_frame + len(f)
+            out.append(f.points)
+    f = live.flush()
+    assert first is None or f.first_frame == first
+    out.append(f.points)
+    return np.concatenate(out)
+
+
+def random_chunks(n, rng, hi=3000):
+    edges = np.minimum(np.cumsum(rng.integers(0, hi, size=n // (hi // 2) + 20)), n)
+    edges = np.concatenate([[0], edges, [n]])
+    return list(zip(edges[:-1], edges[1:]))
+
+
+@pytest.mark.parametrize("posterior,fps", [(False, None), (True, None), (False, 60.0),
+                                           (True, 25.0)])
+def test_large_lags_give_the_offline_animation(puppet, speech, posterior, fps):
+    """Lags covering the stream and exact formant decisions: the streamed animation is the
+    offline one (same frames, same points), whatever the chunking."""
+    p, _ = puppet
+    x = speech[:40000]  # 2.5 s: silence, speech
+    ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False), fps=fps,
+                    posterior=posterior).animation.points
+    live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, decode_lag=2000,
+                      trajectory_lag=2000)
+    assert math.isinf(live.latency_s)
+    got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED)))
+    assert got.shape == ref.shape
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-8 * np.abs(ref).max())
+
+
+def test_bounded_lag_emits_within_the_latency(puppet, speech):
+    p, _ = puppet
+    live = LivePuppet(p, lag_ms=150)
+    assert live.latency_s <= 0.150 + 1e-9
+    assert (live.formant_lag, live.decode_lag, live.trajectory_lag) == (0, 2, 1)
+    n_out = 0
+    x = speech[:48000]
+    frames = []
+    for a in range(0, x.shape[0], 160):
+        f = live.push(x[a:a + 160])
+        frames.append(f.points)
+        n_out += len(f)
+        t = (a + 160) / 16000
+        # every frame whose sound plus the latency has been heard is out
+        assert n_out >= math.floor((t - live.latency_s) * FPS + 1e-9) + 1 - 1, (t, n_out)
+    frames.append(live.flush().points)
+    got = np.concatenate(frames)
+    ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False)).animation.points
+    assert got.shape == ref.shape
+    assert np.all(np.isfinite(got))
+    # the mouth moves with the speech in both
+    lip = lambda P: P[:, 57, 1] - P[:, 51, 1]  # noqa: E731
+    assert np.corrcoef(lip(got), lip(ref))[0, 1] > 0.5
+
+
+def test_split_lag():
+    # budget = floor((0.150 - 0.026) * 29.97) = 3 frames: formants 0, decoder 2, trajectory 1
+    assert split_lag(150, FPS, 0.026, True) == (0, 2, 1)
+    assert split_lag(330, FPS, 0.026, True) == (2, 4, 3)
+    assert split_lag(330, FPS, 0.017, False) == (0, 5, 4)
+    assert split_lag(0, FPS, 0.026, True) == (0, 0, 0)
+    with pytest.raises(ValueError, match="lag_ms"):
+        split_lag(-5, FPS, 0.026, True)
+
+
+def test_other_input_rate_is_resampled_on_the_stream(puppet, speech):
+    from scipy.signal import resample_poly
+
+    p, _ = puppet
+    y = resample_poly(speech[:24000], 3, 1)  # 48 kHz
+    ref = p.animate(prepare(y, 48000, remove_dc=False)).animation.points
+    live = LivePuppet(p, rate=48000, formant_lag=-1, decode_lag=1000, trajectory_lag=1000)
+    got = stream_all(live, y, random_chunks(y.shape[0], np.random.default_rng(SEED + 1)))
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6 * np.abs(ref).max())
+
+
+def test_bad_input(puppet, tmp_path):
+    p, _ = puppet
+    with pytest.raises(ValueError, match="lag_ms"):
+        LivePuppet(p, lag_ms=-1)
+    with pytest.raises(ValueError, match="decode_lag"):
+        LivePuppet(p, decode_lag=-2)
+    with pytest.raises(ValueError, match="rate"):
+        LivePuppet(p, rate=1000)
+    with pytest.raises(ValueError, match="puppet"):
+        LivePuppet(object())
+    with pytest.raises(ValueError, match="does not exist"):
+        LivePuppet(str(tmp_path / "missing.vpp"))
+    live = LivePuppet(p)
+    with pytest.raises(ValueError, match="NaN"):
+        live.push(np.array([0.1, np.inf]))
+    assert len(live.flush()) == 0  # nothing pushed
+
+
+def test_puppet_with_a_feature_set_the_stream_cannot_make(speech):
+    from voicepuppet.puppet import Puppet
+
+    rng = np.random.default_rng(SEED)
+    au = prepare(speech[:32000], 16000, target_rate=None, remove_dc=False)
+    T = math.ceil(32000 / 16000 * FPS)
+    pts = neutral_landmarks()[None] + rng.normal(0, 1, (T, 68, 2))
+    p = Puppet.train([pts], [au], fps=FPS, n_states=3, n_iter=2, feature_set="prosody")
+    with pytest.raises(ValueError, match="cannot be computed on a stream"):
+        LivePuppet(p)
+
+
+# ------------------------------------------------------------------------------ the verb
+class _Result:
+    def __init__(self, returncode, stdout, stderr):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+def run_cli(args, stdin=b""):
+    """``voicepuppet live ARGS`` in this process with ``stdin`` as raw bytes on standard input."""
+    import contextlib
+
+    from voicepuppet.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    old_in = sys.stdin
+    sys.stdin = io.TextIOWrapper(io.BytesIO(stdin or b""))
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main(["live", *args])
+    finally:
+        sys.stdin = old_in
+    return _Result(code, out.getvalue().encode(), err.getvalue().encode())
+
+
+def test_cli_file_json_lines(puppet, speech, tmp_path):
+    p, path = puppet
+    import soundfile
+
+    wav = tmp_path / "in.wav"
+    x = speech[:32000]
+    soundfile.write(wav, x, 16000, subtype="DOUBLE")
+    r = run_cli([str(path), "--input", str(wav), "--no-realtime", "--lag-ms", "150"])
+    assert r.returncode == 0, r.stderr.decode()
+    lines = r.stdout.decode().splitlines()
+    recs = [json.loads(s) for s in lines]
+    x_loaded = load_audio(str(wav)).samples
+    ref = p.animate(prepare(x_loaded, 16000, target_rate=None, remove_dc=False)).animation.points
+    assert [r_["frame"] for r_ in recs] == list(range(ref.shape[0]))
+    pts = np.array([r_["points"] for r_ in recs])
+    assert pts.shape == ref.shape
+    live = LivePuppet(p, lag_ms=150)
+    own = stream_all(live, x_loaded, [(a, a + 160) for a in range(0, x_loaded.shape[0], 160)])
+    np.testing.assert_allclose(pts, own, atol=0.006)  # JSON rounds to 0.01 px
+    summary = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
+    assert summary["frames"] == ref.shape[0]
+    assert summary["algorithmic_latency_ms"] <= 150
+
+
+def test_cli_raw_pcm_on_stdin(puppet, speech):
+    _, path = puppet
+    pcm = np.round(speech[:16000] * 20000).astype("<i2").tobytes() + b"\x01"  # stops mid-sample
+    r = run_cli([str(path), "--input", "-", "--lag-ms", "100"], stdin=pcm)
+    assert r.returncode == 0, r.stderr.decode()
+    assert "stopped mid-sample; 1 trailing byte(s) ignored" in r.stderr.decode()
+    n = len(r.stdout.decode().splitlines())
+    assert n == math.ceil(16000 / 16000 * FPS)
+    # stereo float PCM at 48 kHz
+    st = np.repeat(speech[:48000:3, None], 2, axis=1)
+    from scipy.signal import resample_poly
+
+    st = resample_poly(st, 3, 1, axis=0).astype("<f4")
+    r = run_cli([str(path), "--rate", "48000", "--format", "f32le", "--channels", "2"],
+                stdin=st.tobytes())
+    assert r.returncode == 0, r.stderr.decode()
+    assert len(r.stdout.decode().splitlines()) == math.ceil(st.shape[0] / 48000 * FPS)
+
+
+def test_cli_bad_input(puppet, tmp_path):
+    _, path = puppet
+    r = run_cli([str(path)], stdin=b"RIFF\x24\x00\x00\x00WAVEfmt ")
+    assert r.returncode == 2 and b"looks like a WAV file" in r.stderr
+    bad = np.array([0.1, np.nan, 0.2], dtype="<f4").tobytes()
+    r = run_cli([str(path), "--format", "f32le"], stdin=bad)
+    assert r.returncode == 2 and b"malformed PCM" in r.stderr
+    r = run_cli([str(tmp_path / "nope.vpp")], stdin=b"")
+    assert r.returncode == 2 and b"does not exist" in r.stderr
+    r = run_cli([str(path), "--websocket", "localhost"], stdin=b"")
+    assert r.returncode == 2 and b"HOST:PORT" in r.stderr
+    r = run_cli([str(path), "--input", str(tmp_path / "none.wav")])
+    assert r.returncode == 2 and b"does not exist" in r.stderr
+    r = run_cli([str(path)], stdin=b"")  # empty stream: no frames, clean exit
+    assert r.returncode == 0 and r.stdout == b""
+
+
+# ------------------------------------------------------------------- WebSocket and the viewer
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_path):
+    """A real-time run serving WebSocket: a client that connects and disconnects mid-stream
+    does not disturb it; the viewer page, loaded in headless Chromium, draws the frames."""
+    import soundfile
+    from PIL import Image
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.support.ui import WebDriverWait
+    from websockets.sync.client import connect
+
+    from voicepuppet.cli import build_parser
+    from voicepuppet.live import run_live
+
+    _, path = puppet
+    wav = tmp_path / "in.wav"
+    soundfile.write(wav, speech[:80000], 16000, subtype="DOUBLE")  # 5 s, played in real time
+    port = free_port()
+    args = build_parser().parse_args(["live", str(path), "--input", str(wav), "--websocket",
+                                      f"127.0.0.1:{port}", "--lag-ms", "100"])
+    out = io.StringIO()
+    result = {}
+    th = threading.Thread(target=lambda: result.setdefault("code", run_live(args, out)),
+                          daemon=True)
+    th.start()
+    # a client that takes a few frames and leaves
+    got = []
+    for _ in range(100):
+        try:
+            ws = connect(f"ws://127.0.0.1:{port}/frames", open_timeout=2)
+            break
+        except OSError:
+            time.sleep(0.05)
+    else:
+        pytest.fail("WebSocket server did not come up")
+    with ws:
+        for _ in range(5):
+            got.append(json.loads(ws.recv(timeout=5)))
+    assert [g["frame"] for g in got] == list(range(got[0]["frame"], got[0]["frame"] + 5))
+    assert np.array(got[0]["points"]).shape == (68, 2)
+    # the viewer page in headless Chromium
+    opts = Options()
+    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+              "--window-size=520,560"):
+        opts.add_argument(a)
+    chromium = "/usr/bin/chromium"
+    if os.path.exists(chromium):
+        opts.binary_location = chromium
+    service = Service("/usr/bin/chromedriver") if os.path.exists("/usr/bin/chromedriver") \
+        else Service()
+    driver = webdriver.Chrome(options=opts, service=service)
+    try:
+        driver.set_page_load_timeout(20)
+        driver.get(f"http://127.0.0.1:{port}/")
+        WebDriverWait(driver, 15).until(
+            lambda d: int(d.execute_script("return document.body.dataset.frames || 0")) >= 10)
+        shot = tmp_path / "viewer.png"
+        driver.save_screenshot(str(shot))
+        status = driver.execute_script("return document.getElementById('status').textContent")
+    finally:
+        driver.quit()
+    assert status == "connected"
+    img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    # the face is drawn in dark red on the light canvas
+    red = (img[..., 0] > 90) & (img[..., 0] < 160) & (img[..., 1] < 80) & (img[..., 2] < 80)
+    assert red.sum() > 300, f"no face drawn in {shot}"
+    th.join(30)
+    assert not th.is_alive() and result["code"] == 0
+    lines = out.getvalue().splitlines()
+    assert len(lines) == math.ceil(80000 / 16000 * FPS)
