@@ -88,8 +88,9 @@ def test_large_lags_give_the_offline_animation(puppet, speech, posterior, fps):
     x = speech[:40000]  # 2.5 s: silence, speech
     ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False), fps=fps,
                     posterior=posterior).animation.points
-    live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, decode_lag=2000,
-                      trajectory_lag=2000)
+    live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, delta_lag=-1,
+                      decode_lag=2000, trajectory_lag=2000)
+    assert live.delta_lag == p._core.delta_width == 2
     assert math.isinf(live.latency_s)
     got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED)))
     assert got.shape == ref.shape
@@ -100,7 +101,9 @@ def test_bounded_lag_emits_within_the_latency(puppet, speech):
     p, _ = puppet
     live = LivePuppet(p, lag_ms=150)
     assert live.latency_s <= 0.150 + 1e-9
-    assert (live.formant_lag, live.decode_lag, live.trajectory_lag) == (0, 2, 1)
+    # budget 3 frames: formants 0, deltas 1, decoder 1, trajectory 1
+    assert (live.formant_lag, live.delta_lag, live.decode_lag, live.trajectory_lag) == \
+        (0, 1, 1, 1)
     n_out = 0
     x = speech[:48000]
     frames = []
@@ -122,11 +125,13 @@ def test_bounded_lag_emits_within_the_latency(puppet, speech):
 
 
 def test_split_lag():
-    # budget = floor((0.150 - 0.026) * 29.97) = 3 frames: formants 0, decoder 2, trajectory 1
-    assert split_lag(150, FPS, 0.026, True) == (0, 2, 1)
-    assert split_lag(330, FPS, 0.026, True) == (2, 4, 3)
-    assert split_lag(330, FPS, 0.017, False) == (0, 5, 4)
-    assert split_lag(0, FPS, 0.026, True) == (0, 0, 0)
+    # budget = floor((0.150 - 0.026) * 29.97) = 3 frames
+    assert split_lag(150, FPS, 0.026, True) == (0, 0, 2, 1)
+    assert split_lag(150, FPS, 0.026, True, 2) == (0, 1, 1, 1)
+    # budget 9: formants 2, deltas min(2, 7 // 3) = 2, decoder 3, trajectory 2
+    assert split_lag(330, FPS, 0.026, True, 2) == (2, 2, 3, 2)
+    assert split_lag(330, FPS, 0.017, False) == (0, 0, 5, 4)
+    assert split_lag(0, FPS, 0.026, True, 2) == (0, 0, 0, 0)
     with pytest.raises(ValueError, match="lag_ms"):
         split_lag(-5, FPS, 0.026, True)
 
@@ -137,7 +142,8 @@ def test_other_input_rate_is_resampled_on_the_stream(puppet, speech):
     p, _ = puppet
     y = resample_poly(speech[:24000], 3, 1)  # 48 kHz
     ref = p.animate(prepare(y, 48000, remove_dc=False)).animation.points
-    live = LivePuppet(p, rate=48000, formant_lag=-1, decode_lag=1000, trajectory_lag=1000)
+    live = LivePuppet(p, rate=48000, formant_lag=-1, delta_lag=-1, decode_lag=1000,
+                      trajectory_lag=1000)
     got = stream_all(live, y, random_chunks(y.shape[0], np.random.default_rng(SEED + 1)))
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6 * np.abs(ref).max())
 
@@ -148,6 +154,8 @@ def test_bad_input(puppet, tmp_path):
         LivePuppet(p, lag_ms=-1)
     with pytest.raises(ValueError, match="decode_lag"):
         LivePuppet(p, decode_lag=-2)
+    with pytest.raises(ValueError, match="delta width"):
+        LivePuppet(p, delta_lag=3)
     with pytest.raises(ValueError, match="rate"):
         LivePuppet(p, rate=1000)
     with pytest.raises(ValueError, match="puppet"):

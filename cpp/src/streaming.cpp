@@ -216,6 +216,15 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
     fail_argument("fps must be 0 (the puppet's rate) or a positive frame rate, got ", options.fps);
   }
   out_fps_ = options.fps == 0 ? puppet_.fps() : options.fps;
+  const Index w = puppet_.delta_width();
+  if (options.delta_lag < -1 || options.delta_lag > w) {
+    fail_argument("delta_lag must be -1 (the puppet's delta width, ", w, ") or 0 .. ", w,
+                  " frames, got ", options.delta_lag);
+  }
+  delta_lag_ = options.delta_lag < 0 ? w : options.delta_lag;
+  options_.delta_lag = delta_lag_;
+  mean_ = puppet_.file().at("audio/mean").matrix().row(0).transpose();
+  std_ = puppet_.file().at("audio/std").matrix().row(0).transpose();
   const auto models = part_models(puppet_, out_fps_);
   for (Index p = 0; p < puppet_.n_parts(); ++p) {
     const PuppetPart& pt = puppet_.part(p);
@@ -226,7 +235,7 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
 }
 
 double StreamingPuppet::latency_seconds() const {
-  return static_cast<double>(options_.decode_lag) / puppet_.fps() +
+  return static_cast<double>(delta_lag_ + options_.decode_lag) / puppet_.fps() +
          static_cast<double>(options_.trajectory_lag) / out_fps_;
 }
 
@@ -244,6 +253,8 @@ void StreamingPuppet::reset() {
     ps.weights.clear();
     ps.first = ps.decided = ps.next_out = 0;
   }
+  raw_.clear();
+  raw_first_ = standardized_ = 0;
   pushed_ = emitted_ = 0;
 }
 
@@ -347,37 +358,77 @@ StreamedFrames StreamingPuppet::assemble(std::vector<RowMatrixXd>& faces) {
   return out;
 }
 
+RowMatrixXd StreamingPuppet::standardized_ready(bool final_pass) {
+  const Index w = puppet_.delta_width(), A = puppet_.n_features();
+  // frame s is ready once frame s + delta_lag is in (all frames at the end)
+  const Index ready = final_pass ? pushed_ : std::max<Index>(0, pushed_ - delta_lag_);
+  const Index k = ready - standardized_;
+  RowMatrixXd z(std::max<Index>(k, 0), mean_.size());
+  for (Index s = standardized_; s < ready; ++s) {
+    // deltas of frame s from frames max(s − w, 0) .. s + delta_lag (.. min(s + w, last) at the
+    // end): append_deltas on that window repeats its edge frames exactly as the offline deltas
+    // repeat the recording's, whatever the chunking
+    const Index lo = std::max<Index>(s - w, 0);
+    const Index hi = final_pass ? std::min<Index>(s + w, pushed_ - 1) : s + delta_lag_;
+    RowMatrixXd win(hi - lo + 1, A);
+    for (Index u = lo; u <= hi; ++u) win.row(u - lo) = raw_[static_cast<size_t>(u - raw_first_)].transpose();
+    const RowMatrixXd ext = append_deltas(win, w);
+    z.row(s - standardized_) = ext.row(s - lo);
+  }
+  standardized_ = ready;
+  z.rowwise() -= mean_.transpose();
+  z.array().rowwise() /= std_.transpose().array();
+  // forget raw frames no later delta needs (frames before the next frame's window)
+  const Index keep = std::max<Index>(raw_first_, standardized_ - w);
+  raw_.erase(raw_.begin(), raw_.begin() + static_cast<std::ptrdiff_t>(keep - raw_first_));
+  raw_first_ = keep;
+  return z;
+}
+
+StreamedFrames StreamingPuppet::decode(const RowMatrixXd& z, bool final_pass) {
+  std::vector<RowMatrixXd> faces;
+  for (Index p = 0; p < puppet_.n_parts(); ++p) {
+    PartStream& ps = parts_[static_cast<size_t>(p)];
+    DecodedFrames f = z.rows() ? ps.decoder.push(puppet_.vocal_log_density(z, p)) : DecodedFrames{};
+    if (final_pass) {
+      DecodedFrames rest = ps.decoder.flush();
+      if (f.size() == 0) {
+        f = std::move(rest);
+      } else if (rest.size() > 0) {
+        DecodedFrames both;
+        both.first_frame = f.first_frame;
+        both.states.resize(f.size() + rest.size());
+        both.states << f.states, rest.states;
+        both.posteriors.resize(both.states.size(), f.posteriors.cols());
+        both.posteriors << f.posteriors, rest.posteriors;
+        f = std::move(both);
+      }
+    }
+    faces.push_back(feed(ps, f, final_pass));
+  }
+  return assemble(faces);
+}
+
 StreamedFrames StreamingPuppet::push(const MatrixRef& raw_features) {
   if (raw_features.cols() != puppet_.n_features()) {
     fail_argument("raw_features must have ", puppet_.n_features(), " columns (the puppet's audio "
                   "features), got ", shape_of(raw_features));
   }
   require_finite(raw_features, "raw_features");
-  std::vector<RowMatrixXd> faces;
-  if (raw_features.rows() == 0) {
-    for (Index p = 0; p < puppet_.n_parts(); ++p) faces.emplace_back(0, puppet_.part(p).n_dims());
-    return assemble(faces);
-  }
-  const RowMatrixXd z = puppet_.standardize(raw_features);
-  for (Index p = 0; p < puppet_.n_parts(); ++p) {
-    PartStream& ps = parts_[static_cast<size_t>(p)];
-    const DecodedFrames f = ps.decoder.push(puppet_.vocal_log_density(z, p));
-    faces.push_back(feed(ps, f, false));
-  }
+  for (Index t = 0; t < raw_features.rows(); ++t) raw_.emplace_back(raw_features.row(t).transpose());
   pushed_ += raw_features.rows();
-  return assemble(faces);
+  return decode(standardized_ready(false), false);
 }
 
 StreamedFrames StreamingPuppet::flush() {
-  std::vector<RowMatrixXd> faces;
+  StreamedFrames out;
   if (pushed_ == 0) {
+    std::vector<RowMatrixXd> faces;
     for (Index p = 0; p < puppet_.n_parts(); ++p) faces.emplace_back(0, puppet_.part(p).n_dims());
-    StreamedFrames out = assemble(faces);
-    reset();
-    return out;
+    out = assemble(faces);
+  } else {
+    out = decode(standardized_ready(true), true);
   }
-  for (auto& ps : parts_) faces.push_back(feed(ps, ps.decoder.flush(), true));
-  StreamedFrames out = assemble(faces);
   reset();
   return out;
 }

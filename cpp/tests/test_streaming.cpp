@@ -179,7 +179,8 @@ PuppetArray f64(std::vector<std::uint64_t> shape, std::vector<double> v) {
 
 /// A random two-part puppet: 6 points (parts {0,2,4} and {1,3,5}), N states, A audio columns,
 /// K face coordinates per part; sticky transitions, random SPD covariances.
-PuppetFile random_puppet(Index N, Index A, Index K, unsigned seed, double fps = 30.0) {
+PuppetFile random_puppet(Index N, Index A, Index K, unsigned seed, double fps = 30.0,
+                         Index delta_width = 0) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> g(0.0, 1.0);
   std::uniform_real_distribution<double> u(0.05, 1.0);
@@ -194,12 +195,20 @@ PuppetFile random_puppet(Index N, Index A, Index K, unsigned seed, double fps = 
   f.metadata = R"({"kind": "test"})";
   f.arrays["fps"] = f64({1}, {fps});
   std::vector<double> mean, sd;
-  for (Index a = 0; a < A; ++a) {
-    mean.push_back(g(rng));
-    sd.push_back(0.5 + u(rng));
+  const Index A2 = delta_width > 0 ? 2 * A : A;  // standardised columns: [features, deltas]
+  for (Index a = 0; a < A2; ++a) {
+    mean.push_back(a < A ? g(rng) : 0.1 * g(rng));
+    sd.push_back(a < A ? 0.5 + u(rng) : 0.2 + 0.3 * u(rng));
   }
-  f.arrays["audio/mean"] = f64({static_cast<std::uint64_t>(A)}, mean);
-  f.arrays["audio/std"] = f64({static_cast<std::uint64_t>(A)}, sd);
+  if (delta_width > 0) {
+    PuppetArray w;
+    w.dtype = PuppetArray::DType::Int64;
+    w.shape = {1};
+    w.i64 = {delta_width};
+    f.arrays["audio/delta_width"] = w;
+  }
+  f.arrays["audio/mean"] = f64({static_cast<std::uint64_t>(A2)}, mean);
+  f.arrays["audio/std"] = f64({static_cast<std::uint64_t>(A2)}, sd);
   std::vector<double> shape;
   for (int i = 0; i < 12; ++i) shape.push_back(g(rng));
   f.arrays["face/mean_shape"] = f64({6, 2}, shape);
@@ -234,13 +243,13 @@ PuppetFile random_puppet(Index N, Index A, Index K, unsigned seed, double fps = 
       const Eigen::MatrixXd C = spd(2 * K, 0.3);
       for (Index i = 0; i < 2 * K; ++i)
         for (Index j = 0; j < 2 * K; ++j) fc.push_back(C(i, j));
-      for (Index a = 0; a < A; ++a) vm.push_back(1.5 * g(rng));
-      const Eigen::MatrixXd V = spd(A, 0.5);
-      for (Index i = 0; i < A; ++i)
-        for (Index j = 0; j < A; ++j) vc.push_back(V(i, j));
+      for (Index a = 0; a < A2; ++a) vm.push_back(1.5 * g(rng));
+      const Eigen::MatrixXd V = spd(A2, 0.5);
+      for (Index i = 0; i < A2; ++i)
+        for (Index j = 0; j < A2; ++j) vc.push_back(V(i, j));
     }
     const auto n_ = static_cast<std::uint64_t>(N), k2 = static_cast<std::uint64_t>(2 * K),
-               a_ = static_cast<std::uint64_t>(A);
+               a_ = static_cast<std::uint64_t>(A2);
     f.arrays["hmm/" + pre + "/face_means"] = f64({n_, k2}, fm);
     f.arrays["hmm/" + pre + "/face_covars"] = f64({n_, k2, k2}, fc);
     f.arrays["hmm/" + pre + "/vocal_means"] = f64({n_, a_}, vm);
@@ -255,8 +264,8 @@ RowMatrixXd walk_features(const Puppet& pp, Index T, unsigned seed) {
   std::normal_distribution<double> g(0.0, 0.7);
   std::uniform_int_distribution<Index> pick(0, pp.part(0).n_states() - 1);
   const PuppetPart& pt = pp.part(0);
-  const RowMatrixXd& mean = pp.file().at("audio/mean").matrix();
-  const RowMatrixXd& sd = pp.file().at("audio/std").matrix();
+  const RowMatrixXd mean = pp.file().at("audio/mean").matrix();
+  const RowMatrixXd sd = pp.file().at("audio/std").matrix();
   RowMatrixXd X(T, pp.n_features());
   Index s = pick(rng);
   for (Index t = 0; t < T; ++t) {
@@ -288,7 +297,9 @@ RowMatrixXd stream_points(StreamingPuppet& sp, const RowMatrixXd& X, Index chunk
 }  // namespace
 
 TEST_CASE("streaming puppet: lags covering the stream give Puppet::animate exactly") {
-  const Puppet pp(random_puppet(6, 3, 2, 17));
+  for (Index width : {Index(0), Index(2)}) {
+  const Puppet pp(random_puppet(6, 3, 2, 17, 30.0, width));
+  CHECK(pp.delta_width() == width);
   const RowMatrixXd X = walk_features(pp, 70, 4);
   for (bool posterior : {false, true}) {
     for (double fps : {0.0, 60.0, 25.0}) {
@@ -310,24 +321,26 @@ TEST_CASE("streaming puppet: lags covering the stream give Puppet::animate exact
     }
   }
 }
+}
 
 TEST_CASE("streaming puppet: bounded lags emit frame k after input k + lags; chunking is invisible") {
-  const Puppet pp(random_puppet(5, 4, 2, 23));
+  const Puppet pp(random_puppet(5, 4, 2, 23, 30.0, 2));
   const RowMatrixXd X = walk_features(pp, 60, 9);
   for (bool posterior : {false, true}) {
     StreamingOptions o;
+    o.delta_lag = 1;
     o.decode_lag = 2;
     o.trajectory_lag = 3;
     o.posterior = posterior;
     StreamingPuppet sp(pp, o);
-    CHECK(std::abs(sp.latency_seconds() - 5.0 / 30.0) < 1e-12);
+    CHECK(std::abs(sp.latency_seconds() - 6.0 / 30.0) < 1e-12);
     for (Index t = 0; t < X.rows(); ++t) {
       const StreamedFrames f = sp.push(X.middleRows(t, 1));
-      // input t decides frame t - 2, which completes output frame t - 5
-      CHECK(f.size() == (t >= 5 ? 1 : 0));
-      if (f.size()) CHECK(f.first_frame == t - 5);
+      // input t gives the deltas of t - 1, decides frame t - 3, completes output frame t - 6
+      CHECK(f.size() == (t >= 6 ? 1 : 0));
+      if (f.size()) CHECK(f.first_frame == t - 6);
     }
-    CHECK(sp.flush().size() == 5);
+    CHECK(sp.flush().size() == 6);
     const RowMatrixXd one = stream_points(sp, X, 1);
     const RowMatrixXd all = stream_points(sp, X, X.rows());
     CHECK((one - all).cwiseAbs().maxCoeff() < 1e-10);
@@ -348,6 +361,9 @@ TEST_CASE("streaming puppet: bad input") {
   o.decode_lag = 1;
   o.fps = -5;
   CHECK_THROWS_WITH_AS(StreamingPuppet(pp, o), doctest::Contains("fps"), std::invalid_argument);
+  o.fps = 0;
+  o.delta_lag = 1;  // this puppet has no deltas
+  CHECK_THROWS_WITH_AS(StreamingPuppet(pp, o), doctest::Contains("delta_lag"), std::invalid_argument);
   StreamingPuppet sp(pp);
   CHECK_THROWS_WITH_AS(sp.push(RowMatrixXd::Zero(2, 5)), doctest::Contains("3 columns"), std::invalid_argument);
   RowMatrixXd bad = RowMatrixXd::Zero(2, 3);

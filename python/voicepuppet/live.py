@@ -77,25 +77,29 @@ class LiveFrames:
         return self.frames / self.fps
 
 
-def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool) -> tuple:
+def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
+              delta_width: int = 0) -> tuple:
     """Split a latency budget into look-aheads (frames at ``fps``).
 
     The analysis windows take ``window_s``; the whole frames left, ``B = floor((lag_ms / 1000 -
-    window_s) fps)``, go to the state decoder and the trajectory solve (half each, the decoder
-    getting the odd frame), and, if the feature set has formants, one frame in four (at most 2)
-    to the formant tracker.
+    window_s) fps)``, are shared: if the feature set has formants, one frame in four (at most
+    2) to the formant tracker; if the puppet uses audio deltas, a third of the rest (at most
+    ``delta_width``) to their look-ahead; the remainder to the state decoder and the trajectory
+    solve, half each (the decoder gets the odd frame).
 
     Returns
     -------
-    (formant_lag, decode_lag, trajectory_lag) : tuple of int
+    (formant_lag, delta_lag, decode_lag, trajectory_lag) : tuple of int
     """
     if not (isinstance(lag_ms, (int, float)) and math.isfinite(lag_ms) and lag_ms >= 0):
         raise ValueError(f"lag_ms must be a non-negative number of milliseconds, got {lag_ms!r}")
     budget = max(0, int(math.floor((lag_ms / 1000.0 - window_s) * fps + 1e-9)))
     f = min(2, budget // 4) if formants else 0
     rest = budget - f
+    dl = min(int(delta_width), rest // 3)
+    rest -= dl
     decode = (rest + 1) // 2
-    return f, decode, rest - decode
+    return f, dl, decode, rest - decode
 
 
 class LivePuppet:
@@ -117,15 +121,17 @@ class LivePuppet:
     rate : int
         Sample rate of the pushed audio; other rates than 16000 are resampled on the stream with
         ``resample_poly``'s filter.
-    formant_lag, decode_lag, trajectory_lag : int, optional
+    formant_lag, delta_lag, decode_lag, trajectory_lag : int, optional
         Explicit look-aheads in frames. ``formant_lag=-1`` waits for the formant tracker's
-        exact decisions (unbounded latency; with large decode and trajectory lags the output is
-        then exactly ``puppet.animate`` of the same audio).
+        exact decisions (unbounded latency), ``delta_lag=-1`` uses the puppet's full delta width;
+        with both and large decode and trajectory lags the output is exactly ``puppet.animate``
+        of the same audio.
     """
 
     def __init__(self, puppet, lag_ms: float = 150.0, *, fps: float | None = None,
                  posterior: bool = False, rate: int = ANALYSIS_RATE, formant_lag: int | None = None,
-                 decode_lag: int | None = None, trajectory_lag: int | None = None):
+                 delta_lag: int | None = None, decode_lag: int | None = None,
+                 trajectory_lag: int | None = None):
         from voicepuppet import _core
 
         if isinstance(puppet, (str, os.PathLike)):
@@ -150,13 +156,20 @@ class LivePuppet:
                              f"gives {self.features.n_features}; the puppet file is inconsistent")
         has_formants = "formants" in fset.features
         window = self.features.lookahead_s()
-        f, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants)
+        width = int(core.delta_width)
+        f, dl, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants, width)
         f = f if formant_lag is None else formant_lag
+        dl = dl if delta_lag is None else delta_lag
         d = d if decode_lag is None else decode_lag
         t = t if trajectory_lag is None else trajectory_lag
-        for name, v in (("formant_lag", f), ("decode_lag", d), ("trajectory_lag", t)):
-            if not isinstance(v, (int, np.integer)) or v < (-1 if name == "formant_lag" else 0):
+        for name, v in (("formant_lag", f), ("delta_lag", dl), ("decode_lag", d),
+                        ("trajectory_lag", t)):
+            if not isinstance(v, (int, np.integer)) or v < (-1 if name in ("formant_lag",
+                                                                          "delta_lag") else 0):
                 raise ValueError(f"{name} must be a whole number of frames >= 0, got {v!r}")
+        if dl > width:
+            raise ValueError(f"delta_lag must be at most the puppet's delta width {width}, got "
+                             f"{dl}")
         self.formant_lag = None if f < 0 else int(f)
         if has_formants:
             self.features = StreamingFeatures(fset, fps=puppet.fps, rate=ANALYSIS_RATE,
@@ -164,7 +177,7 @@ class LivePuppet:
         out_fps = 0.0 if fps is None else float(fps)
         if fps is not None and not (math.isfinite(out_fps) and out_fps > 0):
             raise ValueError(f"fps must be positive, got {fps!r}")
-        self.core = _core.StreamingPuppet(core, int(d), int(t), out_fps, bool(posterior))
+        self.core = _core.StreamingPuppet(core, int(d), int(t), out_fps, bool(posterior), int(dl))
         self.fps = float(self.core.output_fps)
         try:
             rate_i = int(rate)
@@ -178,6 +191,10 @@ class LivePuppet:
         self.samples_in = 0
         self._n_points = int(core.n_points)
         self._n_dims = int(core.n_dims)
+
+    @property
+    def delta_lag(self) -> int:
+        return int(self.core.delta_lag)
 
     @property
     def decode_lag(self) -> int:
@@ -455,7 +472,8 @@ def run_live(args, out=None) -> int:
     summary = {"frames": n_frames, "audio_s": round(pushed / live.rate, 3),
                "lag_ms": live.lag_ms,
                "algorithmic_latency_ms": round(live.latency_s * 1e3, 2),
-               "formant_lag": live.formant_lag, "decode_lag": live.decode_lag,
+               "formant_lag": live.formant_lag, "delta_lag": live.delta_lag,
+               "decode_lag": live.decode_lag,
                "trajectory_lag": live.trajectory_lag,
                "latency_ms_p50": round(float(np.percentile(lat, 50)), 2),
                "latency_ms_p99": round(float(np.percentile(lat, 99)), 2),

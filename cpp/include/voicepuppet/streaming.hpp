@@ -83,6 +83,10 @@ class FixedLagDecoder {
 
 /// Options of a StreamingPuppet.
 struct StreamingOptions {
+  /// look-ahead of the audio deltas (frames at the puppet's rate, 0 .. the puppet's delta
+  /// width; −1: the full width, as offline): missing future frames repeat the latest one, as
+  /// the offline deltas do at the end of a recording
+  Index delta_lag = -1;
   Index decode_lag = 2;      ///< look-ahead of the state decoder, frames at the puppet's rate
   Index trajectory_lag = 2;  ///< look-ahead of the trajectory solve, frames at the output rate
   double fps = 0;            ///< output frame rate; 0: the puppet's own rate
@@ -100,7 +104,9 @@ struct StreamedFrames {
 /// The voice puppet on a stream: raw audio feature frames in (at the puppet's rate, in the
 /// puppet's feature columns), face frames out, state carried between calls.
 ///
-/// Per face part: standardise → vocal log densities → FixedLagDecoder (frame t decided after
+/// Audio deltas (a puppet with delta width w > 0) of frame s use frames s − w .. s + delta_lag,
+/// the latest repeated for the missing ones. Then per face part: standardise → vocal log
+/// densities → FixedLagDecoder (frame t decided after
 /// t + decode_lag) → states (or posteriors) resampled to the output rate as they are decided
 /// (sample and hold, or linear interpolation, exactly as resample_states / resample_weights) →
 /// FixedLagTrajectory (output frame k emitted after k + trajectory_lag) → face coordinates →
@@ -109,8 +115,8 @@ struct StreamedFrames {
 /// still held back at `flush`) the output equals Puppet::animate.
 ///
 /// Latency (seconds of audio after a frame's time before it is emitted):
-/// decode_lag / puppet fps + trajectory_lag / output fps (+ the feature window's look-ahead,
-/// which is the front end's).
+/// (delta_lag + decode_lag) / puppet fps + trajectory_lag / output fps (+ the feature window's
+/// look-ahead, which is the front end's).
 class StreamingPuppet {
  public:
   /// @param[in] puppet   copied: the stream does not depend on the caller's object
@@ -136,7 +142,7 @@ class StreamingPuppet {
   double output_fps() const { return out_fps_; }
   Index frames_pushed() const { return pushed_; }
   Index frames_emitted() const { return emitted_; }
-  /// Algorithmic latency in seconds: decode_lag / fps + trajectory_lag / output fps.
+  /// Algorithmic latency in seconds: (delta_lag + decode_lag) / fps + trajectory_lag / output fps.
   double latency_seconds() const;
   /// log p(features so far) under each part's vocal HMM, summed over parts.
   double log_likelihood() const;
@@ -153,11 +159,19 @@ class StreamingPuppet {
   };
   RowMatrixXd feed(PartStream& ps, const DecodedFrames& f, bool final_pass);
   StreamedFrames assemble(std::vector<RowMatrixXd>& faces);
+  /// Standardised [features, deltas] of the frames whose deltas are now known (all of them at
+  /// the end of the stream).
+  RowMatrixXd standardized_ready(bool final_pass);
+  StreamedFrames decode(const RowMatrixXd& z, bool final_pass);
 
   Puppet puppet_;
   StreamingOptions options_;
   double out_fps_ = 0;
   std::vector<PartStream> parts_;
+  Index delta_lag_ = 0;
+  std::vector<VectorXd> raw_;  ///< raw frames raw_first_ .. pushed_ − 1 still needed for deltas
+  Index raw_first_ = 0, standardized_ = 0;
+  VectorXd mean_, std_;
   Index pushed_ = 0, emitted_ = 0;
 };
 

@@ -27,6 +27,7 @@ SUITES = {
     "entropic": "voicepuppet.bench.entropic",
     "synth": "voicepuppet.bench.synth",
     "pipeline": "voicepuppet.bench.pipeline",
+    "live": "voicepuppet.bench.live",
 }
 
 

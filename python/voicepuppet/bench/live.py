@@ -1,0 +1,223 @@
+"""``voicepuppet bench live``: live puppetry, per-frame compute and end-to-end latency.
+
+Cases (medians of interleaved repeats; per-frame percentiles over every frame of a run):
+
+- ``features_stream``: the streaming front end (:class:`voicepuppet.audio.stream.StreamingFeatures`,
+  default "puppet" set, 10 ms chunks) against the offline front end on the same audio
+  (``agree``: largest relative difference of the exact-mode features);
+- ``puppet_stream_cpp``: ``voicepuppet::StreamingPuppet`` fed one feature frame per push, against
+  the offline C++ ``Puppet.animate`` (``agree``: with lags covering the stream);
+- ``live_lag{L}ms``: :class:`voicepuppet.live.LivePuppet` end to end (audio chunks of 10 ms in,
+  face frames out) for several latency budgets. A frame's end-to-end latency is the audio
+  time between the frame's moment and the end of the chunk that completed it, plus the compute
+  time of that push: ``latency = lag + compute`` measured, not assumed.
+
+``python -m voicepuppet.bench.live --table`` prints the accuracy table of docs/streaming.md
+(streamed vs offline animation for each latency budget, Err of eq. 7 and landmark RMSE / IOD).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+
+import numpy as np
+
+from voicepuppet.bench import case, rel_diff, timeit_interleaved
+
+LAGS_MS = (0, 50, 100, 150, 250, 330)
+CHUNK = 160  # 10 ms at 16 kHz
+
+
+def _corpus(quick: bool):
+    """Training clip and held-out clips of the synthetic performer (cached), and a puppet."""
+    import os
+
+    from voicepuppet.audio.samples import cache_dir
+    from voicepuppet.puppet import Puppet, load
+    from voicepuppet.synth import make_corpus
+
+    secs = 20 if quick else 60
+    c = make_corpus(os.path.join(cache_dir(), f"bench-live-{secs}s"), train_seconds=secs, n_test=3,
+                    seed=0, progress=False)
+    path = os.path.join(cache_dir(), f"bench-live-{secs}s", "puppet.vpp")
+    if os.path.exists(path):
+        p = load(path)
+    else:
+        p = Puppet.train([c.train.points], [c.train.audio], fps=c.train.fps,
+                         n_states=12 if quick else 26, n_iter=10 if quick else 20)
+        p.save(path)
+    return c, p
+
+
+def _stream_live(live, x):
+    """Push x in 10 ms chunks; returns points [T, P, 2], per-frame compute (s), latency (s)."""
+    pts, comp, lat = [], [], []
+    rate = live.rate
+    for a in range(0, x.shape[0], CHUNK):
+        c0 = time.perf_counter()
+        f = live.push(x[a:a + CHUNK])
+        dt = time.perf_counter() - c0
+        if len(f):
+            heard = min(a + CHUNK, x.shape[0]) / rate  # audio time when this push ran
+            pts.append(f.points)
+            comp += [dt / len(f)] * len(f)
+            lat += list(heard - f.times + dt)
+    c0 = time.perf_counter()
+    f = live.flush()
+    dt = time.perf_counter() - c0
+    pts.append(f.points)
+    comp += [dt / max(len(f), 1)] * len(f)
+    return np.concatenate(pts), np.array(comp), np.array(lat)
+
+
+def run(quick: bool = False, repeats: int = 3) -> list:
+    from voicepuppet import _core
+    from voicepuppet.audio import extract, load_audio, prepare
+    from voicepuppet.audio.stream import StreamingFeatures
+    from voicepuppet.live import LivePuppet
+
+    corpus, puppet = _corpus(quick)
+    clip = corpus.test[0]
+    x = load_audio(clip.audio).samples
+    audio = prepare(x, 16000, target_rate=None, remove_dc=False)
+    secs = x.shape[0] / 16000
+    cases = []
+
+    # 1. streaming features vs offline extract
+    per_frame = []
+
+    def stream_features():
+        s = StreamingFeatures(puppet.feature_set, fps=puppet.fps)
+        rows = []
+        for a in range(0, x.shape[0], CHUNK):
+            c0 = time.perf_counter()
+            r = s.push(x[a:a + CHUNK])
+            dt = time.perf_counter() - c0
+            if r.shape[0]:
+                per_frame.extend([dt / r.shape[0]] * r.shape[0])
+            rows.append(r)
+        rows.append(s.flush())
+        return np.vstack(rows)
+
+    med, res = timeit_interleaved({"ours": stream_features,
+                                   "peer": lambda: extract(audio, fps=puppet.fps,
+                                                           features=puppet.feature_set).values},
+                                  repeats)
+    pf = np.array(per_frame) * 1e3
+    cases.append(case("features_stream", f"{secs:.1f} s, 10 ms chunks", med["ours"],
+                      "offline extract", med["peer"], rel_diff(res["ours"], res["peer"]),
+                      frame_ms_p50=float(np.percentile(pf, 50)),
+                      frame_ms_p99=float(np.percentile(pf, 99)),
+                      realtime_factor=secs / med["ours"]))
+
+    # 2. the C++ streaming puppet, one feature frame per push
+    feats = extract(audio, fps=puppet.fps, features=puppet.feature_set).values
+    T = feats.shape[0]
+    cpp_frames = []
+
+    def cpp_stream(dl=2, tl=1):
+        sp = _core.StreamingPuppet(puppet._core, dl, tl, 0.0, False)
+        out = []
+        for t in range(T):
+            c0 = time.perf_counter()
+            r = sp.push(feats[t:t + 1])
+            cpp_frames.append(time.perf_counter() - c0)
+            out.append(np.asarray(r.points))
+        out.append(np.asarray(sp.flush().points))
+        return np.vstack(out)
+
+    med, res = timeit_interleaved({"ours": cpp_stream,
+                                   "peer": lambda: np.asarray(puppet._core.animate(
+                                       np.ascontiguousarray(feats), 0.0, False)["points"])},
+                                  repeats)
+    exact = cpp_stream(T + 1, T + 1)
+    cf = np.array(cpp_frames) * 1e3
+    cases.append(case("puppet_stream_cpp", f"T={T}, N={puppet.n_states(0)}, lags 2+1",
+                      med["ours"], "offline C++ animate", med["peer"],
+                      rel_diff(exact, res["peer"]),
+                      frame_ms_p50=float(np.percentile(cf, 50)),
+                      frame_ms_p99=float(np.percentile(cf, 99))))
+
+    # 3. end to end, per latency budget
+    for lag in ((50, 150) if quick else (0, 50, 150, 330)):
+        comps, lats, times = [], [], []
+        for _ in range(max(1, repeats)):
+            live = LivePuppet(puppet, lag_ms=lag)
+            c0 = time.perf_counter()
+            _, comp, lat = _stream_live(live, x)
+            times.append(time.perf_counter() - c0)
+            comps.append(comp)
+            lats.append(lat)
+        comp = np.concatenate(comps) * 1e3
+        lat = np.concatenate(lats) * 1e3
+        cases.append(case(f"live_lag{lag}ms", f"{secs:.1f} s, 10 ms chunks",
+                          statistics.median(times), None, None, None,
+                          lag_ms=lag, algorithmic_latency_ms=live.latency_s * 1e3,
+                          frame_ms_p50=float(np.percentile(comp, 50)),
+                          frame_ms_p99=float(np.percentile(comp, 99)),
+                          latency_ms_p50=float(np.percentile(lat, 50)),
+                          latency_ms_p99=float(np.percentile(lat, 99)),
+                          realtime_factor=secs / statistics.median(times)))
+    return cases
+
+
+def error_table(quick: bool = False) -> str:
+    """Markdown table: streamed vs offline animation per latency budget, both synthesis modes,
+    over the held-out clips of the synthetic performer (3 espeak-ng utterances and CMU ARCTIC
+    a0009). Err is eq. 7 on landmarks (mean-subtracted motion), RMSE is landmark RMSE over the
+    inter-ocular distance; 'vs truth' columns compare with the performer's real landmarks."""
+    from voicepuppet.audio import load_audio
+    from voicepuppet.live import LivePuppet
+    from voicepuppet.metrics import err, landmark_rmse_iod
+
+    corpus, puppet = _corpus(quick)
+    rows = ["| lag budget (ms) | latency (ms) | look-aheads (formant, decoder, trajectory) | mode "
+            "| Err vs offline | RMSE/IOD vs offline | Err vs truth | RMSE/IOD vs truth |",
+            "|---|---|---|---|---|---|---|---|"]
+    clips = corpus.test
+    for posterior in (False, True):
+        offline = {}
+        for c in clips:
+            offline[c.audio] = puppet.animate(load_audio(c.audio), posterior=posterior
+                                              ).animation.points
+        base = []
+        for c in clips:
+            o = offline[c.audio]
+            n = min(len(o), len(c.points))
+            base.append((err(o[:n], c.points[:n]), landmark_rmse_iod(o[:n], c.points[:n])))
+        for lag in LAGS_MS:
+            e_off, r_off, e_tr, r_tr = [], [], [], []
+            for c in clips:
+                x = load_audio(c.audio).samples
+                live = LivePuppet(puppet, lag_ms=lag, posterior=posterior)
+                pts, _, _ = _stream_live(live, x)
+                o = offline[c.audio]
+                e_off.append(err(pts, o))
+                r_off.append(landmark_rmse_iod(pts, o))
+                n = min(len(pts), len(c.points))
+                e_tr.append(err(pts[:n], c.points[:n]))
+                r_tr.append(landmark_rmse_iod(pts[:n], c.points[:n]))
+            la = (live.formant_lag, live.decode_lag, live.trajectory_lag)
+            rows.append(f"| {lag} | {live.latency_s * 1e3:.0f} | {la} | "
+                        f"{'posterior' if posterior else 'Viterbi'} | {np.mean(e_off):.4f} | "
+                        f"{np.mean(r_off):.4f} | {np.mean(e_tr):.3f} | {np.mean(r_tr):.4f} |")
+        rows.append(f"| offline | - | - | {'posterior' if posterior else 'Viterbi'} | 0 | 0 | "
+                    f"{np.mean([b[0] for b in base]):.3f} | {np.mean([b[1] for b in base]):.4f} |")
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import argparse
+
+    ap = argparse.ArgumentParser(description="accuracy table of docs/streaming.md")
+    ap.add_argument("--table", action="store_true")
+    ap.add_argument("--quick", action="store_true")
+    a = ap.parse_args()
+    if a.table:
+        print(error_table(a.quick))
+    else:
+        from voicepuppet.bench import print_table
+
+        print_table(run(a.quick, 3))
