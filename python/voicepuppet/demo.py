@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 
-def run(out_dir="voicepuppet-demo", *, train_seconds: float = 120.0, n_test: int = 6, seed: int = 0,
+def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int = 10, seed: int = 0,
         n_states: int = 40, train_on: str = "truth", compare_conventional: bool = True,
         render_video: bool = True, progress: bool = True, log=print) -> dict:
     """Run the demo; returns the metrics (also written to ``out_dir/metrics.json``).
@@ -77,8 +77,9 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 120.0, n_test: int
 
     t = time.perf_counter()
     log(f"[4/5] animating {len(tests)} held-out utterances and measuring against ground truth")
+    cache: dict = {}
     results = {name: evaluation.evaluate_split(m, [(train.points[:n], train.audio)],
-                                               [(c.points, c.audio) for c in tests])
+                                               [(c.points, c.audio) for c in tests], cache=cache)
                for name, m in models.items()}
     timings["evaluate_s"] = time.perf_counter() - t
 
@@ -150,11 +151,11 @@ def add_parser(sub) -> None:
                                    "track it, train a puppet, animate the held-out audio, measure it "
                                    "against ground truth and render an mp4.")
     p.add_argument("--out", default="voicepuppet-demo", help="output folder (default voicepuppet-demo)")
-    p.add_argument("--train-seconds", type=float, default=120.0, help="training video length (default 120)")
+    p.add_argument("--train-seconds", type=float, default=180.0, help="training video length (default 180)")
     p.add_argument("--train-on", choices=["truth", "tracked"], default="truth",
                    help="train on the performer's ground-truth landmarks (default; the tracker is still "
                         "run and measured) or on the tracked ones")
-    p.add_argument("--n-test", type=int, default=6, help="held-out utterances (default 6)")
+    p.add_argument("--n-test", type=int, default=10, help="held-out utterances (default 10)")
     p.add_argument("--states", type=int, default=40, help="initial facial states (default 40)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-conventional", action="store_true", help="skip the Baum-Welch comparison puppet")

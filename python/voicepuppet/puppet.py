@@ -46,6 +46,7 @@ TRAIN_DEFAULTS = {
     "feature_set": "puppet",
     "audio_deltas": 2,       # append regression deltas over +-2 frames to the audio features
     "vocal_covariance": "full",
+    "vocal_shrinkage": 1.0,  # evidence of the pooled Gaussian in each state's, in units of A frames
     "min_covar": 1e-3,
     "seed": 0,
 }
@@ -205,7 +206,7 @@ class Puppet:
                               random_state=opt["seed"], progress=progress, **prior)
             hmm.fit(O, lengths)
             gamma = hmm.predict_proba(O, lengths)
-            vm, vc = remap(gamma, A, opt["vocal_covariance"])
+            vm, vc = remap(gamma, A, opt["vocal_covariance"], shrinkage=opt["vocal_shrinkage"] * A.shape[1])
             pre = f"hmm/part{k}/"
             arrays.update({pre + "startprob": hmm.startprob_, pre + "transmat": hmm.transmat_,
                            pre + "face_means": hmm.means_, pre + "face_covars": hmm.covars_,
@@ -311,7 +312,7 @@ def load(path) -> Puppet:
     return Puppet(meta, arrays)
 
 
-def remap(gamma, features, covariance: str = "full", floor: float = 1e-3):
+def remap(gamma, features, covariance: str = "full", floor: float = 1e-3, shrinkage=None):
     """Vocal Gaussians per state from occupancies and synchronous features (§4.3).
 
     Parameters
@@ -323,13 +324,16 @@ def remap(gamma, features, covariance: str = "full", floor: float = 1e-3):
     covariance : {"full", "diag"}
     floor : float
         Added to every variance (the features are standardised, so this is relative).
+    shrinkage : float, optional
+        κ, frames of evidence given to the pooled Gaussian (default: A, the feature count).
 
     Returns
     -------
     means : (N, A)
     covars : (N, A, A) for "full", (N, A) for "diag"
         ``(S_i + κ Σ) / (w_i + κ)``: the weighted scatter ``S_i`` of state i shrunk towards the
-        pooled covariance ``Σ`` with ``κ = A`` frames of evidence, plus ``floor``.
+        pooled covariance ``Σ`` with κ frames of evidence, plus ``floor`` (the means likewise
+        towards the pooled mean).
     """
     g = np.asarray(gamma, dtype=np.float64)
     X = np.asarray(features, dtype=np.float64)
@@ -339,7 +343,9 @@ def remap(gamma, features, covariance: str = "full", floor: float = 1e-3):
     if covariance not in ("full", "diag"):
         raise ValueError(f"covariance must be 'full' or 'diag', got {covariance!r}")
     A = X.shape[1]
-    kappa = float(A)
+    kappa = float(A) if shrinkage is None else float(shrinkage)
+    if not (kappa >= 0 and np.isfinite(kappa)):
+        raise ValueError(f"shrinkage must be a finite number >= 0, got {shrinkage!r}")
     w = g.sum(axis=0)
     mu_all = X.mean(axis=0)
     pooled = np.cov(X, rowvar=False, bias=True).reshape(A, A)
