@@ -11,6 +11,7 @@ void bind_trajectory(py::module_& m);
 void bind_entropic(py::module_& m);
 void bind_puppet(py::module_& m);
 void bind_streaming(py::module_& m);
+void bind_dpds(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "voicepuppet's C++ kernels (private: use the voicepuppet package)";
@@ -30,4 +31,5 @@ PYBIND11_MODULE(_core, m) {
   bind_entropic(m);
   bind_puppet(m);
   bind_streaming(m);
+  bind_dpds(m);
 }

@@ -1,0 +1,537 @@
+"""Phoneme-driven face models (Englebienne, Cootes & Rattray, NIPS 2007), peers of the puppet.
+
+Four generators of face vectors ``Y`` [T, K] (``voicepuppet.face`` coordinates) from phone labels
+[T] (indices into :data:`voicepuppet.phonemes.PHONES`, one per video frame), all with the same
+interface: ``fit(Y_list, labels_list)``, ``generate(labels)``, ``log_likelihood(Y_list,
+labels_list)``.
+
+* :class:`PhonemeMeans` -- the "standard HMM" of the paper's figure 4: one diagonal Gaussian per
+  phone; generates each phone's mean face.
+* :class:`PhonemeTrajectory` -- Brand's trajectory with phoneme states: one full-covariance
+  Gaussian per phone over ``o_t = [y_t, y_t - y_{t-1}]`` and the closed-form solve of
+  :func:`voicepuppet.trajectory.solve_trajectory`.
+* :class:`SLDS` -- switching linear dynamical system with B = I and known labels: diagonal
+  transition ``a_p``, bias ``nu_p``, process and output variances per phone, trained by EM with
+  the Kalman smoother (C++ ``slds_smooth``); generates the most likely sequence.
+* :class:`DPDS` -- the deterministic process dynamical system: ``x_1 = mu_{s_1}``,
+  ``x_t = a_{s_t} * x_{t-1} + nu_{s_t}``, one shared diagonal output variance; ``a`` by L-BFGS-B
+  on the profile likelihood (gradient by the adjoint recursion in C++), ``mu``, ``nu`` and the
+  variance by the exact linear solve of the paper's Algorithm 1 (C++ ``dpds_solve``); generation
+  frame by frame, O(K) memory (:meth:`DPDS.stream`).
+
+Phones never seen in training fall back, at generation, to the global statistics (documented
+per model in ``docs/phonemes.md``); ``seen_`` says which phones were trained.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from .phonemes import N_PHONES
+
+__all__ = ["PhonemeMeans", "PhonemeTrajectory", "SLDS", "DPDS", "DPDSStream", "MODELS",
+           "stack_sequences", "observations"]
+
+
+# --------------------------------------------------------------------------------------------
+# input checks
+
+
+def stack_sequences(Y_list, labels_list, n_dims: int | None = None):
+    """Check and stack sequences of face vectors with their frame labels.
+
+    Parameters
+    ----------
+    Y_list : sequence of array_like, each shape (T_s, K)
+    labels_list : sequence of array_like of int, each shape (T_s,)
+        Indices into :data:`voicepuppet.phonemes.PHONES`.
+    n_dims : int, optional
+        Expected ``K``.
+
+    Returns
+    -------
+    Y : ndarray, shape (N, K)
+    labels : ndarray of int64, shape (N,)
+    offsets : ndarray of int64, shape (S + 1,)
+
+    Raises
+    ------
+    ValueError
+        No sequences, mismatched counts or lengths, empty sequences, non-finite values, labels
+        outside the phone set.
+    """
+    if isinstance(Y_list, np.ndarray) and Y_list.ndim == 2:
+        Y_list = [Y_list]
+    if isinstance(labels_list, np.ndarray) and labels_list.ndim == 1:
+        labels_list = [labels_list]
+    Y_list, labels_list = list(Y_list), list(labels_list)
+    if not Y_list:
+        raise ValueError("no sequences given; need at least one (Y [T, K], labels [T]) pair")
+    if len(Y_list) != len(labels_list):
+        raise ValueError(f"got {len(Y_list)} face sequences but {len(labels_list)} label sequences; "
+                         f"give one label sequence per face sequence")
+    ys, ls = [], []
+    for i, (y, lab) in enumerate(zip(Y_list, labels_list)):
+        y = np.asarray(y, dtype=np.float64)
+        lab = np.asarray(lab)
+        if y.ndim != 2 or y.shape[0] == 0 or y.shape[1] == 0:
+            raise ValueError(f"sequence {i}: Y must be a non-empty 2-D array (frames, dims), got shape "
+                             f"{y.shape}")
+        if n_dims is not None and y.shape[1] != n_dims:
+            raise ValueError(f"sequence {i}: Y has {y.shape[1]} dims, the model has {n_dims}")
+        if ys and y.shape[1] != ys[0].shape[1]:
+            raise ValueError(f"sequence {i}: Y has {y.shape[1]} dims, sequence 0 has {ys[0].shape[1]}")
+        if not np.all(np.isfinite(y)):
+            raise ValueError(f"sequence {i}: Y contains NaN or infinite values")
+        if lab.shape != (y.shape[0],):
+            raise ValueError(f"sequence {i}: labels must have shape ({y.shape[0]},) (one phone per "
+                             f"frame), got {lab.shape}")
+        if lab.size and not np.issubdtype(lab.dtype, np.integer):
+            raise ValueError(f"sequence {i}: labels must be integer phone indices (see "
+                             f"voicepuppet.phonemes.frame_labels), got dtype {lab.dtype}")
+        if lab.min() < 0 or lab.max() >= N_PHONES:
+            raise ValueError(f"sequence {i}: labels must index the phone set 0..{N_PHONES - 1}, got "
+                             f"{lab.min()}..{lab.max()}")
+        ys.append(y)
+        ls.append(lab.astype(np.int64))
+    offsets = np.concatenate([[0], np.cumsum([len(y) for y in ys])]).astype(np.int64)
+    return np.ascontiguousarray(np.concatenate(ys)), np.concatenate(ls), offsets
+
+
+def _check_labels(labels) -> np.ndarray:
+    lab = np.asarray(labels)
+    if lab.ndim != 1 or lab.size == 0:
+        raise ValueError(f"labels must be a non-empty 1-D array of phone indices, got shape {lab.shape}")
+    if not np.issubdtype(lab.dtype, np.integer):
+        raise ValueError(f"labels must be integer phone indices, got dtype {lab.dtype}")
+    if lab.min() < 0 or lab.max() >= N_PHONES:
+        raise ValueError(f"labels must index the phone set 0..{N_PHONES - 1}, got {lab.min()}..{lab.max()}")
+    return np.ascontiguousarray(lab, dtype=np.int64)
+
+
+def observations(Y: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """``o_t = [y_t, y_t - y_{t-1}]`` per sequence; a sequence's first frame takes the velocity
+    of its second (zero for one-frame sequences).
+
+    Parameters
+    ----------
+    Y : ndarray, shape (N, K)
+    offsets : ndarray of int, shape (S + 1,)
+
+    Returns
+    -------
+    ndarray, shape (N, 2K)
+    """
+    vel = np.zeros_like(Y)
+    vel[1:] = Y[1:] - Y[:-1]
+    for b, e in zip(offsets[:-1], offsets[1:]):
+        vel[b] = vel[b + 1] if e - b > 1 else 0.0
+    return np.hstack([Y, vel])
+
+
+class _Model:
+    """Shared bookkeeping: dims, trained phones, global statistics."""
+
+    name = "model"
+
+    def __init__(self, var_floor: float = 1e-3):
+        if not np.isfinite(var_floor) or not 0 < var_floor < 1:
+            raise ValueError(f"var_floor must be in (0, 1) (a fraction of the data variance), got {var_floor}")
+        self.var_floor = float(var_floor)
+        self.n_dims_: int | None = None
+        self.seen_: np.ndarray | None = None
+
+    def _prepare(self, Y_list, labels_list):
+        Y, lab, off = stack_sequences(Y_list, labels_list)
+        self.n_dims_ = Y.shape[1]
+        self.seen_ = np.bincount(lab, minlength=N_PHONES) > 0
+        self.global_mean_ = Y.mean(axis=0)
+        gvar = Y.var(axis=0)
+        if np.any(gvar <= 0):
+            gvar = np.where(gvar > 0, gvar, max(float(gvar.max()), 1.0))
+        self.global_var_ = gvar
+        self.floor_ = self.var_floor * gvar
+        counts = np.bincount(lab, minlength=N_PHONES).astype(np.float64)
+        sums = np.zeros((N_PHONES, Y.shape[1]))
+        np.add.at(sums, lab, Y)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            pm = sums / counts[:, None]
+        self.phone_mean_ = np.where(self.seen_[:, None], pm, self.global_mean_)
+        return Y, lab, off
+
+    def _require_fit(self):
+        if self.n_dims_ is None:
+            raise ValueError(f"this {type(self).__name__} is not trained; call fit(Y_list, labels_list) first")
+
+    @property
+    def n_dims(self) -> int:
+        self._require_fit()
+        return int(self.n_dims_)
+
+    def _test_data(self, Y_list, labels_list):
+        self._require_fit()
+        return stack_sequences(Y_list, labels_list, self.n_dims_)
+
+
+# --------------------------------------------------------------------------------------------
+# (1) per-phoneme mean
+
+
+class PhonemeMeans(_Model):
+    """One diagonal Gaussian per phone; generates each phone's mean (the paper's "HMM").
+
+    Parameters
+    ----------
+    var_floor : float
+        Variance floor as a fraction of each dimension's data variance.
+    """
+
+    name = "phoneme-mean"
+
+    def fit(self, Y_list, labels_list, *, progress: bool = False) -> "PhonemeMeans":
+        """Fit on sequences ``Y_list`` [T_s, K] with labels [T_s]; returns self."""
+        Y, lab, _ = self._prepare(Y_list, labels_list)
+        counts = np.bincount(lab, minlength=N_PHONES).astype(np.float64)
+        sq = np.zeros((N_PHONES, Y.shape[1]))
+        np.add.at(sq, lab, (Y - self.phone_mean_[lab]) ** 2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var = sq / counts[:, None]
+        var = np.where(self.seen_[:, None], var, self.global_var_)
+        self.means_ = self.phone_mean_.copy()
+        self.vars_ = np.maximum(var, self.floor_)
+        return self
+
+    def generate(self, labels) -> np.ndarray:
+        """Mean face of each frame's phone, shape (T, K)."""
+        self._require_fit()
+        return self.means_[_check_labels(labels)].copy()
+
+    def log_likelihood(self, Y_list, labels_list) -> float:
+        """Total log-likelihood (nats) of the sequences under the per-phone Gaussians."""
+        Y, lab, _ = self._test_data(Y_list, labels_list)
+        v = self.vars_[lab]
+        return float(-0.5 * np.sum(np.log(2 * np.pi * v) + (Y - self.means_[lab]) ** 2 / v))
+
+
+# --------------------------------------------------------------------------------------------
+# (2) Brand's trajectory with phoneme states
+
+
+class PhonemeTrajectory(_Model):
+    """Brand's closed-form trajectory with one ``[pose, velocity]`` Gaussian per phone.
+
+    Parameters
+    ----------
+    var_floor : float
+        Added to each covariance's diagonal as a fraction of the data variance of ``o_t``.
+    """
+
+    name = "brand-phoneme"
+
+    def fit(self, Y_list, labels_list, *, progress: bool = False) -> "PhonemeTrajectory":
+        """Fit on sequences ``Y_list`` [T_s, K] with labels [T_s]; returns self."""
+        Y, lab, off = self._prepare(Y_list, labels_list)
+        O = observations(Y, off)
+        k2 = O.shape[1]
+        gmean = O.mean(axis=0)
+        gcov = np.cov(O.T, bias=True).reshape(k2, k2)
+        floor = self.var_floor * np.maximum(np.diag(gcov), 1e-300)
+        means = np.tile(gmean, (N_PHONES, 1))
+        covs = np.tile(gcov + np.diag(floor), (N_PHONES, 1, 1))
+        for p in np.nonzero(self.seen_)[0]:
+            Op = O[lab == p]
+            means[p] = Op.mean(axis=0)
+            d = Op - means[p]
+            covs[p] = d.T @ d / len(Op) + np.diag(floor)
+        self.means_, self.covars_ = means, covs
+        return self
+
+    def generate(self, labels) -> np.ndarray:
+        """Closed-form most probable trajectory for the phone sequence, shape (T, K)."""
+        from .trajectory import solve_trajectory
+
+        self._require_fit()
+        lab = _check_labels(labels)
+        return solve_trajectory(lab, self.means_, None, self.covars_)
+
+    def log_likelihood(self, Y_list, labels_list) -> float:
+        """Total log-likelihood (nats) of ``o_t = [y_t, y_t - y_{t-1}]`` (2K dims: not comparable
+        with the other models, as the paper notes)."""
+        from scipy.linalg import solve_triangular
+
+        Y, lab, off = self._test_data(Y_list, labels_list)
+        O = observations(Y, off)
+        total = 0.0
+        for p in np.unique(lab):
+            L = np.linalg.cholesky(self.covars_[p])
+            z = solve_triangular(L, (O[lab == p] - self.means_[p]).T, lower=True)
+            n = z.shape[1]
+            total += -0.5 * (n * (O.shape[1] * np.log(2 * np.pi) + 2 * np.sum(np.log(np.diag(L))))
+                             + np.sum(z * z))
+        return float(total)
+
+
+# --------------------------------------------------------------------------------------------
+# (3) SLDS with B = I
+
+
+class SLDS(_Model):
+    """Labelled switching linear dynamical system with B = I, trained by EM.
+
+    Per phone ``p`` (all diagonal, so every face dimension is a scalar LDS):
+    ``x_1 ~ N(mu1_p, var1_p)``, ``x_t = a_p * x_{t-1} + nu_p + w``, ``w ~ N(0, q_p)``,
+    ``y_t = x_t + v``, ``v ~ N(0, r_p)``.
+
+    Parameters
+    ----------
+    n_iter : int
+        Maximum EM iterations.
+    tol : float
+        Stop when the log-likelihood per frame improves by less than this.
+    var_floor : float
+        Variance floor (fraction of the data variance) for q, r and var1.
+    """
+
+    name = "slds"
+
+    def __init__(self, n_iter: int = 50, tol: float = 1e-5, var_floor: float = 1e-3):
+        super().__init__(var_floor)
+        if int(n_iter) != n_iter or n_iter < 1:
+            raise ValueError(f"n_iter must be a positive integer, got {n_iter}")
+        if not np.isfinite(tol) or tol < 0:
+            raise ValueError(f"tol must be non-negative, got {tol}")
+        self.n_iter, self.tol = int(n_iter), float(tol)
+
+    def _smooth(self, Y, lab, off):
+        return _core.slds_smooth(self.a_, self.nu_, self.q_, self.r_, self.mu1_, self.var1_, Y, off, lab)
+
+    def fit(self, Y_list, labels_list, *, progress: bool = False) -> "SLDS":
+        """EM on sequences ``Y_list`` [T_s, K] with labels [T_s]; returns self.
+
+        ``history_`` holds the log-likelihood (nats, total) before each M-step; it never
+        decreases (tested).
+        """
+        from tqdm.auto import tqdm
+
+        Y, lab, off = self._prepare(Y_list, labels_list)
+        N, K = Y.shape
+        cnt = np.bincount(lab, minlength=N_PHONES).astype(np.float64)
+        sq = np.zeros((N_PHONES, K))
+        np.add.at(sq, lab, (Y - self.phone_mean_[lab]) ** 2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            pvar = np.where(self.seen_[:, None], sq / cnt[:, None], self.global_var_)
+        pvar = np.maximum(pvar, self.floor_)
+        self.a_ = np.full((N_PHONES, K), 0.5)
+        self.nu_ = 0.5 * self.phone_mean_
+        self.q_ = 0.5 * pvar
+        self.r_ = 0.5 * pvar
+        self.mu1_ = self.phone_mean_.copy()
+        self.var1_ = pvar.copy()
+        first = np.zeros(N, bool)
+        first[off[:-1]] = True
+        rest = ~first
+        prev = np.nonzero(rest)[0] - 1
+        lr = lab[rest]
+        lf = lab[first]
+        self.history_ = []
+        bar = tqdm(range(self.n_iter), desc="SLDS EM", disable=not progress, leave=False)
+        for _ in bar:
+            sm = self._smooth(Y, lab, off)
+            ll = float(sm["log_likelihood"])
+            if self.history_ and (ll - self.history_[-1]) / N < self.tol:
+                self.history_.append(ll)
+                break
+            self.history_.append(ll)
+            m, v, c = sm["mean"], sm["var"], sm["cross"]
+            exx = m * m + v
+            # transitions: per phone and dim, a 2x2 least-squares system in (a, nu)
+            s_pp = _sum_by(lr, exx[prev])
+            s_p = _sum_by(lr, m[prev])
+            s_cp = _sum_by(lr, m[rest] * m[prev] + c[rest])
+            s_c = _sum_by(lr, m[rest])
+            s_cc = _sum_by(lr, exx[rest])
+            n = np.bincount(lr, minlength=N_PHONES).astype(np.float64)[:, None]
+            det = s_pp * n - s_p * s_p
+            ok = (n > 1) & (det > 1e-12 * np.maximum(s_pp * n, 1e-300))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                a_new = (s_cp * n - s_p * s_c) / det
+                nu_new = (s_pp * s_c - s_p * s_cp) / det
+            a = np.where(ok, a_new, self.a_)
+            nu = np.where(ok, nu_new, self.nu_)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                q = (s_cc - 2 * a * s_cp - 2 * nu * s_c + a * a * s_pp + 2 * a * nu * s_p + n * nu * nu) / n
+                self.q_ = np.where(n > 0, np.maximum(q, self.floor_), self.q_)
+            self.a_, self.nu_ = a, nu
+            nr = cnt[:, None]
+            rr = _sum_by(lab, (Y - m) ** 2 + v)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                self.r_ = np.where(nr > 0, np.maximum(rr / nr, self.floor_), self.r_)
+            n1 = np.bincount(lf, minlength=N_PHONES).astype(np.float64)[:, None]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                mu1 = _sum_by(lf, m[first]) / n1
+                var1 = _sum_by(lf, exx[first]) / n1 - mu1 * mu1
+                self.mu1_ = np.where(n1 > 0, mu1, self.mu1_)
+                self.var1_ = np.where(n1 > 0, np.maximum(var1, self.floor_), self.var1_)
+            bar.set_postfix(ll_per_frame=f"{ll / N:.4f}")
+        return self
+
+    def generate(self, labels) -> np.ndarray:
+        """Most likely sequence (the mean path) for the phones, shape (T, K)."""
+        self._require_fit()
+        lab = _check_labels(labels)
+        return _core.dpds_generate(self.a_, self.mu1_, self.nu_, lab, np.zeros(0, np.int64))
+
+    def log_likelihood(self, Y_list, labels_list) -> float:
+        """Total log-likelihood (nats) by the Kalman filter."""
+        Y, lab, off = self._test_data(Y_list, labels_list)
+        return float(self._smooth(Y, lab, off)["log_likelihood"])
+
+
+def _sum_by(lab: np.ndarray, values: np.ndarray) -> np.ndarray:
+    out = np.zeros((N_PHONES, values.shape[1]))
+    np.add.at(out, lab, values)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# (4) DPDS
+
+
+class DPDS(_Model):
+    """Deterministic process dynamical system (Englebienne et al. 2007, §3 and appendix A).
+
+    ``x_1 = mu_{s_1}``, ``x_t = a_{s_t} * x_{t-1} + nu_{s_t}``, ``y_t = x_t + v``,
+    ``v ~ N(0, diag(r))`` with ``r`` shared by all phones.
+
+    Parameters
+    ----------
+    max_iter : int
+        Maximum L-BFGS-B iterations on ``a``.
+    a_init : float
+        Initial value of every transition coefficient.
+    a_bound : float
+        ``|a| <= a_bound < 1`` keeps generation stable over any length.
+    var_floor : float
+        Floor of ``r`` (fraction of the data variance).
+    """
+
+    name = "dpds"
+
+    def __init__(self, max_iter: int = 200, a_init: float = 0.5, a_bound: float = 0.999,
+                 var_floor: float = 1e-3):
+        super().__init__(var_floor)
+        if int(max_iter) != max_iter or max_iter < 0:
+            raise ValueError(f"max_iter must be a non-negative integer, got {max_iter}")
+        if not 0 < a_bound < 1:
+            raise ValueError(f"a_bound must be in (0, 1), got {a_bound}")
+        if not abs(a_init) <= a_bound:
+            raise ValueError(f"a_init must be within +-a_bound ({a_bound}), got {a_init}")
+        self.max_iter, self.a_init, self.a_bound = int(max_iter), float(a_init), float(a_bound)
+
+    def fit(self, Y_list, labels_list, *, progress: bool = False) -> "DPDS":
+        """Train on sequences ``Y_list`` [T_s, K] with labels [T_s]; returns self.
+
+        ``history_`` holds the log-likelihood (nats, total) after each L-BFGS-B iteration,
+        non-decreasing (each iteration satisfies the Wolfe conditions).
+        """
+        from scipy.optimize import minimize
+        from tqdm.auto import tqdm
+
+        Y, lab, off = self._prepare(Y_list, labels_list)
+        N, K = Y.shape
+        shape = (N_PHONES, K)
+        cache: dict = {}
+
+        def evaluate(flat):
+            a = np.ascontiguousarray(flat.reshape(shape))
+            s = _core.dpds_solve(a, Y, off, lab, self.floor_)
+            g = _core.dpds_gradient(a, s["mu"], s["nu"], s["r"], Y, off, lab)
+            cache["last"] = (flat.copy(), s)
+            return -s["log_likelihood"] / N, -g["grad_a"].ravel() / N
+
+        x0 = np.full(N_PHONES * K, self.a_init)
+        f0, _ = evaluate(x0)
+        self.history_ = [-f0 * N]
+        bar = tqdm(total=self.max_iter, desc="DPDS L-BFGS", disable=not progress, leave=False)
+
+        def callback(xk, *args):
+            s = cache["last"][1] if np.array_equal(cache["last"][0], xk) else \
+                _core.dpds_solve(np.ascontiguousarray(xk.reshape(shape)), Y, off, lab, self.floor_)
+            self.history_.append(float(s["log_likelihood"]))
+            bar.update()
+            bar.set_postfix(ll_per_frame=f"{self.history_[-1] / N:.4f}")
+
+        if self.max_iter > 0:
+            res = minimize(evaluate, x0, jac=True, method="L-BFGS-B",
+                           bounds=[(-self.a_bound, self.a_bound)] * x0.size, callback=callback,
+                           options=dict(maxiter=self.max_iter, ftol=1e-10, gtol=1e-7))
+            xa = res.x
+            self.converged_ = bool(res.success)
+        else:
+            xa = x0
+            self.converged_ = False
+        bar.close()
+        a = np.ascontiguousarray(xa.reshape(shape))
+        s = _core.dpds_solve(a, Y, off, lab, self.floor_)
+        self.a_ = a
+        mu_used = s["mu_used"].astype(bool)
+        nu_used = s["nu_used"].astype(bool)
+        self.mu_ = np.where(mu_used[:, None], s["mu"], self.phone_mean_)
+        self.nu_ = np.where(nu_used[:, None], s["nu"], (1.0 - a) * self.phone_mean_)
+        self.r_ = s["r"]
+        self.log_likelihood_ = float(s["log_likelihood"])
+        return self
+
+    def generate(self, labels) -> np.ndarray:
+        """Mean path for the phones, shape (T, K); O(T K) time."""
+        self._require_fit()
+        lab = _check_labels(labels)
+        return _core.dpds_generate(self.a_, self.mu_, self.nu_, lab, np.zeros(0, np.int64))
+
+    def stream(self) -> "DPDSStream":
+        """A frame-by-frame generator (O(K) memory) equal to :meth:`generate`."""
+        self._require_fit()
+        return DPDSStream(self)
+
+    def log_likelihood(self, Y_list, labels_list) -> float:
+        """Total log-likelihood (nats) of eq. 1 with the trained shared variance."""
+        Y, lab, off = self._test_data(Y_list, labels_list)
+        g = _core.dpds_gradient(self.a_, self.mu_, self.nu_, self.r_, Y, off, lab)
+        return float(g["log_likelihood"])
+
+
+class DPDSStream:
+    """Streaming DPDS generation: push phone labels as they arrive, get their frames at once.
+
+    Parameters
+    ----------
+    model : DPDS
+        A trained model.
+    """
+
+    def __init__(self, model: DPDS):
+        model._require_fit()
+        self._s = _core.DpdsStream(model.a_, model.mu_, model.nu_)
+
+    def push(self, labels) -> np.ndarray:
+        """Frames for the next phone labels (int, shape (n,)), shape (n, K)."""
+        lab = np.asarray(labels)
+        if lab.ndim == 0:
+            lab = lab[None]
+        if lab.size == 0:
+            return np.zeros((0, self._s.state.size))
+        return self._s.push(_check_labels(lab))
+
+    def reset(self) -> None:
+        """Start a new sequence (its first frame is the start mean of its phone)."""
+        self._s.reset()
+
+    @property
+    def frames(self) -> int:
+        """Frames generated so far."""
+        return int(self._s.frames)
+
+
+#: the four models by name, in the order of the paper's figure 4
+MODELS = {"phoneme-mean": PhonemeMeans, "brand-phoneme": PhonemeTrajectory, "slds": SLDS, "dpds": DPDS}
