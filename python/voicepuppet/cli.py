@@ -23,6 +23,7 @@ VERB_MODULES = [
     "voicepuppet.batch",
     "voicepuppet.live",
     "voicepuppet.bench",
+    "voicepuppet.evaluate",
 ]
 
 

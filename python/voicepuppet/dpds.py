@@ -289,14 +289,20 @@ class SLDS(_Model):
         Maximum EM iterations.
     tol : float
         Stop when the log-likelihood per frame improves by less than this.
+    a_bound : float
+        ``|a| <= a_bound < 1`` (a constrained M-step) keeps the generated path stable.
     var_floor : float
         Variance floor (fraction of the data variance) for q, r and var1.
     """
 
     name = "slds"
 
-    def __init__(self, n_iter: int = 50, tol: float = 1e-5, var_floor: float = 1e-3):
+    def __init__(self, n_iter: int = 50, tol: float = 1e-5, a_bound: float = 0.999,
+                 var_floor: float = 1e-3):
         super().__init__(var_floor)
+        if not 0 < a_bound < 1:
+            raise ValueError(f"a_bound must be in (0, 1), got {a_bound}")
+        self.a_bound = float(a_bound)
         if int(n_iter) != n_iter or n_iter < 1:
             raise ValueError(f"n_iter must be a positive integer, got {n_iter}")
         if not np.isfinite(tol) or tol < 0:
@@ -357,7 +363,13 @@ class SLDS(_Model):
             with np.errstate(invalid="ignore", divide="ignore"):
                 a_new = (s_cp * n - s_p * s_c) / det
                 nu_new = (s_pp * s_c - s_p * s_cp) / det
-            a = np.where(ok, a_new, self.a_)
+            # |a| <= a_bound keeps generation stable: where the unconstrained optimum lies
+            # outside, the constrained optimum of this convex quadratic is on the bound
+            # (nu re-solved given a), so EM still never decreases the likelihood
+            with np.errstate(invalid="ignore", divide="ignore"):
+                clipped = np.clip(a_new, -self.a_bound, self.a_bound)
+                nu_new = np.where(clipped != a_new, (s_c - clipped * s_p) / n, nu_new)
+            a = np.where(ok, clipped, self.a_)
             nu = np.where(ok, nu_new, self.nu_)
             with np.errstate(invalid="ignore", divide="ignore"):
                 q = (s_cc - 2 * a * s_cp - 2 * nu * s_c + a * a * s_pp + 2 * a * nu * s_p + n * nu * nu) / n

@@ -1,0 +1,435 @@
+"""``voicepuppet evaluate``: k-fold cross-validation of the voice puppet and its phoneme peers.
+
+Every model sees the same folds (by sequence, :func:`voicepuppet.crossval.kfold`), the same face
+vectors (a :class:`voicepuppet.face.FaceSpace` fitted on each fold's training sequences) and the
+same measures (:mod:`voicepuppet.metrics`): L1, RMS and L-infinity errors of the face
+coordinates and the test log-likelihood per frame (Englebienne et al. figure 4), Err (Voice
+Puppetry eq. 7), landmark RMSE over the inter-ocular distance and lip vertex error on the
+decoded landmarks (mean pose), each the mean over folds with its 95% confidence interval.
+
+* The voice puppet (``voicepuppet.puppet``) hears the test audio only; it needs no phones.
+* With ``--peers`` the four phoneme-driven models (:mod:`voicepuppet.dpds`) are given each test
+  sequence's frame labels (ground-truth phones, 10 ms majority vote).
+
+Data: by default the synthetic performer (:func:`voicepuppet.synth.make_corpus`): its training
+clip is cut into utterances at the pauses between sentences, and each held-out clip is one more
+sequence; espeak-ng's phone events (and CMU ARCTIC's hand labels) are the ground-truth phones.
+Or ``--data DIR``: one sequence per ``NAME.npz`` (``points`` [T, P, 2], ``fps``) with
+``NAME.wav`` (audio, for the puppet) and ``NAME.TextGrid`` or ``NAME.lab`` (HTS) phone labels.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import phonemes
+
+__all__ = ["Sequence", "synth_sequences", "load_sequences", "cross_validate", "format_table",
+           "write_results", "METRICS"]
+
+#: measure -> (column title, better: "lower" or "higher")
+METRICS = {
+    "l1": ("L1", "lower"),
+    "rms": ("RMS", "lower"),
+    "linf": ("L∞", "lower"),
+    "loglik": ("test log-lik / frame", "higher"),
+    "err": ("Err (eq. 7)", "lower"),
+    "lve": ("LVE (px²)", "lower"),
+    "rmse_iod": ("RMSE / IOD", "lower"),
+}
+
+
+@dataclass
+class Sequence:
+    """One utterance: landmarks, frame labels and (for the puppet) its audio.
+
+    Attributes
+    ----------
+    name : str
+    points : ndarray, shape (T, P, 2)
+    fps : float
+    labels : ndarray of int64, shape (T,)
+        Indices into :data:`voicepuppet.phonemes.PHONES`.
+    samples : ndarray, shape (n,), optional
+        Mono audio of exactly these frames.
+    rate : int
+    """
+    name: str
+    points: np.ndarray
+    fps: float
+    labels: np.ndarray
+    samples: np.ndarray | None = None
+    rate: int = 16000
+    text: str = ""
+    meta: dict = field(default_factory=dict)
+
+
+def _alphabet_of(source: str) -> str:
+    return "espeak" if source.startswith("espeak") else "arpabet"
+
+
+def _cut_points(segs, fps: float, n_frames: int, min_pause: float, min_frames: int = 15) -> list[int]:
+    cuts = [0]
+    for s in segs:
+        if s.label == phonemes.SIL and s.end - s.start >= min_pause and 0 < s.start and s.end < n_frames / fps:
+            c = int(round(0.5 * (s.start + s.end) * fps))
+            if c - cuts[-1] >= min_frames:
+                cuts.append(c)
+    if len(cuts) > 1 and n_frames - cuts[-1] < min_frames:
+        cuts.pop()
+    return cuts + [n_frames]
+
+
+def split_clip(clip, min_pause: float = 0.2, name: str = "clip") -> list[Sequence]:
+    """Cut a performer clip into utterances at the middle of pauses of ``min_pause`` s or more.
+
+    Parameters
+    ----------
+    clip : voicepuppet.synth.Clip
+    min_pause : float
+        Shortest silence (seconds) that separates two sequences (no piece is shorter than 15
+        frames: shorter pieces stay joined to their neighbour).
+    name : str
+        Prefix of the sequence names.
+
+    Returns
+    -------
+    list of Sequence
+    """
+    alphabet = _alphabet_of(clip.source)
+    T = len(clip.points)
+    segs = phonemes.normalize(clip.phones, alphabet)
+    labels = phonemes.frame_labels(segs, T, clip.fps)
+    cuts = _cut_points(segs, clip.fps, T, min_pause)
+    out = []
+    for i, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+        sa, sb = int(round(a / clip.fps * clip.rate)), int(round(b / clip.fps * clip.rate))
+        out.append(Sequence(f"{name}_{i:02d}" if len(cuts) > 2 else name, clip.points[a:b],
+                            float(clip.fps), labels[a:b], np.asarray(clip.samples[sa:sb], np.float32),
+                            int(clip.rate), clip.text if len(cuts) == 2 else "", {"source": clip.source}))
+    return out
+
+
+def synth_sequences(out_dir=None, train_seconds: float = 60.0, n_test: int = 3, seed: int = 0,
+                    progress: bool = True) -> list[Sequence]:
+    """The synthetic performer as sequences: its training clip cut into utterances, then the
+    held-out clips (espeak-ng sentences and CMU ARCTIC a0009).
+
+    Parameters
+    ----------
+    out_dir : str, optional
+        Corpus folder (default ``~/.cache/voicepuppet/evaluate-corpus``); cached.
+    train_seconds, n_test, seed
+        As in :func:`voicepuppet.synth.make_corpus`.
+
+    Returns
+    -------
+    list of Sequence
+    """
+    from . import synth
+    from .audio import samples
+
+    if out_dir is None:
+        out_dir = os.path.join(samples.cache_dir(), "evaluate-corpus")
+    corpus = synth.make_corpus(out_dir, train_seconds=train_seconds, n_test=n_test, seed=seed,
+                               progress=progress)
+    seqs = split_clip(corpus.train, name="train")
+    for i, clip in enumerate(corpus.test):
+        seqs += split_clip(clip, min_pause=1e9, name=f"test_{i:02d}")
+    return seqs
+
+
+def load_sequences(folder, alphabet: str = "arpabet") -> list[Sequence]:
+    """User data: one sequence per ``NAME.npz`` in ``folder`` (sorted by name).
+
+    Each ``NAME.npz`` holds ``points`` [T, P, 2] and ``fps``; beside it ``NAME.TextGrid`` or
+    ``NAME.lab`` (HTS) gives the phones, and ``NAME.wav`` (optional) the audio.
+
+    Raises
+    ------
+    ValueError
+        No sequences, missing labels, labels that do not cover the frames, unknown phones.
+    """
+    import soundfile
+
+    folder = os.fspath(folder)
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"data folder {folder!r} does not exist")
+    names = sorted(f[:-4] for f in os.listdir(folder) if f.endswith(".npz"))
+    if not names:
+        raise ValueError(f"{folder!r} holds no NAME.npz landmark files")
+    out = []
+    for n in names:
+        stem = os.path.join(folder, n)
+        with np.load(stem + ".npz") as z:
+            if "points" not in z or "fps" not in z:
+                raise ValueError(f"{stem}.npz must hold 'points' [T, P, 2] and 'fps'")
+            pts = np.asarray(z["points"], np.float64)
+            fps = float(z["fps"])
+        if pts.ndim != 3 or pts.shape[2] != 2 or len(pts) < 2:
+            raise ValueError(f"{stem}.npz: points must have shape (T >= 2, P, 2), got {pts.shape}")
+        if os.path.exists(stem + ".TextGrid"):
+            segs = phonemes.read_textgrid(stem + ".TextGrid", alphabet=alphabet)
+        elif os.path.exists(stem + ".lab"):
+            segs = phonemes.read_hts(stem + ".lab", alphabet=alphabet)
+        else:
+            raise ValueError(f"{stem}: no phone labels; give {n}.TextGrid or {n}.lab (HTS), e.g. from "
+                             f"voicepuppet.phonemes.align")
+        try:
+            labels = phonemes.frame_labels(segs, len(pts), fps)
+        except ValueError as exc:
+            raise ValueError(f"{stem}: {exc}") from None
+        x, rate = None, 16000
+        if os.path.exists(stem + ".wav"):
+            x, rate = soundfile.read(stem + ".wav", dtype="float32", always_2d=True)
+            x = x.mean(axis=1)
+        out.append(Sequence(n, pts, fps, labels, x, int(rate)))
+    fps0 = out[0].fps
+    for s in out:
+        if abs(s.fps - fps0) > 1e-6:
+            raise ValueError(f"all sequences must share one frame rate; {s.name} has {s.fps}, "
+                             f"{out[0].name} has {fps0}")
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# cross-validation
+
+
+def _fold_metrics(preds, truths, face_space, loglik: float | None) -> dict:
+    from . import metrics
+
+    Yp = np.concatenate(preds)
+    Yt = np.concatenate(truths)
+    Pp = face_space.decode(Yp)
+    Pt = face_space.decode(Yt)
+    out = {"l1": metrics.l1(Yp, Yt), "rms": metrics.rms(Yp, Yt), "linf": metrics.linf(Yp, Yt),
+           "err": metrics.err(Yp, Yt), "frames": int(len(Yt))}
+    if Pt.shape[1] == 68:
+        out["lve"] = metrics.lip_vertex_error(Pp, Pt)
+        out["rmse_iod"] = metrics.landmark_rmse_iod(Pp, Pt)
+    if loglik is not None:
+        out["loglik"] = loglik / len(Yt)
+    return out
+
+
+def _puppet_predictions(train, test, face_space, *, n_states, seed, tmpdir):
+    """Train the voice puppet on the training sequences' landmarks and audio; animate the test
+    audio; return face coordinates in ``face_space``, cut or padded (last frame) to each length."""
+    import soundfile
+
+    from .puppet import Puppet
+
+    def wav(s):
+        if s.samples is None:
+            raise ValueError(f"sequence {s.name} has no audio; the voice puppet needs it (give "
+                             f"NAME.wav, or evaluate without the puppet: --no-puppet)")
+        path = os.path.join(tmpdir, f"{s.name}.wav")
+        if not os.path.exists(path):
+            soundfile.write(path, s.samples, s.rate, subtype="PCM_16")
+        return path
+
+    puppet = Puppet.train([s.points for s in train], [wav(s) for s in train], fps=train[0].fps,
+                          n_states=n_states, seed=seed, progress=False)
+    out = []
+    for s in test:
+        pts = puppet.animate(wav(s), fps=s.fps).animation.points
+        if len(pts) < len(s.points):
+            pts = np.concatenate([pts, np.repeat(pts[-1:], len(s.points) - len(pts), axis=0)])
+        Y, _ = face_space.encode(pts[:len(s.points)])
+        out.append(Y)
+    return out
+
+
+def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
+                   puppet: bool = True, n_components=0.98, n_states: int = 40,
+                   progress: bool = True) -> dict:
+    """k-fold cross-validation by sequence of the voice puppet and the phoneme peers.
+
+    Parameters
+    ----------
+    sequences : list of Sequence
+    k : int
+        Folds (2..len(sequences)).
+    seed : int
+        Seeds the folds and every model.
+    peers : bool
+        Evaluate the four phoneme models.
+    puppet : bool
+        Evaluate the voice puppet (needs audio).
+    n_components : int or float
+        Face-space size per fold (``FaceSpace.fit``): an int, or the fraction of variance kept.
+    n_states : int
+        Voice puppet states.
+
+    Returns
+    -------
+    dict
+        ``{"models": {name: {measure: {"mean", "low", "high", "folds": [...]}}}, "config": ...}``.
+    """
+    import tempfile
+
+    from tqdm.auto import tqdm
+
+    from . import dpds
+    from .crossval import kfold, mean_ci
+    from .face import FaceSpace
+
+    seqs = list(sequences)
+    if not peers and not puppet:
+        raise ValueError("nothing to evaluate: enable the puppet or the peers (--peers)")
+    folds = kfold(len(seqs), k, seed)
+    names = (["voice-puppet"] if puppet else []) + (list(dpds.MODELS) if peers else [])
+    per_fold: dict = {n: [] for n in names}
+    bar = tqdm(total=len(folds) * len(names), desc="cross-validation", unit="model",
+               disable=not progress)
+    with tempfile.TemporaryDirectory(prefix="vp-evaluate-") as tmpdir:
+        for fi, (tr_idx, te_idx) in enumerate(folds):
+            train = [seqs[i] for i in tr_idx]
+            test = [seqs[i] for i in te_idx]
+            fs = FaceSpace.fit([s.points for s in train], n_components=n_components)
+            Ytr = [fs.encode(s.points)[0] for s in train]
+            Yte = [fs.encode(s.points)[0] for s in test]
+            for name in names:
+                bar.set_postfix(fold=fi + 1, model=name)
+                if name == "voice-puppet":
+                    preds = _puppet_predictions(train, test, fs, n_states=n_states, seed=seed,
+                                                tmpdir=tmpdir)
+                    ll = None
+                else:
+                    model = dpds.MODELS[name]().fit(Ytr, [s.labels for s in train])
+                    preds = [model.generate(s.labels) for s in test]
+                    ll = model.log_likelihood(Yte, [s.labels for s in test])
+                per_fold[name].append(_fold_metrics(preds, Yte, fs, ll))
+                bar.update()
+    bar.close()
+    result = {"models": {}, "config": {
+        "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
+        "fps": float(seqs[0].fps), "n_components": n_components, "n_states": int(n_states),
+        "folds": [[seqs[i].name for i in te] for _, te in folds]}}
+    for name, rows in per_fold.items():
+        entry = {}
+        for m in METRICS:
+            vals = [r[m] for r in rows if m in r]
+            if len(vals) == len(rows):
+                mean, lo, hi = mean_ci(vals)
+                entry[m] = {"mean": mean, "low": lo, "high": hi, "folds": vals}
+        entry["frames"] = [r["frames"] for r in rows]
+        result["models"][name] = entry
+    return result
+
+
+def format_table(result: dict) -> str:
+    """Markdown table: one row per model, ``mean ± half-width`` of the 95% interval per measure."""
+    cols = [m for m in METRICS if any(m in e for e in result["models"].values())]
+    head = "| model | " + " | ".join(METRICS[m][0] for m in cols) + " |"
+    sep = "|---|" + "---:|" * len(cols)
+    lines = [head, sep]
+    for name, e in result["models"].items():
+        cells = []
+        for m in cols:
+            if m in e:
+                v = e[m]
+                cells.append(f"{v['mean']:.4g} ± {0.5 * (v['high'] - v['low']):.2g}")
+            else:
+                cells.append("—")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    c = result["config"]
+    lines.append("")
+    lines.append(f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} "
+                 f"frames at {c['fps']:.4g} fps, seed {c['seed']}); mean over folds ± half-width of the "
+                 f"95% confidence interval (Student's t). Face coordinates: FaceSpace per fold "
+                 f"(n_components={c['n_components']}). Log-likelihoods are per frame of the test data under "
+                 f"each model (brand-phoneme's is of [y, Δy], 2K dims, not comparable; the puppet's "
+                 f"face model is not conditioned on phones: —).")
+    return "\n".join(lines) + "\n"
+
+
+def write_results(result: dict, md_path=None, json_path=None, command: str = "") -> None:
+    """Write the table (markdown) and the full result (JSON), each atomically."""
+    from .animation import atomic_path
+
+    if md_path:
+        with atomic_path(md_path, (".md",), "results table") as tmp:
+            text = format_table(result)
+            if command:
+                text = f"```\n{command}\n```\n\n" + text
+            tmp.write_text(text, encoding="utf-8")
+    if json_path:
+        with atomic_path(json_path, (".json",), "results JSON") as tmp:
+            payload = dict(result, command=command)
+            tmp.write_text(json.dumps(payload, indent=1) + "\n", encoding="utf-8")
+
+
+# --------------------------------------------------------------------------------------------
+# command line
+
+
+def _command(args) -> str:
+    """The command line that reproduces this run (from the parsed options)."""
+    import shlex
+
+    parts = ["voicepuppet", "evaluate"]
+    opts = [("--data", args.data), ("--corpus-dir", args.corpus_dir)]
+    if not args.data:
+        opts += [("--train-seconds", f"{args.train_seconds:g}"), ("--n-test", str(args.n_test))]
+    else:
+        opts += [("--alphabet", args.alphabet)]
+    opts += [("--folds", str(args.folds)), ("--seed", str(args.seed)), ("--states", str(args.states)),
+             ("--components", args.components), ("-o", args.out), ("--json", args.json)]
+    for flag, val in opts:
+        if val is not None:
+            parts += [flag, shlex.quote(str(val))]
+    parts += [f for f, on in (("--peers", args.peers), ("--no-puppet", args.no_puppet)) if on]
+    return " ".join(parts)
+
+
+def _run(args) -> int:
+
+    if args.data:
+        seqs = load_sequences(args.data, alphabet=args.alphabet)
+    else:
+        seqs = synth_sequences(args.corpus_dir, train_seconds=args.train_seconds, n_test=args.n_test,
+                               seed=args.seed, progress=not args.quiet)
+    try:
+        n_comp = float(args.components) if "." in args.components else int(args.components)
+    except ValueError:
+        raise ValueError(f"--components must be an integer or a fraction such as 0.98, got "
+                         f"{args.components!r}") from None
+    result = cross_validate(seqs, k=args.folds, seed=args.seed, peers=args.peers,
+                            puppet=not args.no_puppet, n_components=n_comp, n_states=args.states,
+                            progress=not args.quiet)
+    command = _command(args)
+    print(format_table(result), end="")
+    write_results(result, args.out, args.json, command)
+    for p in (args.out, args.json):
+        if p:
+            print(f"wrote {p}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("evaluate", help="cross-validate the voice puppet and its phoneme peers",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--data", metavar="DIR", help="user data: NAME.npz + NAME.wav + NAME.TextGrid|.lab "
+                   "per sequence (default: the synthetic performer)")
+    p.add_argument("--alphabet", choices=["arpabet", "espeak"], default="arpabet",
+                   help="phone alphabet of the label files (default arpabet)")
+    p.add_argument("--corpus-dir", metavar="DIR", help="where the synthetic performer is built/cached")
+    p.add_argument("--train-seconds", type=float, default=60.0, help="performer training speech (s)")
+    p.add_argument("--n-test", type=int, default=3, help="performer held-out espeak-ng sentences")
+    p.add_argument("--folds", type=int, default=10, help="k of k-fold cross-validation (default 10)")
+    p.add_argument("--seed", type=int, default=0, help="seeds the corpus, the folds and the models")
+    p.add_argument("--peers", action="store_true", help="also evaluate the four phoneme-driven models")
+    p.add_argument("--no-puppet", action="store_true", help="skip the voice puppet")
+    p.add_argument("--states", type=int, default=40, help="voice puppet states (default 40)")
+    p.add_argument("--components", default="0.98",
+                   help="face-space size: an integer, or a variance fraction such as 0.98 (default)")
+    p.add_argument("-o", "--out", metavar="FILE.md", help="write the table (markdown)")
+    p.add_argument("--json", metavar="FILE.json", help="write the full results (JSON)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_run)
