@@ -28,6 +28,7 @@ SUITES = {
     "synth": "voicepuppet.bench.synth",
     "pipeline": "voicepuppet.bench.pipeline",
     "live": "voicepuppet.bench.live",
+    "dpds": "voicepuppet.bench.dpds",
 }
 
 

@@ -1,0 +1,149 @@
+"""Benchmark suite ``dpds``: the phoneme-driven DPDS (Englebienne et al. 2007) against numpy
+references of the same algorithms, beside the voice puppet's closed-form synthesis.
+
+Cases (K = 16 face dimensions, 41 phones, phones dwelling 2-12 frames at 29.97 fps):
+
+- ``generate_hour``: DPDS generation for one hour of labels (107,892 frames), C++ recursion vs a
+  numpy loop over frames; ``realtime_factor`` = seconds of video per second of compute.
+- ``stream_hour``: the same hour pushed one frame at a time through :class:`voicepuppet.dpds.DPDSStream`
+  (Python call per frame included): ``frame_ms_p50`` / ``frame_ms_p99``.
+- ``trajectory_hour``: beside it, the puppet's synthesis kernel on the same hour (Brand's
+  closed-form trajectory with one full-covariance Gaussian per phone, block Cholesky), no peer.
+- ``gradient_10min``: one training evaluation on 10 minutes of labelled frames (17,982 frames, 20
+  sequences): the exact mu/nu/r solve plus the gradient in a, C++ (adjoint recursion) vs the
+  forward chain rule of the paper's appendix A in numpy (gradient only); ``agree`` compares the
+  gradients.
+- ``train_10min``: :meth:`voicepuppet.dpds.DPDS.fit` on the same 10 minutes (L-BFGS-B, 100
+  iterations at most), no peer.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from voicepuppet import _core
+from voicepuppet.bench import case, rel_diff, timeit_interleaved
+
+FPS = 29.97
+K = 16
+SEED = 2007
+
+
+def _labels(rng, T):
+    from voicepuppet.phonemes import N_PHONES
+
+    dwell = rng.integers(2, 13, size=T)
+    seq = np.repeat(rng.integers(0, N_PHONES, size=T), dwell)[:T]
+    return np.ascontiguousarray(seq, dtype=np.int64)
+
+
+def _params(rng):
+    from voicepuppet.phonemes import N_PHONES
+
+    a = rng.uniform(0.5, 0.95, size=(N_PHONES, K))
+    mu = rng.normal(size=(N_PHONES, K))
+    nu = rng.normal(size=(N_PHONES, K)) * (1 - a)
+    return a, mu, nu
+
+
+def _numpy_generate(a, mu, nu, lab):
+    x = np.empty((len(lab), a.shape[1]))
+    x[0] = mu[lab[0]]
+    for t in range(1, len(lab)):
+        x[t] = a[lab[t]] * x[t - 1] + nu[lab[t]]
+    return x
+
+
+def _numpy_gradient(a, mu, nu, r, Y, off, lab):
+    """Appendix A: forward chain rule dx_t/da = delta(s_t) x_{t-1} + a_{s_t} dx_{t-1}/da."""
+    grad = np.zeros_like(a)
+    for b, e in zip(off[:-1], off[1:]):
+        x = mu[lab[b]].copy()
+        dx = np.zeros_like(a)
+        for t in range(b + 1, e):
+            p = lab[t]
+            dx *= a[p]
+            dx[p] += x
+            x = a[p] * x + nu[p]
+            grad += dx * ((Y[t] - x) / r)
+    return grad
+
+
+def run(quick: bool = False, repeats: int = 3) -> list[dict]:
+    from voicepuppet.dpds import DPDS
+    from voicepuppet.phonemes import N_PHONES
+    from voicepuppet.trajectory import make_model
+
+    rng = np.random.default_rng(SEED)
+    cases = []
+    hour = int(round((60 if quick else 3600) * FPS))
+    lab = _labels(rng, hour)
+    a, mu, nu = _params(rng)
+    empty = np.zeros(0, np.int64)
+    t, res = timeit_interleaved({"ours": lambda: _core.dpds_generate(a, mu, nu, lab, empty),
+                                 "peer": lambda: _numpy_generate(a, mu, nu, lab)}, repeats)
+    cases.append(case("generate_hour", f"T={hour}, K={K}, P={N_PHONES}", t["ours"], "numpy loop",
+                      t["peer"], rel_diff(res["ours"], res["peer"]),
+                      realtime_factor=hour / FPS / t["ours"]))
+
+    # streaming: one frame per call
+    m = DPDS()
+    m.n_dims_, m.a_, m.mu_, m.nu_ = K, a, mu, nu
+    st = m.stream()
+    n_stream = min(hour, 20000 if not quick else 2000)
+    per = np.empty(n_stream)
+    out = np.empty((n_stream, K))
+    for i in range(n_stream):
+        t0 = time.perf_counter()
+        out[i] = st.push(lab[i:i + 1])[0]
+        per[i] = time.perf_counter() - t0
+    cases.append(case("stream_hour", f"{n_stream} frames pushed one at a time, K={K}", float(per.sum()),
+                      None, None, rel_diff(out, res["ours"][:n_stream]),
+                      frame_ms_p50=1000 * float(np.percentile(per, 50)),
+                      frame_ms_p99=1000 * float(np.percentile(per, 99)),
+                      realtime_factor=n_stream / FPS / float(per.sum())))
+
+    # the puppet's synthesis kernel on the same hour, for scale
+    covars = np.empty((N_PHONES, 2 * K, 2 * K))
+    for p in range(N_PHONES):
+        g = rng.normal(size=(2 * K, 2 * K))
+        covars[p] = g @ g.T / (2 * K) + 0.3 * np.eye(2 * K)
+    model = make_model(mu, 0.02 * rng.normal(size=(N_PHONES, K)), covars)
+    t, _ = timeit_interleaved({"ours": lambda: _core.solve_trajectory(model, lab)}, max(1, repeats - 1))
+    cases.append(case("trajectory_hour", f"T={hour}, D={K}, full covariance", t["ours"], None, None, None,
+                      realtime_factor=hour / FPS / t["ours"]))
+
+    # training on 10 minutes of labelled frames
+    n_seq = 20
+    T_seq = int(round((30 if quick else 600) * FPS / n_seq))
+    ys, ls = [], []
+    for _ in range(n_seq):
+        lb = _labels(rng, T_seq)
+        ys.append(_numpy_generate(a, mu, nu, lb) + 0.1 * rng.normal(size=(T_seq, K)))
+        ls.append(lb)
+    Y = np.ascontiguousarray(np.concatenate(ys))
+    L = np.concatenate(ls)
+    off = np.arange(n_seq + 1, dtype=np.int64) * T_seq
+    a0 = np.full_like(a, 0.7)
+    floor = np.full(K, 1e-6)
+
+    def ours():
+        s = _core.dpds_solve(a0, Y, off, L, floor)
+        return _core.dpds_gradient(a0, s["mu"], s["nu"], s["r"], Y, off, L)["grad_a"], s
+
+    _, sol = ours()
+    t, res = timeit_interleaved({"ours": lambda: ours()[0],
+                                 "peer": lambda: _numpy_gradient(a0, sol["mu"], sol["nu"], sol["r"], Y, off, L)},
+                                repeats)
+    cases.append(case("gradient_10min", f"N={len(Y)} frames in {n_seq} sequences, K={K}", t["ours"],
+                      "numpy forward chain rule (gradient only)", t["peer"], rel_diff(res["ours"], res["peer"])))
+    t0 = time.perf_counter()
+    fitted = DPDS(max_iter=100).fit(ys, ls)
+    t_fit = time.perf_counter() - t0
+    cases.append(case("train_10min", f"N={len(Y)} frames, K={K}, L-BFGS-B <= 100 iterations", t_fit, None,
+                      None, None, iterations=len(fitted.history_) - 1,
+                      ll_per_frame=fitted.history_[-1] / len(Y),
+                      a_error=float(np.max(np.abs(fitted.a_[np.unique(L)] - a[np.unique(L)])))))
+    return cases
