@@ -155,50 +155,70 @@ DpdsSolve dpds_solve(const MatrixRef& a, const MatrixRef& Y, const IndexVectorRe
   const Index S = check_sequences(N, offsets, labels, P);
 
   // Normal equations per dimension: G_j θ_j = b_j, θ = [μ_0..μ_{P−1}, ν_0..ν_{P−1}] (column j).
+  // Within a sequence only the parameters of phones seen so far have non-zero coefficients: they
+  // get local indices 0..m−1 (in order of appearance), the coefficients live in Ct (#D by m, one
+  // contiguous row per dimension) and the sequence's normal equations in local m×m blocks
+  // (rank-one updates), scattered into the global 2P×2P systems at the end of the sequence.
   std::vector<Eigen::MatrixXd> G(static_cast<size_t>(D), Eigen::MatrixXd::Zero(K, K));
   Eigen::MatrixXd B = Eigen::MatrixXd::Zero(K, D);
-  RowMatrixXd C(K, D);                  // coefficient rows of the active parameters
-  std::vector<Index> active;            // parameter index of each row of C
-  std::vector<Index> row_of(static_cast<size_t>(K), -1);
+  std::vector<Eigen::MatrixXd> Gloc(static_cast<size_t>(D), Eigen::MatrixXd::Zero(K, K));
+  RowMatrixXd Bloc = RowMatrixXd::Zero(D, K);
+  RowMatrixXd Ct = RowMatrixXd::Zero(D, K);
+  std::vector<Index> active;  // global parameter index of each local index
+  std::vector<Index> local_of(static_cast<size_t>(K), -1);
   active.reserve(static_cast<size_t>(K));
   Eigen::Matrix<Index, Eigen::Dynamic, 1> used = Eigen::Matrix<Index, Eigen::Dynamic, 1>::Zero(K);
 
+  auto activate = [&](Index param) {
+    Index loc = local_of[static_cast<size_t>(param)];
+    if (loc < 0) {
+      loc = static_cast<Index>(active.size());
+      active.push_back(param);
+      local_of[static_cast<size_t>(param)] = loc;
+      Ct.col(loc).setZero();
+    }
+    Ct.col(loc).array() += 1.0;
+    used[param] = 1;
+  };
   auto accumulate = [&](Index t) {
     const Index m = static_cast<Index>(active.size());
-    for (Index i = 0; i < m; ++i) {
-      const Index pi = active[static_cast<size_t>(i)];
-      for (Index j = 0; j < D; ++j) B(pi, j) += C(i, j) * Y(t, j);
-      for (Index k = i; k < m; ++k) {
-        const Index pk = active[static_cast<size_t>(k)];
-        const Index lo = std::min(pi, pk), hi = std::max(pi, pk);
-        for (Index j = 0; j < D; ++j) G[static_cast<size_t>(j)](lo, hi) += C(i, j) * C(k, j);
-      }
+    for (Index j = 0; j < D; ++j) {
+      const auto c = Ct.row(j).head(m);
+      Gloc[static_cast<size_t>(j)].topLeftCorner(m, m).selfadjointView<Eigen::Lower>().rankUpdate(
+          c.transpose());
+      Bloc.row(j).head(m) += Y(t, j) * c;
     }
-  };
-  auto activate = [&](Index param) {
-    Index row = row_of[static_cast<size_t>(param)];
-    if (row < 0) {
-      row = static_cast<Index>(active.size());
-      active.push_back(param);
-      row_of[static_cast<size_t>(param)] = row;
-      C.row(row).setZero();
-    }
-    C.row(row).array() += 1.0;
-    used[param] = 1;
   };
 
   for (Index s = 0; s < S; ++s) {
-    for (Index p : active) row_of[static_cast<size_t>(p)] = -1;
-    active.clear();
     const Index b = offsets[s], e = offsets[s + 1];
     activate(labels[b]);  // μ of the first phone
     accumulate(b);
     for (Index t = b + 1; t < e; ++t) {
       const Index m = static_cast<Index>(active.size());
-      for (Index i = 0; i < m; ++i) C.row(i) = C.row(i).cwiseProduct(a.row(labels[t]));
+      for (Index j = 0; j < D; ++j) Ct.row(j).head(m) *= a(labels[t], j);
       activate(P + labels[t]);  // ν of this frame's phone
       accumulate(t);
     }
+    const Index m = static_cast<Index>(active.size());
+    for (Index j = 0; j < D; ++j) {
+      Eigen::MatrixXd& Gl = Gloc[static_cast<size_t>(j)];
+      Eigen::MatrixXd& Gj = G[static_cast<size_t>(j)];
+      for (Index u = 0; u < m; ++u) {
+        const Index pu = active[static_cast<size_t>(u)];
+        B(pu, j) += Bloc(j, u);
+        for (Index v = 0; v < u; ++v) {
+          const Index pv = active[static_cast<size_t>(v)];
+          Gj(pu, pv) += Gl(u, v);
+          Gj(pv, pu) += Gl(u, v);
+        }
+        Gj(pu, pu) += Gl(u, u);
+      }
+      Gl.topLeftCorner(m, m).setZero();
+      Bloc.row(j).head(m).setZero();
+    }
+    for (Index p : active) local_of[static_cast<size_t>(p)] = -1;
+    active.clear();
   }
 
   std::vector<Index> idx;

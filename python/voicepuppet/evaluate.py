@@ -222,7 +222,11 @@ def _puppet_predictions(train, test, face_space, *, n_states, seed, tmpdir):
     audio; return face coordinates in ``face_space``, cut or padded (last frame) to each length."""
     import soundfile
 
-    from .puppet import Puppet
+    try:
+        from .puppet import Puppet
+    except ImportError as exc:
+        raise ValueError(f"the voice puppet is not available in this installation ({exc}); evaluate "
+                         f"the phoneme models alone with --peers --no-puppet") from None
 
     def wav(s):
         if s.samples is None:
