@@ -453,13 +453,11 @@ class DPDS(_Model):
         Y, lab, off = self._prepare(Y_list, labels_list)
         N, K = Y.shape
         shape = (N_PHONES, K)
-        cache: dict = {}
 
         def evaluate(flat):
             a = np.ascontiguousarray(flat.reshape(shape))
             s = _core.dpds_solve(a, Y, off, lab, self.floor_)
             g = _core.dpds_gradient(a, s["mu"], s["nu"], s["r"], Y, off, lab)
-            cache["last"] = (flat.copy(), s)
             return -s["log_likelihood"] / N, -g["grad_a"].ravel() / N
 
         x0 = np.full(N_PHONES * K, self.a_init)
@@ -467,10 +465,9 @@ class DPDS(_Model):
         self.history_ = [-f0 * N]
         bar = tqdm(total=self.max_iter, desc="DPDS L-BFGS", disable=not progress, leave=False)
 
-        def callback(xk, *args):
-            s = cache["last"][1] if np.array_equal(cache["last"][0], xk) else \
-                _core.dpds_solve(np.ascontiguousarray(xk.reshape(shape)), Y, off, lab, self.floor_)
-            self.history_.append(float(s["log_likelihood"]))
+        def callback(intermediate_result):
+            # scipy passes the accepted iterate with its objective: no extra solve
+            self.history_.append(float(-intermediate_result.fun * N))
             bar.update()
             bar.set_postfix(ll_per_frame=f"{self.history_[-1] / N:.4f}")
 
