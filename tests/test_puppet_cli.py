@@ -109,6 +109,22 @@ def test_bad_input_is_reported_and_writes_nothing(workdir, tmp_path, capsys):
     assert sorted(os.listdir(tmp_path)) == ["cut.vpp"]
 
 
+def test_palette_of_puppets(workdir, tmp_path, capsys):
+    import shutil
+
+    d = workdir
+    pal = tmp_path / "palette"
+    pal.mkdir()
+    shutil.copy(d / "p.vpp", pal / "tones.vpp")
+    assert main(["animate", "tones", str(d / "test.wav"), "--palette", str(pal), "-o", str(tmp_path / "a.npz"),
+                 "--quiet"]) == 0
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "ref.npz"), "--quiet"]) == 0
+    with np.load(tmp_path / "a.npz") as z, np.load(tmp_path / "ref.npz") as ref:
+        np.testing.assert_array_equal(z["points"], ref["points"])
+    assert main(["animate", "nobody", str(d / "test.wav"), "--palette", str(pal), "-o", str(tmp_path / "b.npz")]) == 2
+    assert "it holds: tones" in capsys.readouterr().err
+
+
 def test_command_line_entry_point(workdir):
     out = subprocess.run([sys.executable, "-m", "voicepuppet.cli", "animate", "--help"], capture_output=True,
                          text=True)

@@ -132,12 +132,26 @@ def load_states(path) -> tuple[np.ndarray, float]:
     return states.astype(np.int64), fps
 
 
+def palette_puppet(palette, name: str) -> Path:
+    """The puppet file called ``name`` (with or without ``.vpp``) in the folder ``palette``
+    (Brand §6: the animator picks a character's manner from a palette of puppets)."""
+    folder = Path(palette)
+    if not folder.is_dir():
+        raise ValueError(f"--palette {str(folder)!r} is not a folder of .vpp puppets")
+    available = sorted(p.stem for p in folder.glob("*.vpp"))
+    stem = name[:-4] if name.endswith(".vpp") else name
+    if stem not in available:
+        raise ValueError(f"no puppet {stem!r} in palette {str(folder)!r}; it holds: "
+                         f"{', '.join(available) if available else 'no .vpp files'}")
+    return folder / f"{stem}.vpp"
+
+
 def _animate(args) -> int:
     from voicepuppet.animation import check_output_path, exaggerate, save_animation
     from voicepuppet.puppet import load
 
     out = check_output_path(args.output, (".npz", ".csv"), "animation file")
-    puppet = load(args.puppet)
+    puppet = load(palette_puppet(args.palette, args.puppet) if args.palette else args.puppet)
     if args.states_in:
         states, sfps = load_states(args.states_in)
         result = puppet.animate(states=states, states_fps=sfps, fps=args.fps)
@@ -179,7 +193,8 @@ def add_parser(sub) -> None:
     a = sub.add_parser("animate", help="animate a puppet from audio",
                        description="Analyse the audio with the puppet's vocal HMM (Viterbi, or posteriors) "
                                    "and synthesise the most probable facial trajectory (§4.4-4.5).")
-    a.add_argument("puppet", help="puppet file (.vpp)")
+    a.add_argument("puppet", help="puppet file (.vpp), or a puppet's name with --palette")
+    a.add_argument("--palette", metavar="DIR", help="folder of puppets (NAME.vpp) to pick PUPPET from by name")
     a.add_argument("audio", nargs="?", help="audio file or video with sound")
     a.add_argument("-o", "--output", required=True, metavar="ANIM.npz", help="landmark animation (.npz or .csv)")
     a.add_argument("--fps", type=float, help="output frame rate (default: the puppet's)")
