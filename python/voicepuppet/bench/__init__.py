@@ -29,6 +29,7 @@ SUITES = {
     "pipeline": "voicepuppet.bench.pipeline",
     "live": "voicepuppet.bench.live",
     "dpds": "voicepuppet.bench.dpds",
+    "batch": "voicepuppet.bench.batch",
 }
 
 
