@@ -8,6 +8,9 @@ Cases (``ours`` = the batch engine, ``peer`` = the same work file by file in thi
   audio files (espeak-ng sentences) to npz; ``realtime_factor`` = audio seconds per wall second,
   which is also audio hours per wall hour.
 - ``track, W workers``: the spring-mesh tracker on ``F`` short planted-face videos (640x480).
+- ``train Baum-Welch, W workers``: seconds per EM iteration with the E-step on the cluster
+  (:class:`voicepuppet.distributed.DaskEStep`, data held on the workers) vs ``GaussianHMM.fit``
+  in this process; ``agree`` is the largest absolute difference of the trained parameters.
 - ``engine overhead``: a trivial task per file (read the input, return its bytes): the batch
   engine's cost per file (scheduling, checksums, manifest, atomic writes) against the same
   read-and-write-atomically loop without Dask; ``overhead_ms_per_file`` is the difference.
@@ -145,6 +148,36 @@ def _engine_overhead(work: Path, client, n_files: int, repeats: int) -> dict:
                 overhead_ms_per_file=1000 * (med["ours"] - med["peer"]) / n_files)
 
 
+def _training_case(client, quick: bool, repeats: int) -> dict:
+    """Baum-Welch with its E-steps on the cluster vs in this process (same data, same start)."""
+    from voicepuppet.distributed import DaskEStep
+    from voicepuppet.hmm import GaussianHMM
+
+    from .hmm import make_problem
+
+    n, d, T, S, n_iter = (10, 20, 4000, 8, 3) if quick else (40, 40, 18000, 24, 5)
+    _, X = make_problem(n, d, T, seed=4)
+    lengths = np.full(S, T // S)
+    lengths[-1] += T - lengths.sum()
+    kw = dict(n_states=n, covariance="full", n_iter=n_iter, tol=-np.inf, random_state=0)
+    with DaskEStep(client, X, lengths, "full", chunk_frames=int(np.ceil(T / 8))) as estep:
+        GaussianHMM(**{**kw, "n_iter": 1}).fit(X, lengths, estep=estep)  # warm-up
+
+        def ours():
+            return GaussianHMM(**kw).fit(X, lengths, estep=estep)
+
+        def peer():
+            return GaussianHMM(**kw).fit(X, lengths)
+
+        med, res = timeit_interleaved({"ours": ours, "peer": peer}, repeats)
+    agree = max(float(np.max(np.abs(getattr(res["ours"], a) - getattr(res["peer"], a))))
+                for a in ("startprob_", "transmat_", "means_", "covars_"))
+    w = len(client.scheduler_info()["workers"])
+    return case(f"train Baum-Welch, {w} workers", f"N={n}, D={d}, T={T} in {S} sequences, {n_iter} it",
+                med["ours"] / n_iter, "single process", med["peer"] / n_iter, agree,
+                chunks=len(estep.bounds), unit="s per iteration", agree_is="max abs parameter difference")
+
+
 def run(quick: bool = False, repeats: int = 3, animate: bool = True) -> list[dict]:
     """The suite; ``animate=False`` leaves out the animation cases (no puppet training)."""
     from voicepuppet import batch
@@ -214,6 +247,7 @@ def run(quick: bool = False, repeats: int = 3, animate: bool = True) -> list[dic
                                      realtime_factor=audio_seconds / med["ours"],
                                      audio_hours_per_wall_hour=audio_seconds / med["ours"],
                                      peer_realtime_factor=audio_seconds / med["peer"], cluster_start_s=start_s))
+                rows.append(_training_case(client, quick, repeats))
                 if n_workers == 1:
                     rows.append(_engine_overhead(work, client, 40 if quick else 200, repeats))
             finally:
