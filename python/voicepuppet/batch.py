@@ -218,7 +218,7 @@ def output_names(rel: Path, tags: dict[str, str]) -> dict[str, str]:
 
 
 def run_batch(verb: str, jobs: list[tuple[str, Path, tuple]], task: Callable, out_dir,
-              settings: dict, client, *, progress: bool = True) -> BatchSummary:
+              settings: dict, client, *, progress: bool = True, clashes: dict | None = None) -> BatchSummary:
     """Runs ``task(input_path, *args)`` for each job on the cluster and writes its outputs.
 
     Parameters
@@ -235,6 +235,8 @@ def run_batch(verb: str, jobs: list[tuple[str, Path, tuple]], task: Callable, ou
         Everything besides the input that determines the outputs (JSON-able); part of the
         resumability check.
     client : distributed.Client
+    clashes : dict, optional
+        Relative input name -> reason, for inputs not to run (reported as failed).
 
     Returns
     -------
@@ -257,6 +259,9 @@ def run_batch(verb: str, jobs: list[tuple[str, Path, tuple]], task: Callable, ou
     results: dict[str, FileResult] = {}
     pending = []
     for rel, path, args in jobs:
+        if clashes and rel in clashes:
+            results[rel] = FileResult(rel, "failed", error=clashes[rel])
+            continue
         try:
             digest = sha256_file(path)
         except OSError as exc:
@@ -266,7 +271,7 @@ def run_batch(verb: str, jobs: list[tuple[str, Path, tuple]], task: Callable, ou
             results[rel] = FileResult(rel, "skipped", sorted(manifest.entries[rel]["outputs"]))
             continue
         pending.append((rel, path, args, digest))
-    workers = len(client.scheduler_info().get("workers", {}))
+    workers = len(client.nthreads())
     futures = {}
     for rel, path, args, digest in pending:
         fut = client.submit(task, str(path), *args, pure=False)
@@ -320,6 +325,21 @@ def _store(rel: str, digest: str, value: dict, out_dir: Path, manifest: Manifest
     return FileResult(rel, "done", sorted(checks), media_seconds=float(value.get("media_seconds", 0.0)))
 
 
+def _clashes(inputs: list[Path], root: Path) -> dict[str, str]:
+    """Inputs whose outputs would overwrite an earlier input's (same path but the suffix)."""
+    first: dict[str, str] = {}
+    out = {}
+    for p in inputs:
+        rel = p.relative_to(root).as_posix()
+        stem = Path(rel).with_suffix("").as_posix()
+        if stem in first:
+            out[rel] = (f"its outputs would overwrite those of {first[stem]} (same name, another suffix); "
+                        "rename one of them")
+        else:
+            first[stem] = rel
+    return out
+
+
 def _collect(folder: Path) -> dict[str, bytes]:
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
@@ -356,6 +376,18 @@ def _format_tags(formats) -> dict[str, str]:
     return tags
 
 
+def _animate_export(puppet, audio_path, out_stem, formats, fps, posterior) -> tuple[list[Path], float]:
+    from voicepuppet.export import export
+
+    anim = puppet.animate(str(audio_path), fps=fps, posterior=posterior).animation
+    written = []
+    for fmt, tag in _format_tags(formats).items():
+        p = Path(str(out_stem) + tag)
+        export(anim, p, fmt, sound_file=Path(audio_path).name)
+        written.append(p)
+    return written, anim.duration
+
+
 def animate_file(puppet, audio_path, out_stem, formats, *, fps=None, posterior=False) -> list[Path]:
     """Animates one audio file and exports it: the one-by-one reference of ``batch animate``.
 
@@ -373,31 +405,15 @@ def animate_file(puppet, audio_path, out_stem, formats, *, fps=None, posterior=F
     list of Path
         The files written.
     """
-    from voicepuppet.export import export
-
-    anim = puppet.animate(str(audio_path), fps=fps, posterior=posterior).animation
-    written = []
-    for fmt, tag in _format_tags(formats).items():
-        p = Path(str(out_stem) + tag)
-        export(anim, p, fmt, sound_file=Path(audio_path).name)
-        written.append(p)
-    return written
+    return _animate_export(puppet, audio_path, out_stem, formats, fps, posterior)[0]
 
 
 def _animate_task(audio_path: str, puppet_path: str, puppet_digest: str, out_stem: str, formats: list,
                   fps, posterior: bool) -> dict:
     puppet = _load_puppet(puppet_path, puppet_digest)
     with tempfile.TemporaryDirectory(prefix="voicepuppet-batch-") as d:
-        stage = Path(d) / Path(out_stem).name
-        stage.parent.mkdir(parents=True, exist_ok=True)
-        animate_file(puppet, audio_path, stage, formats, fps=fps, posterior=posterior)
+        _, duration = _animate_export(puppet, audio_path, Path(d) / Path(out_stem).name, formats, fps, posterior)
         files = _collect(Path(d))
-        from voicepuppet.animation import load_animation  # duration from what was written
-
-        duration = 0.0
-        npz = [n for n in files if n.endswith(".npz")]
-        if npz:
-            duration = load_animation(Path(d) / npz[0]).duration
     parent = Path(out_stem).parent.as_posix()
     prefix = "" if parent in ("", ".") else parent + "/"
     return {"files": {prefix + k: v for k, v in files.items()}, "media_seconds": duration}
@@ -447,10 +463,12 @@ def animate_folder(puppet_path, audio_dir, out_dir, formats=("npz",), *, fps=Non
         rel = p.relative_to(root)
         jobs.append((rel.as_posix(), p, (str(puppet_path.resolve()), puppet_digest,
                                          rel.with_suffix("").as_posix(), formats, fps, bool(posterior))))
+    clashes = _clashes(inputs, root)
     if client is not None:
-        return run_batch("animate", jobs, _animate_task, out_dir, settings, client, progress=progress)
+        return run_batch("animate", jobs, _animate_task, out_dir, settings, client, progress=progress,
+                         clashes=clashes)
     with connect(scheduler, workers, timeout=timeout) as c:
-        return run_batch("animate", jobs, _animate_task, out_dir, settings, c, progress=progress)
+        return run_batch("animate", jobs, _animate_task, out_dir, settings, c, progress=progress, clashes=clashes)
 
 
 # ----------------------------------------------------------------------------- track
@@ -510,14 +528,17 @@ def track_folder(video_dir, out_dir, *, init="auto", passes: int = 2, client=Non
     else:
         settings["init"] = "auto"
     root = Path(video_dir)
+    inputs = discover(video_dir, VIDEO_SUFFIXES, exclude=out_dir)
     jobs = []
-    for p in discover(video_dir, VIDEO_SUFFIXES, exclude=out_dir):
+    for p in inputs:
         rel = p.relative_to(root)
         jobs.append((rel.as_posix(), p, (rel.with_suffix("").as_posix(), init, int(passes), dict(options))))
+    clashes = _clashes(inputs, root)
     if client is not None:
-        return run_batch("track", jobs, _track_task, out_dir, settings, client, progress=progress)
+        return run_batch("track", jobs, _track_task, out_dir, settings, client, progress=progress,
+                         clashes=clashes)
     with connect(scheduler, workers, timeout=timeout) as c:
-        return run_batch("track", jobs, _track_task, out_dir, settings, c, progress=progress)
+        return run_batch("track", jobs, _track_task, out_dir, settings, c, progress=progress, clashes=clashes)
 
 
 # ----------------------------------------------------------------------------- CLI

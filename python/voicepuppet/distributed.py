@@ -107,11 +107,11 @@ def connect(scheduler: str | None = None, workers: int | None = None, *, timeout
             try:
                 client.wait_for_workers(int(workers), timeout=timeout)
             except (OSError, TimeoutError):
-                have = len(client.scheduler_info().get("workers", {}))
+                have = len(client.nthreads())
                 raise ValueError(f"the scheduler at {address} has {have} workers, fewer than the "
                                  f"{int(workers)} asked for, after {timeout:g} s; start more with "
                                  "`dask worker ADDRESS` or ask for fewer") from None
-        elif not client.scheduler_info().get("workers"):
+        elif not client.nthreads():
             try:
                 client.wait_for_workers(1, timeout=timeout)
             except (OSError, TimeoutError):

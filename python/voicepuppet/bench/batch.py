@@ -77,7 +77,7 @@ def _make_puppet(work: Path, quick: bool):
     corpus = synth.make_corpus(work / "corpus", train_seconds=20 if quick else 60, n_test=0, seed=0,
                                real_test=False, progress=False)
     clip = corpus.train
-    puppet = Puppet.train([clip.points], [clip.wav], fps=clip.fps, n_states=12 if quick else 40, seed=0)
+    puppet = Puppet.train([clip.points], [clip.audio], fps=clip.fps, n_states=12 if quick else 40, seed=0)
     path = work / "puppet.vpp"
     puppet.save(path)
     return path
@@ -143,7 +143,7 @@ def _engine_overhead(work: Path, client, n_files: int, repeats: int) -> dict:
 
     med, res = timeit_interleaved({"ours": ours, "peer": peer}, repeats)
     assert res["ours"].count("done") == n_files
-    return case("engine overhead", f"{n_files} trivial files, {len(client.scheduler_info()['workers'])} worker",
+    return case("engine overhead", f"{n_files} trivial files, {len(client.nthreads())} worker",
                 med["ours"] / n_files, "same loop without Dask", med["peer"] / n_files, None,
                 overhead_ms_per_file=1000 * (med["ours"] - med["peer"]) / n_files)
 
@@ -172,7 +172,7 @@ def _training_case(client, quick: bool, repeats: int) -> dict:
         med, res = timeit_interleaved({"ours": ours, "peer": peer}, repeats)
     agree = max(float(np.max(np.abs(getattr(res["ours"], a) - getattr(res["peer"], a))))
                 for a in ("startprob_", "transmat_", "means_", "covars_"))
-    w = len(client.scheduler_info()["workers"])
+    w = len(client.nthreads())
     return case(f"train Baum-Welch, {w} workers", f"N={n}, D={d}, T={T} in {S} sequences, {n_iter} it",
                 med["ours"] / n_iter, "single process", med["peer"] / n_iter, agree,
                 chunks=len(estep.bounds), unit="s per iteration", agree_is="max abs parameter difference")
