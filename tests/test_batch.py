@@ -301,3 +301,79 @@ def test_real_cluster_with_a_worker_killed_mid_run(tmp_path):
                 p.wait(timeout=30)
         log.close()
 
+
+
+# ----------------------------------------------------------------------------- batch animate
+
+FORMATS = ["npz", "csv", "arkit", "rhubarb"]
+
+
+@pytest.fixture(scope="module")
+def puppet_and_audio(tmp_path_factory):
+    """A small puppet trained on the synthetic performer, three spoken lines (one in a
+    sub-folder) and a file that is not audio."""
+    import soundfile as sf
+
+    from voicepuppet import synth
+    from voicepuppet.puppet import Puppet
+
+    if not synth.espeak_available():
+        pytest.fail("the batch animate tests need espeak-ng (apt-get install espeak-ng; .ci/setup installs it)")
+    work = tmp_path_factory.mktemp("puppet")
+    corpus = synth.make_corpus(work / "corpus", train_seconds=10, n_test=0, seed=0, real_test=False,
+                               progress=False)
+    clip = corpus.train
+    puppet = Puppet.train([clip.points], [clip.audio], fps=clip.fps, n_states=8, n_iter=10, seed=0)
+    puppet_path = work / "performer.vpp"
+    puppet.save(puppet_path)
+    audio = tmp_path_factory.mktemp("lines")
+    for rel, text in (("one.wav", "Peter bought a map of the bay."),
+                      ("two.wav", "We will meet at noon under the old oak tree."),
+                      ("scene2/three.flac", "Nobody knew why the violin played by itself.")):
+        utt = synth.speak(text)
+        (audio / rel).parent.mkdir(parents=True, exist_ok=True)
+        sf.write(audio / rel, utt.samples, utt.rate)
+    (audio / "noise.wav").write_bytes(b"RIFF\x00\x00\x00\x00WAVEjunk" * 4)
+    return puppet_path, audio
+
+
+def test_animate_folder_equals_one_by_one(client, puppet_and_audio, tmp_path):
+    from voicepuppet.puppet import load
+
+    puppet_path, audio = puppet_and_audio
+    out = tmp_path / "out"
+    s = batch.animate_folder(puppet_path, audio, out, FORMATS, client=client, progress=False)
+    assert {f.input: f.status for f in s.files} == {"noise.wav": "failed", "one.wav": "done",
+                                                    "scene2/three.flac": "done", "two.wav": "done"}
+    assert "noise.wav" in s.failed[0].input and s.failed[0].error
+    ref = tmp_path / "ref"
+    puppet = load(puppet_path)
+    for rel in ("one.wav", "two.wav", "scene2/three.flac"):
+        stem = ref / Path(rel).with_suffix("")
+        stem.parent.mkdir(parents=True, exist_ok=True)
+        written = batch.animate_file(puppet, audio / rel, stem, FORMATS)
+        assert [p.name for p in written] == [stem.name + t for t in (".npz", ".csv", "_arkit.csv", "_cues.json")]
+        for p in written:
+            assert_same_file(out / p.relative_to(ref), p)
+    done = [f for f in s.files if f.status == "done"]
+    assert all(f.media_seconds > 1.0 for f in done)
+    again = batch.animate_folder(puppet_path, audio, out, FORMATS, client=client, progress=False)
+    assert (again.count("skipped"), again.count("done"), again.count("failed")) == (3, 0, 1)
+    fewer = batch.animate_folder(puppet_path, audio, out, ["npz"], client=client, progress=False)
+    assert fewer.count("done") == 3  # other settings: redone
+
+
+def test_cli_batch_animate(puppet_and_audio, tmp_path, capsys):
+    from voicepuppet.cli import main
+
+    puppet_path, audio = puppet_and_audio
+    out = tmp_path / "out"
+    rc = main(["batch", "animate", str(puppet_path), str(audio), "-o", str(out), "--format", "npz,rhubarb",
+               "--workers", "2", "--quiet"])
+    text = capsys.readouterr().out
+    assert rc == 1 and "3 done" in text and "FAILED noise.wav" in text and "real time" in text
+    assert (out / "scene2" / "three.npz").is_file() and (out / "one_cues.json").is_file()
+    assert main(["batch", "animate", str(tmp_path / "missing.vpp"), str(audio), "-o", str(out)]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["batch", "animate", str(puppet_path), str(audio), "-o", str(out), "--format", "npz,wav"]) == 2
+    assert "unknown export format" in capsys.readouterr().err
