@@ -368,11 +368,17 @@ def test_cli_batch_animate(puppet_and_audio, tmp_path, capsys):
 
     puppet_path, audio = puppet_and_audio
     out = tmp_path / "out"
-    rc = main(["batch", "animate", str(puppet_path), str(audio), "-o", str(out), "--format", "npz,rhubarb",
+    rc = main(["batch", "animate", str(puppet_path), str(audio), "-o", str(out), "--format", "npz,csv,rhubarb",
                "--workers", "2", "--quiet"])
     text = capsys.readouterr().out
     assert rc == 1 and "3 done" in text and "FAILED noise.wav" in text and "real time" in text
     assert (out / "scene2" / "three.npz").is_file() and (out / "one_cues.json").is_file()
+    # the same as the one-file verb, `voicepuppet animate PUPPET AUDIO -o ...`
+    for suffix in (".csv", ".npz"):
+        ref = tmp_path / f"ref{suffix}"
+        assert main(["animate", str(puppet_path), str(audio / "scene2" / "three.flac"), "-o", str(ref),
+                     "--quiet"]) == 0
+        assert_same_file(out / "scene2" / f"three{suffix}", ref)
     assert main(["batch", "animate", str(tmp_path / "missing.vpp"), str(audio), "-o", str(out)]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert main(["batch", "animate", str(puppet_path), str(audio), "-o", str(out), "--format", "npz,wav"]) == 2
