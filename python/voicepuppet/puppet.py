@@ -153,6 +153,8 @@ class Puppet:
         if unknown:
             raise ValueError(f"unknown training options {sorted(unknown)}; known: {sorted(TRAIN_DEFAULTS)}")
         opt = {**TRAIN_DEFAULTS, **options}
+        if opt["prior"] not in ("entropic", "ml"):
+            raise ValueError(f"prior must be 'entropic' or 'ml', got {opt['prior']!r}")
         if isinstance(points_list, np.ndarray) or not isinstance(points_list, (list, tuple)):
             points_list = [points_list]
         if (audio_list is None) == (features_list is None):
@@ -196,8 +198,6 @@ class Puppet:
                   "audio/delta_width": np.array([w], dtype=np.int64)}
         arrays.update(fs.to_arrays())
         report = []
-        if opt["prior"] not in ("entropic", "ml"):
-            raise ValueError(f"prior must be 'entropic' or 'ml', got {opt['prior']!r}")
         z = anneal_schedule(opt["n_iter"]) * opt["z"] if opt["anneal"] else opt["z"]
         prior = dict(prior="entropic", z=z, trim=True) if opt["prior"] == "entropic" else {}
         for k, sl in enumerate(fs.part_slices):
