@@ -9,6 +9,9 @@ Cases (K = 16 face dimensions, 41 phones, phones dwelling 2-12 frames at 29.97 f
   (Python call per frame included): ``frame_ms_p50`` / ``frame_ms_p99``.
 - ``trajectory_hour``: beside it, the puppet's synthesis kernel on the same hour (Brand's
   closed-form trajectory with one full-covariance Gaussian per phone, block Cholesky), no peer.
+- ``puppet_animate_hour``: beside it, the voice puppet's whole animation of the same hour from
+  audio feature frames (Viterbi on the vocal HMM, closed-form trajectory, landmarks; features
+  precomputed), a 40-state puppet trained on 2 minutes of synthetic landmark/feature frames.
 - ``gradient_10min``: the gradient of eq. 1 in a on 10 minutes of labelled frames (17,980
   frames, 20 sequences), C++ adjoint recursion vs the forward chain rule of the paper's appendix
   A in numpy; ``agree`` compares the gradients.
@@ -72,6 +75,30 @@ def _numpy_gradient(a, mu, nu, r, Y, off, lab):
     return grad
 
 
+def _puppet_animate_case(rng, n_frames: int, repeats: int) -> dict:
+    """A 40-state puppet trained on 2 minutes of performer landmarks with synthetic feature
+    frames (features_list), then animated from an hour of feature frames."""
+    from voicepuppet.animation import neutral_landmarks
+    from voicepuppet.puppet import Puppet
+
+    T = int(120 * FPS)
+    neutral = neutral_landmarks()
+    basis = rng.normal(size=(4, 68, 2))
+    z = np.cumsum(rng.normal(size=(T, 4)), axis=0)
+    z = (z - z.mean(axis=0)) / z.std(axis=0)
+    pts = neutral + np.einsum("tk,kpc->tpc", z, basis)
+    A = 12
+    mix = rng.normal(size=(4, A))
+    feats = z @ mix + 0.3 * rng.normal(size=(T, A))
+    puppet = Puppet.train([pts], features_list=[feats], fps=FPS, n_states=40, n_iter=20, seed=0)
+    zh = np.cumsum(rng.normal(size=(n_frames, 4)), axis=0) * 0.05
+    fh = zh @ mix + 0.3 * rng.normal(size=(n_frames, A))
+    t, res = timeit_interleaved({"ours": lambda: puppet.animate(features=fh)}, max(1, repeats - 1))
+    return case("puppet_animate_hour", f"T={n_frames}, 40 states, A={A} features, 68 points", t["ours"],
+                None, None, None, realtime_factor=n_frames / FPS / t["ours"],
+                frames_out=int(len(res["ours"].animation.points)))
+
+
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
     from voicepuppet.dpds import DPDS
     from voicepuppet.phonemes import N_PHONES
@@ -115,6 +142,10 @@ def run(quick: bool = False, repeats: int = 3) -> list[dict]:
     t, _ = timeit_interleaved({"ours": lambda: _core.solve_trajectory(model, lab)}, max(1, repeats - 1))
     cases.append(case("trajectory_hour", f"T={hour}, D={K}, full covariance", t["ours"], None, None, None,
                       realtime_factor=hour / FPS / t["ours"]))
+
+    # the voice puppet's own animation (Viterbi on the vocal HMM + closed-form trajectory +
+    # landmarks) from audio feature frames for the same hour, features precomputed
+    cases.append(_puppet_animate_case(rng, hour, repeats))
 
     # training on 10 minutes of labelled frames
     n_seq = 20
