@@ -144,3 +144,24 @@ def test_tiny_and_silent_audio(workdir, tmp_path, capsys):
     with pytest.warns(AudioWarning, match="silent"):
         out = load(d / "p.vpp").animate(str(tmp_path / "silence.wav"))
     assert out.animation.n_frames == int(np.ceil(FPS)) and np.all(np.isfinite(out.animation.points))
+
+
+def test_frames_where_the_face_is_lost_are_dropped_with_a_warning(rng):
+    from voicepuppet.audio import prepare
+    from voicepuppet.puppet_cli import usable_segments
+
+    T, P = 100, 10
+    pts = rng.normal(size=(T, P, 2))
+    lost = np.zeros((T, P), bool)
+    lost[40:55, :6] = True          # the face is lost for 15 frames
+    lost[95:, :] = True             # and at the very end (a 5-frame run before it is too short)
+    lost[88:90, :] = True
+    snd = prepare(rng.normal(0, 0.1, 4 * RATE), RATE)
+    with pytest.warns(UserWarning, match="lost in 22 of 100 frames"):
+        segs = usable_segments(pts, lost, snd, FPS)
+    assert [len(p) for p, _ in segs] == [40, 33]
+    np.testing.assert_array_equal(segs[1][0], pts[55:88])
+    assert len(segs[1][1].samples) == int(round(88 / FPS * RATE)) - int(round(55 / FPS * RATE))
+    assert usable_segments(pts, None, snd, FPS)[0][0] is pts
+    with pytest.raises(ValueError, match="no run of 10 usable frames"):
+        usable_segments(pts, np.ones((T, P), bool), snd, FPS)
