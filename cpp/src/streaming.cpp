@@ -5,6 +5,8 @@
 #include <cmath>
 #include <limits>
 
+#include <Eigen/Cholesky>
+
 namespace voicepuppet {
 
 namespace {
@@ -189,6 +191,20 @@ DecodedFrames FixedLagDecoder::flush() {
 }
 
 // ------------------------------------------------------------------ StreamingPuppet
+RowMatrixXd StreamingPuppet::VocalModel::log_density(const RowMatrixXd& z) const {
+  const Index T = z.rows(), N = means.rows();
+  RowMatrixXd out(T, N);
+  for (Index n = 0; n < N; ++n) {
+    for (Index t = 0; t < T; ++t) {
+      const VectorXd d = (z.row(t) - means.row(n)).transpose();
+      const double q = diagonal ? (d.array().square() * inv_var.row(n).transpose().array()).sum()
+                                : chol[static_cast<size_t>(n)].triangularView<Eigen::Lower>().solve(d).squaredNorm();
+      out(t, n) = constant[n] - 0.5 * q;
+    }
+  }
+  return out;
+}
+
 namespace {
 
 /// Output frames of a resampled sequence of n input frames (as trajectory.cpp's
@@ -197,6 +213,8 @@ Index resampled_count(Index n, double fps_in, double fps_out) {
   const double x = static_cast<double>(n) * fps_out / fps_in;
   return std::max<Index>(1, static_cast<Index>(std::ceil(x - 1e-9 * std::max(1.0, x))));
 }
+
+constexpr double kLog2Pi = 1.8378770664093454835606594728112;
 
 std::vector<TrajectoryModel> part_models(const Puppet& puppet, double fps) {
   std::vector<TrajectoryModel> m;
@@ -228,7 +246,26 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
   const auto models = part_models(puppet_, out_fps_);
   for (Index p = 0; p < puppet_.n_parts(); ++p) {
     const PuppetPart& pt = puppet_.part(p);
-    parts_.push_back(PartStream{FixedLagDecoder(pt.startprob, pt.transmat, options.decode_lag),
+    VocalModel vm;
+    const Index N = pt.n_states(), A = pt.vocal_means.cols();
+    vm.means = pt.vocal_means;
+    vm.constant.resize(N);
+    vm.diagonal = pt.vocal_type == CovarianceType::Diagonal;
+    if (vm.diagonal) {
+      vm.inv_var = pt.vocal_covars.cwiseInverse();
+      for (Index n = 0; n < N; ++n) {
+        vm.constant[n] = -0.5 * (static_cast<double>(A) * kLog2Pi + pt.vocal_covars.row(n).array().log().sum());
+      }
+    } else {
+      for (Index n = 0; n < N; ++n) {
+        Eigen::LLT<Eigen::MatrixXd> llt(Eigen::MatrixXd(pt.vocal_covars.middleRows(n * A, A)));
+        if (llt.info() != Eigen::Success) fail_argument("vocal covariance of state ", n, " is not positive definite");
+        vm.chol.push_back(llt.matrixL());
+        vm.constant[n] = -0.5 * (static_cast<double>(A) * kLog2Pi +
+                                 2.0 * vm.chol.back().diagonal().array().log().sum());
+      }
+    }
+    parts_.push_back(PartStream{std::move(vm), FixedLagDecoder(pt.startprob, pt.transmat, options.decode_lag),
                                 FixedLagTrajectory(models[static_cast<size_t>(p)], options.trajectory_lag),
                                 {}, {}, 0, 0, 0});
   }
@@ -389,7 +426,7 @@ StreamedFrames StreamingPuppet::decode(const RowMatrixXd& z, bool final_pass) {
   std::vector<RowMatrixXd> faces;
   for (Index p = 0; p < puppet_.n_parts(); ++p) {
     PartStream& ps = parts_[static_cast<size_t>(p)];
-    DecodedFrames f = z.rows() ? ps.decoder.push(puppet_.vocal_log_density(z, p)) : DecodedFrames{};
+    DecodedFrames f = z.rows() ? ps.decoder.push(ps.vocal.log_density(z)) : DecodedFrames{};
     if (final_pass) {
       DecodedFrames rest = ps.decoder.flush();
       if (f.size() == 0) {

@@ -180,7 +180,7 @@ PuppetArray f64(std::vector<std::uint64_t> shape, std::vector<double> v) {
 /// A random two-part puppet: 6 points (parts {0,2,4} and {1,3,5}), N states, A audio columns,
 /// K face coordinates per part; sticky transitions, random SPD covariances.
 PuppetFile random_puppet(Index N, Index A, Index K, unsigned seed, double fps = 30.0,
-                         Index delta_width = 0) {
+                         Index delta_width = 0, bool diag_vocal = false) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> g(0.0, 1.0);
   std::uniform_real_distribution<double> u(0.05, 1.0);
@@ -245,15 +245,20 @@ PuppetFile random_puppet(Index N, Index A, Index K, unsigned seed, double fps = 
         for (Index j = 0; j < 2 * K; ++j) fc.push_back(C(i, j));
       for (Index a = 0; a < A2; ++a) vm.push_back(1.5 * g(rng));
       const Eigen::MatrixXd V = spd(A2, 0.5);
-      for (Index i = 0; i < A2; ++i)
+      for (Index i = 0; i < A2; ++i) {
+        if (diag_vocal) {
+          vc.push_back(V(i, i));
+          continue;
+        }
         for (Index j = 0; j < A2; ++j) vc.push_back(V(i, j));
+      }
     }
     const auto n_ = static_cast<std::uint64_t>(N), k2 = static_cast<std::uint64_t>(2 * K),
                a_ = static_cast<std::uint64_t>(A2);
     f.arrays["hmm/" + pre + "/face_means"] = f64({n_, k2}, fm);
     f.arrays["hmm/" + pre + "/face_covars"] = f64({n_, k2, k2}, fc);
     f.arrays["hmm/" + pre + "/vocal_means"] = f64({n_, a_}, vm);
-    f.arrays["hmm/" + pre + "/vocal_covars"] = f64({n_, a_, a_}, vc);
+    f.arrays["hmm/" + pre + "/vocal_covars"] = diag_vocal ? f64({n_, a_}, vc) : f64({n_, a_, a_}, vc);
   }
   return f;
 }
@@ -297,9 +302,11 @@ RowMatrixXd stream_points(StreamingPuppet& sp, const RowMatrixXd& X, Index chunk
 }  // namespace
 
 TEST_CASE("streaming puppet: lags covering the stream give Puppet::animate exactly") {
-  for (Index width : {Index(0), Index(2)}) {
-  const Puppet pp(random_puppet(6, 3, 2, 17, 30.0, width));
-  CHECK(pp.delta_width() == width);
+  for (Index width : {Index(0), Index(2), Index(-1)}) {
+  // width -1: no deltas and diagonal vocal covariances
+  const Puppet pp(random_puppet(6, 3, 2, 17, 30.0, std::max<Index>(width, 0), width < 0));
+  CHECK(pp.part(0).vocal_type == (width < 0 ? CovarianceType::Diagonal : CovarianceType::Full));
+  CHECK(pp.delta_width() == std::max<Index>(width, 0));
   const RowMatrixXd X = walk_features(pp, 70, 4);
   for (bool posterior : {false, true}) {
     for (double fps : {0.0, 60.0, 25.0}) {

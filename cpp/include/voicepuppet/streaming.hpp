@@ -148,7 +148,18 @@ class StreamingPuppet {
   double log_likelihood() const;
 
  private:
+  /// Vocal Gaussians of one part with their Cholesky factors computed once (the per-call
+  /// factorisation of gaussian_log_density would cost O(N·A³) per pushed frame).
+  struct VocalModel {
+    bool diagonal = false;
+    RowMatrixXd means;                   ///< #N by #A'
+    RowMatrixXd inv_var;                 ///< diagonal: #N by #A' 1 / σ²
+    std::vector<Eigen::MatrixXd> chol;   ///< full: lower Cholesky factor per state
+    VectorXd constant;                   ///< −½ (A' log 2π + log |Σ_n|)
+    RowMatrixXd log_density(const RowMatrixXd& z) const;  ///< #T by #N
+  };
   struct PartStream {
+    VocalModel vocal;
     FixedLagDecoder decoder;
     FixedLagTrajectory trajectory;
     std::vector<Index> states;           ///< decided input frames not yet fully resampled

@@ -173,7 +173,7 @@ def error_table(quick: bool = False) -> str:
     from voicepuppet.metrics import err, landmark_rmse_iod
 
     corpus, puppet = _corpus(quick)
-    rows = ["| lag budget (ms) | latency (ms) | look-aheads (formant, decoder, trajectory) | mode "
+    rows = ["| lag budget (ms) | latency (ms) | look-aheads (formant, deltas, decoder, trajectory) | mode "
             "| Err vs offline | RMSE/IOD vs offline | Err vs truth | RMSE/IOD vs truth |",
             "|---|---|---|---|---|---|---|---|"]
     clips = corpus.test
@@ -199,7 +199,7 @@ def error_table(quick: bool = False) -> str:
                 n = min(len(pts), len(c.points))
                 e_tr.append(err(pts[:n], c.points[:n]))
                 r_tr.append(landmark_rmse_iod(pts[:n], c.points[:n]))
-            la = (live.formant_lag, live.decode_lag, live.trajectory_lag)
+            la = (live.formant_lag, live.delta_lag, live.decode_lag, live.trajectory_lag)
             rows.append(f"| {lag} | {live.latency_s * 1e3:.0f} | {la} | "
                         f"{'posterior' if posterior else 'Viterbi'} | {np.mean(e_off):.4f} | "
                         f"{np.mean(r_off):.4f} | {np.mean(e_tr):.3f} | {np.mean(r_tr):.4f} |")
