@@ -340,3 +340,31 @@ def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_pa
     assert not th.is_alive() and result["code"] == 0
     lines = out.getvalue().splitlines()
     assert len(lines) == math.ceil(80000 / 16000 * FPS)
+
+
+def test_osc_messages(puppet, speech, tmp_path):
+    """--osc sends one /voicepuppet/frame message per frame (frame, time, x0, y0, ...) over UDP."""
+    import soundfile
+    from pythonosc.osc_message import OscMessage
+
+    _, path = puppet
+    wav = tmp_path / "in.wav"
+    soundfile.write(wav, speech[:16000], 16000, subtype="DOUBLE")
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(5)
+    port = sock.getsockname()[1]
+    try:
+        r = run_cli([str(path), "--input", str(wav), "--no-realtime", "--osc",
+                     f"127.0.0.1:{port}"])
+        assert r.returncode == 0, r.stderr.decode()
+        lines = [json.loads(s) for s in r.stdout.decode().splitlines()]
+        msgs = []
+        for _ in range(len(lines)):
+            msgs.append(OscMessage(sock.recv(65536)))
+    finally:
+        sock.close()
+    assert all(m.address == "/voicepuppet/frame" for m in msgs)
+    assert [m.params[0] for m in msgs] == [rec["frame"] for rec in lines]
+    first = np.array(msgs[0].params[2:], dtype=np.float64).reshape(68, 2)
+    np.testing.assert_allclose(first, np.array(lines[0]["points"]), atol=0.006)

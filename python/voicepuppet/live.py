@@ -356,6 +356,11 @@ class _OscOut:
         except OSError:  # UDP: nobody listening is not an error worth stopping for
             pass
 
+    def close(self) -> None:
+        sock = getattr(self.client, "_sock", None)
+        if sock is not None:
+            sock.close()
+
 
 def _read_pcm(stream, fmt: str, channels: int, block_bytes: int):
     """Yield sample arrays (n, channels) from raw PCM; a trailing partial sample is reported."""
@@ -467,6 +472,8 @@ def run_live(args, out=None) -> int:
     if ws is not None:
         time.sleep(0.05)
         ws.close()
+    if osc is not None:
+        osc.close()
     lat = np.array(latencies) * 1e3 if latencies else np.zeros(1)
     comp = np.array(computes) * 1e3 if computes else np.zeros(1)
     summary = {"frames": n_frames, "audio_s": round(pushed / live.rate, 3),
