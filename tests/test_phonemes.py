@@ -173,3 +173,18 @@ def test_phone_recognition_without_transcript(arctic):
     agree = float(np.mean(a == b))
     print(f"phone recognition frame agreement {agree:.2f}")
     assert agree > 0.3
+
+
+def test_align_verb_writes_labels(arctic, tmp_path, capsys):
+    from voicepuppet.cli import main
+
+    wav, ref = arctic
+    out = tmp_path / "a.TextGrid"
+    assert main(["align", wav, "-t", "He turned sharply, and faced Gregson across the table.",
+                 "-o", str(out)]) == 0
+    assert f"{sum(s.label != 'SIL' for s in ref)} phones" in capsys.readouterr().out
+    assert [s.label for s in ph.read_textgrid(out)] == [s.label for s in ref]
+    assert main(["align", wav, "-t", "twenty seven elephants " * 12, "-o", str(tmp_path / "b.lab")]) == 2
+    assert "does not match the audio" in capsys.readouterr().err
+    assert main(["align", wav, "-o", str(tmp_path / "c.txt")]) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.TextGrid"]

@@ -24,6 +24,7 @@ VERB_MODULES = [
     "voicepuppet.live",
     "voicepuppet.bench",
     "voicepuppet.evaluate",
+    "voicepuppet.phonemes",
 ]
 
 
