@@ -501,12 +501,20 @@ def align(audio, transcript: str | None = None, *, sample_rate: int | None = Non
         if missing:
             raise AlignmentError(f"words not in the pronunciation dictionary: {', '.join(missing)}; "
                                  f"spell them as dictionary words or add them")
-        decoder.set_align_text(" ".join(words))
-        run(decoder)
-        hyp = decoder.hyp()
-        got = [] if hyp is None else [s.word for s in (decoder.seg() or [])
-                                      if not s.word.startswith(("<", "["))]
-        got = [re.sub(r"\(\d+\)$", "", w) for w in got]
+
+        def word_pass(dec):
+            dec.set_align_text(" ".join(words))
+            run(dec)
+            hyp = dec.hyp()
+            got = [] if hyp is None else [s.word for s in (dec.seg() or [])
+                                          if not s.word.startswith(("<", "["))]
+            return hyp, [re.sub(r"\(\d+\)$", "", w) for w in got]
+
+        hyp, got = word_pass(decoder)
+        if hyp is None or got != words:
+            # default beams prune the only path on some voices (e.g. synthetic speech): retry wide
+            decoder = Decoder(lm=None, loglevel="FATAL", beam=1e-80, wbeam=1e-60, pbeam=1e-80)
+            hyp, got = word_pass(decoder)
         if hyp is None or got != words:
             done = 0
             while done < min(len(got), len(words)) and got[done] == words[done]:
