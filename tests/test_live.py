@@ -286,7 +286,9 @@ def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_pa
 
     _, path = puppet
     wav = tmp_path / "in.wav"
-    soundfile.write(wav, speech[:80000], 16000, subtype="DOUBLE")  # 5 s, played in real time
+    # 10 s played in real time: room for a slow browser start on a busy machine
+    audio = np.tile(speech, 2)[:160000]
+    soundfile.write(wav, audio, 16000, subtype="DOUBLE")
     port = free_port()
     args = build_parser().parse_args(["live", str(path), "--input", str(wav), "--websocket",
                                       f"127.0.0.1:{port}", "--lag-ms", "100"])
@@ -324,7 +326,7 @@ def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_pa
     try:
         driver.set_page_load_timeout(20)
         driver.get(f"http://127.0.0.1:{port}/")
-        WebDriverWait(driver, 15).until(
+        WebDriverWait(driver, 30).until(
             lambda d: int(d.execute_script("return document.body.dataset.frames || 0")) >= 10)
         shot = tmp_path / "viewer.png"
         driver.save_screenshot(str(shot))
@@ -336,10 +338,10 @@ def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_pa
     # the face is drawn in dark red on the light canvas
     red = (img[..., 0] > 90) & (img[..., 0] < 160) & (img[..., 1] < 80) & (img[..., 2] < 80)
     assert red.sum() > 300, f"no face drawn in {shot}"
-    th.join(30)
+    th.join(60)
     assert not th.is_alive() and result["code"] == 0
     lines = out.getvalue().splitlines()
-    assert len(lines) == math.ceil(80000 / 16000 * FPS)
+    assert len(lines) == math.ceil(160000 / 16000 * FPS)
 
 
 def test_osc_messages(puppet, speech, tmp_path):
