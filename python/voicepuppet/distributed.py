@@ -63,6 +63,8 @@ def connect(scheduler: str | None = None, workers: int | None = None, *, timeout
         Seconds to wait for the scheduler (and workers) before giving up with ``ValueError``.
     threads_per_worker : int
         Threads per local worker process (the kernels release the GIL; 1 keeps runs predictable).
+        Each local worker's C++ kernels get ``cpus // (workers * threads_per_worker)`` OpenMP
+        threads (at least 1).
 
     Raises
     ------
@@ -81,8 +83,12 @@ def connect(scheduler: str | None = None, workers: int | None = None, *, timeout
         with warnings.catch_warnings():
             # Dask's start-up notes (e.g. about the scratch folder) are not errors of ours.
             warnings.simplefilter("ignore")
+            # Dask starts workers with OMP_NUM_THREADS=1; the C++ kernels may use the cores the
+            # workers leave free (2 CPUs, 1 worker: 2 OpenMP threads in it).
+            omp = max(1, (os.cpu_count() or 1) // (n * threads_per_worker))
             cluster = LocalCluster(n_workers=n, threads_per_worker=threads_per_worker, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+                                   dashboard_address=None, silence_logs=logging.ERROR,
+                                   env={"OMP_NUM_THREADS": str(omp)})
         try:
             with Client(cluster, timeout=timeout) as client:
                 yield client
