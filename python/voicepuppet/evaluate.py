@@ -418,7 +418,11 @@ def _run(args) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("evaluate", help="cross-validate the voice puppet and its phoneme peers",
-                       description=__doc__.split("\n\n")[0])
+                       description="k-fold cross-validation by sequence of the voice puppet and (with "
+                                   "--peers) the four phoneme-driven models on the same folds: L1, RMS, "
+                                   "Linf, test log-likelihood, Err (eq. 7), lip vertex error and landmark "
+                                   "RMSE/IOD with 95% confidence intervals. Default data: the synthetic "
+                                   "performer.")
     p.add_argument("--data", metavar="DIR", help="user data: NAME.npz + NAME.wav + NAME.TextGrid|.lab "
                    "per sequence (default: the synthetic performer)")
     p.add_argument("--alphabet", choices=["arpabet", "espeak"], default="arpabet",
