@@ -137,3 +137,33 @@ def test_unreachable_scheduler_is_a_clear_error_not_a_hang():
     with pytest.raises(ValueError, match="workers must be a positive integer"):
         with connect(workers=0):
             pass
+
+
+def test_training_survives_a_killed_worker(client):
+    """A worker process is SIGKILLed after the second E-step: the chunks it held are rebuilt from
+    the task graph on the others and training ends with the single-process parameters."""
+    import os
+    import signal
+
+    X, lengths = planted(SEED + 5)
+    kw = dict(n_states=4, covariance="full", n_iter=6, tol=-np.inf, random_state=2)
+    local = GaussianHMM(**kw).fit(X, lengths)
+    pids_before = client.run(os.getpid)
+    with DaskEStep(client, X, lengths, "full", chunk_frames=60) as estep:
+        calls = [0]
+        real_stats = estep.stats
+
+        def stats_then_kill(params, shift):
+            calls[0] += 1
+            if calls[0] == 2:
+                holders = client.who_has(estep._chunks)
+                victim = next(iter(next(w for w in holders.values() if w)))
+                os.kill(pids_before[victim], signal.SIGKILL)
+            return real_stats(params, shift)
+
+        estep.stats = stats_then_kill
+        dist = GaussianHMM(**kw).fit(X, lengths, estep=estep)
+    assert calls[0] == 6
+    assert_same(local, dist)
+    client.wait_for_workers(2, timeout=60)  # the nanny restarts the worker for the next tests
+    assert set(client.run(os.getpid).values()) != set(pids_before.values())  # one really died
