@@ -324,3 +324,36 @@ def test_phoneme_puppet_from_speech_and_bad_input(performer, tmp_path):
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="not a phoneme puppet"):
         dpds.PhonemePuppet.load(tmp_path / "bad.npz")
+
+
+def test_phoneme_puppet_verb(performer, tmp_path, capsys):
+    from voicepuppet.animation import Animation, load_animation, save_animation
+    from voicepuppet.audio import samples
+    from voicepuppet.cli import main
+    from voicepuppet.phonemes import write_hts, write_textgrid
+
+    lms, labs = [], []
+    for i, (u, pts) in enumerate(performer):
+        save_animation(Animation(pts, 29.97), tmp_path / f"s{i}.npz")
+        write_textgrid(u.phones, tmp_path / f"s{i}.TextGrid", alphabet="espeak")
+        lms.append(str(tmp_path / f"s{i}.npz"))
+        labs.append(str(tmp_path / f"s{i}.TextGrid"))
+    model = tmp_path / "m.npz"
+    assert main(["phoneme-puppet", "train", "--landmarks", *lms, "--labels", *labs, "-o", str(model), "-q"]) == 0
+    assert "dpds on" in capsys.readouterr().out
+    out = tmp_path / "a.npz"
+    assert main(["phoneme-puppet", "animate", str(model), "--labels", labs[0], "-o", str(out)]) == 0
+    anim = load_animation(out)
+    assert abs(len(anim.points) - len(performer[0][1])) <= 1
+    wav, lab = samples.arctic_a0009(with_labels=True)
+    assert main(["phoneme-puppet", "animate", str(model), wav, "-t",
+                 "He turned sharply, and faced Gregson across the table.", "-o", str(tmp_path / "b.csv")]) == 0
+    import soundfile
+
+    duration = soundfile.info(wav).duration
+    assert abs(len(load_animation(tmp_path / "b.csv").points) - duration * 29.97) <= 1.0
+    assert main(["phoneme-puppet", "train", "--landmarks", *lms, "--labels", *labs[:1], "-o",
+                 str(tmp_path / "x.npz")]) == 2
+    assert "one label file per landmark file" in capsys.readouterr().err
+    assert main(["phoneme-puppet", "animate", str(model), "-o", str(tmp_path / "y.npz")]) == 2
+    assert not (tmp_path / "x.npz").exists() and not (tmp_path / "y.npz").exists()

@@ -25,6 +25,7 @@ VERB_MODULES = [
     "voicepuppet.bench",
     "voicepuppet.evaluate",
     "voicepuppet.phonemes",
+    "voicepuppet.dpds",
 ]
 
 
