@@ -277,6 +277,28 @@ def test_real_cluster_with_a_worker_killed_mid_run(tmp_path):
             t.join(timeout=300)
             assert not t.is_alive()
             assert victim not in client.nthreads()  # the worker really died
+            # Then the scheduler dies during a second run (other settings: all files redone): the
+            # run returns promptly, reporting the unfinished files, with nothing half-written.
+            out2 = tmp_path / "out2"
+
+            def kill_scheduler():
+                while not (out2 / batch.MANIFEST_NAME).is_file() and t2.is_alive():
+                    time.sleep(0.02)
+                procs[0].send_signal(signal.SIGKILL)
+
+            def run2():
+                result["second"] = batch.track_folder(root, out2, init=str(init), passes=2, client=client,
+                                                      progress=False)
+
+            t2 = threading.Thread(target=run2)
+            t2.start()
+            kill_scheduler()
+            t2.join(timeout=120)
+            assert not t2.is_alive(), "the run hung after losing its scheduler"
+        second = result["second"]
+        assert second.count("done") + second.count("failed") == 8 and second.count("failed") >= 1
+        assert all("lost its Dask scheduler" in f.error for f in second.failed)
+        assert not any(".partial" in n for n in outputs(tmp_path / "out2"))
         s = result["summary"]
         assert [f.status for f in s.files] == ["done"] * 8, s.text()
         lines = (out / batch.MANIFEST_NAME).read_text().splitlines()

@@ -202,9 +202,12 @@ def _describe(exc: BaseException) -> str:
     if name == "KilledWorker":
         return ("the workers running it died repeatedly (KilledWorker: it may crash the process or "
                 "exhaust its memory); check the file")
+    if "cancelled" in name.lower() or "CancelledError" in name:
+        return ("not finished: the run lost its Dask scheduler (or was cancelled) first; re-run the same "
+                "command to do the rest (finished files are skipped)")
     if isinstance(exc, OSError) and exc.errno == 28:
         return f"cannot write its outputs: no space left on device ({exc}); free space and re-run"
-    msg = str(exc).strip() or repr(exc)
+    msg = (str(exc).strip() or repr(exc)).splitlines()[0]
     return f"{name}: {msg}"
 
 
