@@ -64,7 +64,9 @@ void bind_tracker(py::module_& m) {
       .def_readwrite("ncc_full", &TrackerOptions::ncc_full)
       .def_readwrite("lost_confidence", &TrackerOptions::lost_confidence)
       .def_readwrite("drift_tolerance", &TrackerOptions::drift_tolerance)
-      .def_readwrite("damping", &TrackerOptions::damping);
+      .def_readwrite("damping", &TrackerOptions::damping)
+      .def_readwrite("patch_sides", &TrackerOptions::patch_sides)
+      .def_readwrite("search_radius", &TrackerOptions::search_radius);
 
   py::class_<TrackerFrame>(m, "TrackerFrame", "One frame's answer of SpringMeshTracker.track.")
       .def_readonly("points", &TrackerFrame::points, "#P by 2 positions (x, y)")
@@ -75,8 +77,9 @@ void bind_tracker(py::module_& m) {
   m.def("delaunay_edges", &delaunay_edges, py::arg("points"),
         "Edges (i < j) of the Delaunay triangulation of #P by 2 points (Bowyer-Watson).");
   m.def("springs_from_points", &springs_from_points, py::arg("points"), py::arg("edges"),
-        py::arg("relative_sigma") = 0.05,
-        "Springs along edges with rest lengths from points and stiffness 1/(relative_sigma*L)^2.");
+        py::arg("relative_sigma") = 0.05, py::arg("min_sigma") = 0.0,
+        "Springs along edges with rest lengths from points and stiffness "
+        "1/max(relative_sigma*L, min_sigma)^2.");
   m.def("estimate_springs", &estimate_springs, py::arg("tracks"), py::arg("lost"),
         py::arg("previous"), py::arg("min_sigma") = 0.5,
         "Re-estimate rest lengths (mean) and stiffnesses (1/variance) from a #T by 2#P pass.");

@@ -178,12 +178,15 @@ void check_mesh(const SpringMesh& mesh, Index n_points) {
 }  // namespace
 
 SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
-                               double relative_sigma) {
+                               double relative_sigma, double min_sigma) {
   check_points(points, "points");
   check_edges(edges, points.rows());
   if (!(std::isfinite(relative_sigma) && relative_sigma > 0)) {
     fail_argument("relative_sigma must be a positive fraction of each spring length, got ",
                   relative_sigma);
+  }
+  if (!(std::isfinite(min_sigma) && min_sigma >= 0)) {
+    fail_argument("min_sigma must be a finite length in pixels >= 0, got ", min_sigma);
   }
   SpringMesh mesh;
   mesh.edges = edges;
@@ -196,7 +199,8 @@ SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
                     ", which coincide; remove duplicate landmarks");
     }
     mesh.rest_length[e] = len;
-    mesh.stiffness[e] = 1.0 / ((relative_sigma * len) * (relative_sigma * len));
+    const double sigma = std::max(relative_sigma * len, min_sigma);
+    mesh.stiffness[e] = 1.0 / (sigma * sigma);
   }
   return mesh;
 }
@@ -336,6 +340,8 @@ double sample_patch(const Level& im, double cx, double cy, int q, float* out) {
 // A template patch at one pyramid level: zero-mean values and gradients, contrast, Hessian.
 struct Template {
   std::vector<float> t, gx, gy;
+  std::vector<float> mask;  // 1 on the pixels the template uses, 0 elsewhere; empty: all of them
+  int n_used = 0;           // pixels used
   double sigma = 0;  // RMS of t (contrast)
   double hxx = 0, hxy = 0, hyy = 0;
 };
@@ -350,7 +356,8 @@ struct Match {
 
 constexpr double kMinContrast = 0.5;  // grey levels RMS below which a patch is flat
 constexpr int kLanes = 16;  // accumulator lanes of the patch sums (n_pad is a multiple)
-constexpr double kCoarseFloor = 0.2;  // coarse-level correlation below which a point is ignored
+constexpr double kCoarseFloor = 0.2;
+constexpr double kSearchMargin = 0.05;  // a searched point moves only for a clearly better match  // coarse-level correlation below which a point is ignored
 
 }  // namespace
 
@@ -360,12 +367,13 @@ struct SpringMeshTracker::Impl {
   Index P = 0, width = 0, height = 0, n_levels = 1;
   int r = 0, n_pix = 0, n_pad = 0;  // patch pixels, and rounded up to a multiple of kLanes
   RowMatrixXd pts;
+  RowMatrixXd sides;  // #P by 2 half-patch directions (a zero row: whole patch), or empty
   std::vector<double> prev_weight;  // data weight of each point at the end of the last frame
   std::vector<Level> pyr;
   // templates[(l * P + i)] for the first frame and for the current (guarded) template.
   std::vector<Template> first, current;
   // Work buffers.
-  std::vector<float> patch, big;
+  std::vector<float> patch, big, window;
   RowMatrixXd A;
   // The Gauss-Newton system in block form: 2x2 diagonal blocks per point, one 2x2 coupling
   // block per edge (the spring's -k u u^T), solved by block-Jacobi preconditioned conjugate
@@ -437,19 +445,31 @@ struct SpringMeshTracker::Impl {
     for (Index l = 1; l < n_levels; ++l) downsample(pyr[l - 1], pyr[l]);
   }
 
-  // Builds template `tpl` from the current pyramid at level l around level-0 position (x, y).
+  // Builds point i's template `tpl` from the current pyramid at level l around level-0
+  // position (x, y), on the half of the patch its side vector selects (all of it without one).
   // Returns the fraction of the patch inside the image.
-  double make_template(Index l, double x, double y, Template& tpl) {
+  double make_template(Index l, Index i, double x, double y, Template& tpl) {
     const int q = r + 1, m = 2 * q + 1, n = 2 * r + 1;
     const double inside =
         sample_patch(pyr[l], level_coord(x, l), level_coord(y, l), q, big.data());
     tpl.t.assign(n_pad, 0.0f);
     tpl.gx.assign(n_pad, 0.0f);
     tpl.gy.assign(n_pad, 0.0f);
+    const double sx = sides.size() ? sides(i, 0) : 0.0, sy = sides.size() ? sides(i, 1) : 0.0;
+    const bool half = sx != 0 || sy != 0;
+    tpl.mask.assign(half ? n_pad : 0, 0.0f);
+    tpl.n_used = 0;
     double mt = 0, mgx = 0, mgy = 0;
     for (int j = 0; j < n; ++j) {
-      for (int i = 0; i < n; ++i) {
-        const int c = (j + 1) * m + (i + 1), k = j * n + i;
+      for (int i2 = 0; i2 < n; ++i2) {
+        const int c = (j + 1) * m + (i2 + 1), k = j * n + i2;
+        // Half patch: the pixels strictly on the side of the line through the point that the
+        // side vector points to (the lip, not the opening mouth next to it).
+        if (half) {
+          if ((i2 - r) * sx + (j - r) * sy <= 0) continue;
+          tpl.mask[k] = 1.0f;
+        }
+        ++tpl.n_used;
         tpl.t[k] = big[c];
         // Scharr derivatives (3, 10, 3 smoothing across the difference), normalised to unit gain.
         tpl.gx[k] = (3.0f * (big[c - m + 1] - big[c - m - 1]) + 10.0f * (big[c + 1] - big[c - 1]) +
@@ -461,11 +481,13 @@ struct SpringMeshTracker::Impl {
         mgy += tpl.gy[k];
       }
     }
-    mt /= n_pix;
-    mgx /= n_pix;
-    mgy /= n_pix;
+    const int used = tpl.n_used;
+    mt /= used;
+    mgx /= used;
+    mgy /= used;
     double vt = 0, hxx = 0, hxy = 0, hyy = 0;
     for (int k = 0; k < n_pix; ++k) {
+      if (half && tpl.mask[k] == 0.0f) continue;
       tpl.t[k] = static_cast<float>(tpl.t[k] - mt);
       tpl.gx[k] = static_cast<float>(tpl.gx[k] - mgx);
       tpl.gy[k] = static_cast<float>(tpl.gy[k] - mgy);
@@ -474,7 +496,7 @@ struct SpringMeshTracker::Impl {
       hxy += double(tpl.gx[k]) * tpl.gy[k];
       hyy += double(tpl.gy[k]) * tpl.gy[k];
     }
-    tpl.sigma = std::sqrt(vt / n_pix);
+    tpl.sigma = std::sqrt(vt / used);
     tpl.hxx = hxx;
     tpl.hxy = hxy;
     tpl.hyy = hyy;
@@ -491,21 +513,41 @@ struct SpringMeshTracker::Impl {
     const float* __restrict T = tpl.t.data();
     const float* __restrict GX = tpl.gx.data();
     const float* __restrict GY = tpl.gy.data();
-    float acc[kLanes] = {};
-    for (int k = 0; k < n_pad; k += kLanes) {
-      for (int j = 0; j < kLanes; ++j) acc[j] += I[k + j];
+    const int used = tpl.n_used;
+    float mf, s2f;
+    if (tpl.mask.empty()) {
+      float acc[kLanes] = {};
+      for (int k = 0; k < n_pad; k += kLanes) {
+        for (int j = 0; j < kLanes; ++j) acc[j] += I[k + j];
+      }
+      float sf = 0;
+      for (int j = 0; j < kLanes; ++j) sf += acc[j];
+      mf = sf / static_cast<float>(n_pix);
+      float a2[kLanes] = {};  // centred second moment (no cancellation); pads add mf² each
+      for (int k = 0; k < n_pad; k += kLanes) {
+        for (int j = 0; j < kLanes; ++j) a2[j] += (I[k + j] - mf) * (I[k + j] - mf);
+      }
+      s2f = 0;
+      for (int j = 0; j < kLanes; ++j) s2f += a2[j];
+      s2f -= static_cast<float>(n_pad - n_pix) * mf * mf;
+    } else {
+      // Half patch: mean and contrast over the template's pixels only.
+      const float* __restrict M = tpl.mask.data();
+      float acc[kLanes] = {};
+      for (int k = 0; k < n_pad; k += kLanes) {
+        for (int j = 0; j < kLanes; ++j) acc[j] += M[k + j] * I[k + j];
+      }
+      float sf = 0;
+      for (int j = 0; j < kLanes; ++j) sf += acc[j];
+      mf = sf / static_cast<float>(used);
+      float a2[kLanes] = {};
+      for (int k = 0; k < n_pad; k += kLanes) {
+        for (int j = 0; j < kLanes; ++j) a2[j] += M[k + j] * (I[k + j] - mf) * (I[k + j] - mf);
+      }
+      s2f = 0;
+      for (int j = 0; j < kLanes; ++j) s2f += a2[j];
     }
-    float sf = 0;
-    for (int j = 0; j < kLanes; ++j) sf += acc[j];
-    const float mf = sf / static_cast<float>(n_pix);
-    float a2[kLanes] = {};  // centred second moment (no cancellation); pads add mf² each
-    for (int k = 0; k < n_pad; k += kLanes) {
-      for (int j = 0; j < kLanes; ++j) a2[j] += (I[k + j] - mf) * (I[k + j] - mf);
-    }
-    float s2f = 0;
-    for (int j = 0; j < kLanes; ++j) s2f += a2[j];
-    s2f -= static_cast<float>(n_pad - n_pix) * mf * mf;
-    const double var = std::max(0.0, double(s2f) / n_pix);
+    const double var = std::max(0.0, double(s2f) / used);
     const double sigma_i = std::sqrt(var);
     if (sigma_i < kMinContrast || tpl.sigma < kMinContrast) return mt;
     mt.textured = true;
@@ -526,7 +568,8 @@ struct SpringMeshTracker::Impl {
       bx += ax[j];
       by += ay[j];
     }
-    mt.ncc = cross / (n_pix * sigma_i * tpl.sigma);
+    // Template values and gradients are 0 off its pixels, so the sums above cover only those.
+    mt.ncc = cross / (used * sigma_i * tpl.sigma);
     mt.bx = bx;
     mt.by = by;
     return mt;
@@ -537,6 +580,64 @@ struct SpringMeshTracker::Impl {
     if (!m.textured || m.inside < 0.5) return 0.0;
     const double w = (m.ncc - opt.ncc_floor) / (opt.ncc_full - opt.ncc_floor);
     return std::clamp(w, 0.0, 1.0);
+  }
+
+  // Exhaustive search for the half-patch points (the deforming ones: lips), before stage A:
+  // the current template is correlated with the image at every whole-pixel offset within
+  // `search_radius` on pyramid level 1 (level 0 for a one-level pyramid), and a point moves to
+  // the best offset when that correlates better than where it is. A lip can move 8 px between
+  // frames, beyond the reach of the gradient steps, and the coarse pyramid levels do not see
+  // it: their patches are dominated by skin that barely moves.
+  void search() {
+    const Index l = std::min<Index>(1, n_levels - 1);
+    const double step = static_cast<double>(Index(1) << l);
+    const int S = static_cast<int>(std::ceil(opt.search_radius / step));
+    if (S < 1) return;
+    const int q = r + S, m = 2 * q + 1, n = 2 * r + 1;
+    window.resize(static_cast<size_t>(m * m));
+    for (Index i = 0; i < P; ++i) {
+      if (sides.size() == 0 || (sides(i, 0) == 0 && sides(i, 1) == 0)) continue;
+      const Template& tpl = current[static_cast<size_t>(l * P + i)];
+      if (tpl.sigma < kMinContrast) continue;
+      sample_patch(pyr[l], level_coord(pts(i, 0), l), level_coord(pts(i, 1), l), q, window.data());
+      const float* M = tpl.mask.empty() ? nullptr : tpl.mask.data();
+      const double used = tpl.n_used;
+      double best = -2, here = -2;
+      int bx = 0, by = 0;
+      for (int oy = -S; oy <= S; ++oy) {
+        for (int ox = -S; ox <= S; ++ox) {
+          if (ox * ox + oy * oy > S * S) continue;
+          // The template is zero-mean on its pixels, so sum T·I is the centred cross term.
+          double s1 = 0, s2 = 0, c = 0;
+          for (int j = 0; j < n; ++j) {
+            const float* row = &window[static_cast<size_t>((j + S + oy) * m + S + ox)];
+            for (int k = 0; k < n; ++k) {
+              const int idx = j * n + k;
+              const double w = M ? M[idx] : 1.0;
+              const double v = row[k];
+              s1 += w * v;
+              s2 += w * v * v;
+              c += tpl.t[static_cast<size_t>(idx)] * v;
+            }
+          }
+          const double mean = s1 / used;
+          const double var = s2 / used - mean * mean;
+          if (!(var > kMinContrast * kMinContrast)) continue;
+          const double ncc = c / (used * std::sqrt(var) * tpl.sigma);
+          if (ox == 0 && oy == 0) here = ncc;
+          // Ties and near-ties go to the smaller move.
+          if (ncc > best + 1e-9 * (ox * ox + oy * oy + 1)) {
+            best = ncc;
+            bx = ox;
+            by = oy;
+          }
+        }
+      }
+      if ((bx != 0 || by != 0) && best >= opt.ncc_full && best > here + kSearchMargin) {
+        pts(i, 0) += bx * step;
+        pts(i, 1) += by * step;
+      }
+    }
   }
 
   // Joint Gauss–Newton relaxation over levels [l_hi .. l_lo] against `tpls`; updates pts.
@@ -629,6 +730,9 @@ void check_options(const TrackerOptions& o) {
   positive(o.intensity_sigma, "intensity_sigma");
   positive(o.drift_tolerance, "drift_tolerance");
   positive(o.damping, "damping");
+  if (!(std::isfinite(o.search_radius) && o.search_radius >= 0 && o.search_radius <= 64)) {
+    fail_argument("options.search_radius must be in [0, 64] pixels, got ", o.search_radius);
+  }
   if (!(std::isfinite(o.spring_weight) && o.spring_weight >= 0)) {
     fail_argument("options.spring_weight must be finite and >= 0, got ", o.spring_weight);
   }
@@ -662,7 +766,16 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
     }
   }
   check_mesh(mesh, points.rows());
+  if (options.patch_sides.size() != 0) {
+    if (options.patch_sides.rows() != points.rows() || options.patch_sides.cols() != 2) {
+      fail_argument("options.patch_sides must have shape (P, 2) = (", points.rows(),
+                    ", 2), one direction per point, or be empty; got ",
+                    shape_of(options.patch_sides));
+    }
+    require_finite(options.patch_sides, "options.patch_sides");
+  }
   Impl& s = *impl_;
+  s.sides = options.patch_sides;
   s.opt = options;
   s.mesh = mesh;
   s.P = points.rows();
@@ -688,7 +801,7 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   s.first.resize(static_cast<size_t>(s.n_levels * s.P));
   for (Index l = 0; l < s.n_levels; ++l) {
     for (Index i = 0; i < s.P; ++i) {
-      s.make_template(l, s.pts(i, 0), s.pts(i, 1), s.first[static_cast<size_t>(l * s.P + i)]);
+      s.make_template(l, i, s.pts(i, 0), s.pts(i, 1), s.first[static_cast<size_t>(l * s.P + i)]);
     }
   }
   s.current = s.first;
@@ -708,6 +821,7 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
   }
   s.build_pyramid(frame);
   TrackerFrame out;
+  if (s.opt.search_radius > 0) s.search();
   // Stage A: coarse to fine against the current templates.
   out.iterations = s.relax(s.n_levels - 1, 0, s.current);
   const RowMatrixXd stage_a = s.pts;
@@ -728,7 +842,7 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
       conf = mb.ncc;
       inside = mb.inside;
       for (Index l = 0; l < s.n_levels; ++l) {
-        s.make_template(l, s.pts(i, 0), s.pts(i, 1), s.current[static_cast<size_t>(l * s.P + i)]);
+        s.make_template(l, i, s.pts(i, 0), s.pts(i, 1), s.current[static_cast<size_t>(l * s.P + i)]);
       }
     } else {
       // Keep the current-template answer; its confidence is still judged against the

@@ -23,15 +23,22 @@ from voicepuppet import _core
 
 __all__ = [
     "TrackResult", "track_frames", "track_video", "delaunay_edges", "load_init_points",
-    "auto_init", "save_landmarks", "load_landmarks", "DLIB_MODEL_PATHS",
+    "auto_init", "save_landmarks", "load_landmarks", "lip_patch_sides", "DLIB_MODEL_PATHS",
 ]
 
 # Where Debian's libdlib-data puts dlib's 68-point model (override with VOICEPUPPET_DLIB_MODEL).
 DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
 
+# Lip tracking on a 68-point (iBUG 300-W) layout, in inter-ocular distances (IOD): the
+# exhaustive search radius for the lip points (a lower lip moves up to ~0.07 IOD between frames
+# at 30 fps) and the floor on the initial springs' standard deviation (the mouth opens by up
+# to ~0.25 IOD; first-frame springs of 5 % of a 3 px lip gap would hold the lips shut).
+LIP_SEARCH_IOD = 0.065
+LIP_SPRING_FLOOR_IOD = 0.025
+
 _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
-                 "damping")
+                 "damping", "patch_sides", "search_radius")
 
 
 @dataclass
@@ -67,6 +74,38 @@ def delaunay_edges(points: np.ndarray) -> np.ndarray:
     """Edges (i < j) of the Delaunay triangulation of (P, 2) points, as an (E, 2) int64 array."""
     pts = _check_points(points, "points")
     return np.asarray(_core.delaunay_edges(pts), dtype=np.int64)
+
+
+def lip_patch_sides(points: np.ndarray) -> np.ndarray:
+    """Half-patch directions for the lip points of a 68-point (iBUG 300-W) layout.
+
+    Each lip point but the four mouth corners is tracked on the half of its patch away from the
+    mouth opening (upper lip points: the half above them, lower lip points: below, in the face
+    frame given by the outer eye corners), whose texture moves with the lip while the other half
+    turns from closed lips into the mouth cavity and back.
+
+    Parameters
+    ----------
+    points : (68, 2) first-frame positions (x, y)
+
+    Returns
+    -------
+    (68, 2) float64: unit directions for points 49-53, 55-59, 61-63 and 65-67, zero rows
+    (whole patches) for the others; pass as the ``patch_sides`` tracker option.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if p.shape != (68, 2):
+        raise ValueError(f"lip_patch_sides needs the 68 points of the iBUG 300-W layout, got shape {p.shape}")
+    u = p[45] - p[36]
+    n = np.linalg.norm(u)
+    if not np.isfinite(n) or n == 0:
+        raise ValueError("points 36 and 45 (outer eye corners) coincide; give a 68-point iBUG face")
+    u = u / n
+    down = np.array([-u[1], u[0]])  # image y grows downwards: (-uy, ux) points down the face
+    sides = np.zeros((68, 2))
+    sides[[49, 50, 51, 52, 53, 61, 62, 63]] = -down
+    sides[[55, 56, 57, 58, 59, 65, 66, 67]] = down
+    return sides
 
 
 def _check_points(points, name: str) -> np.ndarray:
@@ -139,8 +178,20 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
 
 def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: float, edges=None,
            passes: int = 2, relative_sigma: float = 0.05, min_sigma: float = 0.5,
+           initial_min_sigma: float | None = None, lips: bool | None = None,
            n_hint: int | None = None, progress: bool = True, names=None, **options) -> TrackResult:
     init = _check_points(init_points, "init_points")
+    if lips is None:
+        lips = len(init) == 68
+    if lips:
+        if len(init) != 68:
+            raise ValueError(f"lips=True needs the 68 points of the iBUG 300-W layout, got {len(init)} points; "
+                             "pass lips=False (or patch_sides and search_radius yourself)")
+        iod = float(np.linalg.norm(init[45] - init[36]))
+        options.setdefault("patch_sides", lip_patch_sides(init))
+        options.setdefault("search_radius", LIP_SEARCH_IOD * iod)
+        if initial_min_sigma is None:
+            initial_min_sigma = LIP_SPRING_FLOOR_IOD * iod
     if passes < 1:
         raise ValueError(f"passes must be >= 1 (tracking passes with spring re-estimation), got {passes}")
     if edges is None:
@@ -149,7 +200,8 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
     if edges.ndim != 2 or edges.shape[1] != 2 or len(edges) == 0:
         raise ValueError(f"edges must have shape (E, 2) with E >= 1, got {edges.shape}")
     opts = _options(options)
-    mesh = _core.springs_from_points(init, edges, relative_sigma)
+    mesh = _core.springs_from_points(init, edges, relative_sigma,
+                                     min_sigma if initial_min_sigma is None else initial_min_sigma)
     history = []
     prev = None
     for k in range(passes):
@@ -183,9 +235,14 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
     passes : tracking passes; after each but the last, spring lengths and stiffnesses are
         re-estimated from the tracked distances (mean and variance), as in the paper
     progress : show a tqdm progress bar
-    **options : fields of the C++ ``TrackerOptions`` (patch_radius, levels, ncc_floor, ...) and
+    **options : fields of the C++ ``TrackerOptions`` (patch_radius, levels, ncc_floor, ...,
+        ``patch_sides`` (P, 2) half-patch directions, ``search_radius`` px) and
         ``relative_sigma`` (initial spring std as a fraction of length), ``min_sigma`` (px floor
-        of re-estimated spring std)
+        of re-estimated spring std), ``initial_min_sigma`` (px floor of the initial spring std;
+        default ``min_sigma``, or 0.025 inter-ocular distances with ``lips``), ``lips``
+        (lip tracking for a 68-point iBUG layout: :func:`lip_patch_sides` half patches, a
+        search radius of 0.065 inter-ocular distances and the initial spring floor; default:
+        on when there are 68 points; explicit options win)
 
     Returns
     -------

@@ -60,13 +60,16 @@ struct SpringMesh {
 EdgeMatrix delaunay_edges(const MatrixRef& points);
 
 /// Springs along `edges` whose rest lengths are the distances between `points` and whose
-/// stiffness is 1 / (relative_sigma · L_e)²: the initial mesh, before any re-estimation.
+/// stiffness is 1 / max(relative_sigma · L_e, min_sigma)²: the initial mesh, before any
+/// re-estimation. The floor keeps short springs (the few pixels across closed lips) from
+/// being so stiff that they hold the points at rest when the mouth opens.
 /// @param[in] points          #P by 2 (x, y)
 /// @param[in] edges           #E by 2 indices into points, i != j
 /// @param[in] relative_sigma  assumed standard deviation of each length, as a fraction of it (> 0)
-/// @throws std::invalid_argument on bad shapes, indices, coincident endpoints or sigma.
+/// @param[in] min_sigma       floor on that standard deviation in pixels (>= 0)
+/// @throws std::invalid_argument on bad shapes, indices, coincident endpoints or sigmas.
 SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
-                               double relative_sigma = 0.05);
+                               double relative_sigma = 0.05, double min_sigma = 0.0);
 
 /// Re-estimates spring rest lengths and stiffnesses from a tracked pass (paper §4.1): for each
 /// edge, L_e = mean and k_e = 1 / max(var, min_sigma²) of the distance between its endpoints over
@@ -98,6 +101,14 @@ struct TrackerOptions {
                                  ///< (and the first-frame correlation reach ncc_full) for the
                                  ///< current template to be replaced (> 0)
   double damping = 1e-3;         ///< 1/px² Levenberg damping toward the previous iterate (> 0)
+  /// #P by 2 half-patch directions, or empty (all points use whole patches). A non-zero row
+  /// (dx, dy) makes point i's templates use only the pixels with (u·dx + v·dy) > 0, (u, v) the
+  /// offset from the point: the side of a lip away from the mouth opening, whose texture moves
+  /// with the point while the other side turns from closed lips into the mouth cavity.
+  RowMatrixXd patch_sides;
+  /// px: half-patch points are first searched for exhaustively (whole-pixel offsets within this
+  /// radius, on pyramid level 1) and start from the best-correlated offset (0: no search)
+  double search_radius = 0.0;
 };
 
 /// One frame's answer.
