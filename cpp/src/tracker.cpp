@@ -357,7 +357,8 @@ struct Match {
 constexpr double kMinContrast = 0.5;  // grey levels RMS below which a patch is flat
 constexpr int kLanes = 16;  // accumulator lanes of the patch sums (n_pad is a multiple)
 constexpr double kCoarseFloor = 0.2;
-constexpr double kSearchMargin = 0.05;  // a searched point moves only for a clearly better match  // coarse-level correlation below which a point is ignored
+constexpr double kSearchMargin = 0.05;  // a searched point moves only for a clearly better match
+constexpr double kSearchPenalty = 0.1;  // score lost by a search move of the full radius  // coarse-level correlation below which a point is ignored
 
 }  // namespace
 
@@ -588,17 +589,20 @@ struct SpringMeshTracker::Impl {
   // the best offset when that correlates better than where it is. A lip can move 8 px between
   // frames, beyond the reach of the gradient steps, and the coarse pyramid levels do not see
   // it: their patches are dominated by skin that barely moves.
-  void search() {
-    const Index l = std::min<Index>(1, n_levels - 1);
-    const double step = static_cast<double>(Index(1) << l);
+  bool search() {
+    const Index l = 0;
+    const double step = 1.0;
     const int S = static_cast<int>(std::ceil(opt.search_radius / step));
-    if (S < 1) return;
+    bool moved = false;
+    if (S < 1) return moved;
     const int q = r + S, m = 2 * q + 1, n = 2 * r + 1;
     window.resize(static_cast<size_t>(m * m));
     for (Index i = 0; i < P; ++i) {
       if (sides.size() == 0 || (sides(i, 0) == 0 && sides(i, 1) == 0)) continue;
       const Template& tpl = current[static_cast<size_t>(l * P + i)];
       if (tpl.sigma < kMinContrast) continue;
+      const Match m0 = match(0, pts(i, 0), pts(i, 1), current[static_cast<size_t>(i)]);
+      if (m0.textured && m0.ncc >= opt.ncc_full) continue;  // stage A found it
       sample_patch(pyr[l], level_coord(pts(i, 0), l), level_coord(pts(i, 1), l), q, window.data());
       const float* M = tpl.mask.empty() ? nullptr : tpl.mask.data();
       const double used = tpl.n_used;
@@ -624,10 +628,12 @@ struct SpringMeshTracker::Impl {
           const double var = s2 / used - mean * mean;
           if (!(var > kMinContrast * kMinContrast)) continue;
           const double ncc = c / (used * std::sqrt(var) * tpl.sigma);
-          if (ox == 0 && oy == 0) here = ncc;
-          // Ties and near-ties go to the smaller move.
-          if (ncc > best + 1e-9 * (ox * ox + oy * oy + 1)) {
-            best = ncc;
+          // Longer moves must correlate better (along a lip contour, every offset matches
+          // about as well): the score loses kSearchPenalty at the edge of the search disc.
+          const double score = ncc - kSearchPenalty * (ox * ox + oy * oy) / double(S * S);
+          if (ox == 0 && oy == 0) here = score;
+          if (score > best) {
+            best = score;
             bx = ox;
             by = oy;
           }
@@ -636,8 +642,10 @@ struct SpringMeshTracker::Impl {
       if ((bx != 0 || by != 0) && best >= opt.ncc_full && best > here + kSearchMargin) {
         pts(i, 0) += bx * step;
         pts(i, 1) += by * step;
+        moved = true;
       }
     }
+    return moved;
   }
 
   // Joint Gauss–Newton relaxation over levels [l_hi .. l_lo] against `tpls`; updates pts.
@@ -821,9 +829,13 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
   }
   s.build_pyramid(frame);
   TrackerFrame out;
-  if (s.opt.search_radius > 0) s.search();
   // Stage A: coarse to fine against the current templates.
   out.iterations = s.relax(s.n_levels - 1, 0, s.current);
+  // Half-patch points that stage A left on a poor match are searched for, and the mesh is
+  // relaxed again from where they were found.
+  if (s.opt.search_radius > 0 && s.search()) {
+    out.iterations += s.relax(0, 0, s.current);
+  }
   const RowMatrixXd stage_a = s.pts;
   // Stage B: drift correction against the first-frame templates, at the finest level.
   out.iterations += s.relax(0, 0, s.first);

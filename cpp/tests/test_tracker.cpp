@@ -163,6 +163,12 @@ TEST_CASE("springs_from_points and estimate_springs: closed-form lengths, means 
   CHECK(m.rest_length[0] == doctest::Approx(3));
   CHECK(m.rest_length[2] == doctest::Approx(5));
   CHECK(m.stiffness[2] == doctest::Approx(1.0 / 0.25));
+  // A floor of 0.4 px on the std: the 3 px spring (0.3 px) is floored, the 5 px one is not.
+  const SpringMesh floored = springs_from_points(p, e, 0.1, 0.4);
+  CHECK(floored.stiffness[0] == doctest::Approx(1.0 / 0.16));
+  CHECK(floored.stiffness[2] == doctest::Approx(1.0 / 0.25));
+  CHECK_THROWS_WITH_AS(springs_from_points(p, e, 0.1, -1.0), doctest::Contains("min_sigma"),
+                       std::invalid_argument);
   // Frames scale the triangle by 1, 2, 3 and a 4th frame (scale 100) has point 2 lost.
   RowMatrixXd tracks(4, 6);
   RowMatrixXb lost = RowMatrixXb::Zero(4, 3);
@@ -185,6 +191,78 @@ TEST_CASE("springs_from_points and estimate_springs: closed-form lengths, means 
   const SpringMesh f = estimate_springs(still, RowMatrixXb::Zero(3, 3), m, 0.5);
   CHECK(f.stiffness[0] == doctest::Approx(4.0));
   CHECK_THROWS_AS(estimate_springs(still, RowMatrixXb::Zero(2, 3), m, 0.5), std::invalid_argument);
+}
+
+// A mouth seen edge-on: a textured lower lip, `band` px tall, hangs below the line y = y0 + s
+// and moves down with s over a static chin; above the line is a different texture in frame 0
+// (closed lips) and a flat dark cavity afterwards (an open mouth).
+Frame render_mouth(const Texture& lip, const Texture& closed, const Texture& chin, double y0,
+                   double s, bool open) {
+  const Index w = 200, h = 160;
+  const double band = 8;
+  Frame f{std::vector<std::uint8_t>(static_cast<size_t>(w * h)), w, h};
+  for (Index y = 0; y < h; ++y) {
+    for (Index x = 0; x < w; ++x) {
+      const double yy = static_cast<double>(y) - (y0 + s);
+      double v;
+      if (yy < 0) {
+        v = open ? 40.0 : closed(double(x), double(y));
+      } else if (yy < band) {
+        v = lip(double(x), double(y) - s);
+      } else {
+        v = chin(double(x), double(y));
+      }
+      f.pix[static_cast<size_t>(y * w + x)] =
+          static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 255.0)));
+    }
+  }
+  return f;
+}
+
+TEST_CASE("tracker: half patches follow a lip beside an opening mouth; search catches a jump") {
+  const Texture lip(21), closed(22), chin(23);
+  const double y0 = 70;
+  RowMatrixXd p0(3, 2);
+  p0 << 60, y0, 100, y0, 140, y0;
+  EdgeMatrix edges(2, 2);
+  edges << 0, 1, 1, 2;
+  const SpringMesh mesh = springs_from_points(p0, edges);
+  TrackerOptions half;
+  half.patch_sides = RowMatrixXd(3, 2);
+  half.patch_sides << 0, 1, 0, 1, 0, 1;  // the lip is below each point
+  TrackerOptions searched = half;
+  searched.search_radius = 12;
+  const Frame f0 = render_mouth(lip, closed, chin, y0, 0, false);
+  SpringMeshTracker whole_t(f0.view(), p0, mesh), half_t(f0.view(), p0, mesh, half),
+      search_t(f0.view(), p0, mesh, searched);
+  // The mouth opens 1.5 px per frame for 3 frames, then the lip drops 10 px in one frame.
+  const std::vector<double> drop = {1.5, 3.0, 4.5, 14.5};
+  double err_whole = 0, err_half = 0, err_search = 0;
+  for (const double s : drop) {
+    const Frame f = render_mouth(lip, closed, chin, y0, s, true);
+    const TrackerFrame rw = whole_t.track(f.view()), rh = half_t.track(f.view()),
+                       rs = search_t.track(f.view());
+    err_whole = err_half = err_search = 0;
+    for (Index i = 0; i < 3; ++i) {
+      err_whole = std::max(err_whole, std::hypot(rw.points(i, 0) - p0(i, 0), rw.points(i, 1) - y0 - s));
+      err_half = std::max(err_half, std::hypot(rh.points(i, 0) - p0(i, 0), rh.points(i, 1) - y0 - s));
+      err_search = std::max(err_search, std::hypot(rs.points(i, 0) - p0(i, 0), rs.points(i, 1) - y0 - s));
+    }
+    MESSAGE("lip drop ", s, " px: worst error whole patches ", err_whole, ", half patches ",
+            err_half, ", half patches + search ", err_search);
+    if (s < 5) {
+      // Gradual opening: the half patches keep the lip (they never see the cavity) ...
+      CHECK(err_half < 0.1);
+      CHECK(err_search < 0.1);
+      CHECK(!rh.lost.any());
+    }
+  }
+  // ... the whole patches, whose upper half turned from closed lips into a cavity, do not.
+  CHECK(err_whole > 2.0);
+  // A 7 px jump is beyond the gradient steps and the coarse levels (dominated by the static
+  // chin); the exhaustive search finds it.
+  CHECK(err_half > 2.0);
+  CHECK(err_search < 0.1);
 }
 
 TEST_CASE("tracker: a sub-pixel shift of a textured image is recovered to 0.06 px") {
@@ -272,6 +350,14 @@ TEST_CASE("tracker: bad input is refused with a reason") {
   bad.ncc_floor = 0.9;
   CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("ncc_floor"),
                        std::invalid_argument);
+  TrackerOptions sides;
+  sides.patch_sides = RowMatrixXd::Zero(2, 2);
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, sides),
+                       doctest::Contains("patch_sides"), std::invalid_argument);
+  TrackerOptions search;
+  search.search_radius = -1;
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, search),
+                       doctest::Contains("search_radius"), std::invalid_argument);
   SpringMeshTracker tracker(f0.view(), p, mesh);
   const Frame small = render(tex, 90, 80, 0, 0);
   CHECK_THROWS_WITH_AS(tracker.track(small.view()), doctest::Contains("one size"),

@@ -103,7 +103,7 @@ def lip_patch_sides(points: np.ndarray) -> np.ndarray:
     u = u / n
     down = np.array([-u[1], u[0]])  # image y grows downwards: (-uy, ux) points down the face
     sides = np.zeros((68, 2))
-    sides[[49, 50, 51, 52, 53, 61, 62, 63]] = -down
+    sides[[61, 62, 63]] = -down
     sides[[55, 56, 57, 58, 59, 65, 66, 67]] = down
     return sides
 
@@ -190,8 +190,7 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         iod = float(np.linalg.norm(init[45] - init[36]))
         options.setdefault("patch_sides", lip_patch_sides(init))
         options.setdefault("search_radius", LIP_SEARCH_IOD * iod)
-        if initial_min_sigma is None:
-            initial_min_sigma = LIP_SPRING_FLOOR_IOD * iod
+        lip_floor = LIP_SPRING_FLOOR_IOD * iod
     if passes < 1:
         raise ValueError(f"passes must be >= 1 (tracking passes with spring re-estimation), got {passes}")
     if edges is None:
@@ -202,6 +201,13 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
     opts = _options(options)
     mesh = _core.springs_from_points(init, edges, relative_sigma,
                                      min_sigma if initial_min_sigma is None else initial_min_sigma)
+    if lips:
+        # Springs that touch a lip point start no stiffer than a std of lip_floor px: the mouth
+        # opens by many times the few-pixel gap of closed lips.
+        on_lips = np.any(edges >= 48, axis=1)
+        k = np.asarray(mesh.stiffness).copy()
+        k[on_lips] = np.minimum(k[on_lips], 1.0 / lip_floor**2)
+        mesh = _core.SpringMesh(edges, np.asarray(mesh.rest_length), k)
     history = []
     prev = None
     for k in range(passes):
@@ -239,10 +245,10 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         ``patch_sides`` (P, 2) half-patch directions, ``search_radius`` px) and
         ``relative_sigma`` (initial spring std as a fraction of length), ``min_sigma`` (px floor
         of re-estimated spring std), ``initial_min_sigma`` (px floor of the initial spring std;
-        default ``min_sigma``, or 0.025 inter-ocular distances with ``lips``), ``lips``
-        (lip tracking for a 68-point iBUG layout: :func:`lip_patch_sides` half patches, a
-        search radius of 0.065 inter-ocular distances and the initial spring floor; default:
-        on when there are 68 points; explicit options win)
+        default ``min_sigma``), ``lips`` (lip tracking for a 68-point iBUG layout:
+        :func:`lip_patch_sides` half patches, a search radius of 0.065 inter-ocular distances,
+        and initial springs touching the lips no stiffer than a std of 0.025 inter-ocular
+        distances; default: on when there are 68 points; explicit options win)
 
     Returns
     -------
