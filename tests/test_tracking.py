@@ -266,3 +266,59 @@ def test_sub_pixel_shift_of_the_photo_is_recovered_like_lucas_kanade():
         print(f"shift ({dx}, {dy}): mean error ours {err:.4f} px, LK {err_lk:.4f} px")
         assert err < 0.06
         assert err < 1.35 * err_lk  # within ~20 % of LK (brightness normalisation costs a little)
+
+
+@pytest.fixture(scope="module")
+def performer(tmp_path_factory):
+    synth = pytest.importorskip("voicepuppet.synth")
+    if not synth.espeak_available():
+        pytest.skip("the synthetic performer needs espeak-ng: apt-get install espeak-ng")
+    corpus = synth.make_corpus(tmp_path_factory.mktemp("performer"), train_seconds=6, n_test=0,
+                               real_test=False, seed=0, progress=False)
+    from voicepuppet import video
+
+    frames, fps = video.read_grey_frames(corpus.train.video)
+    return frames, corpus.train.points, fps
+
+
+def _lip_scores(points, truth):
+    err = np.linalg.norm(points - truth, axis=2)
+    opening_true = truth[:, 66, 1] - truth[:, 62, 1]
+    opening = points[:, 66, 1] - points[:, 62, 1]
+    return (err[:, 48:].mean(), err[:, :48].mean(), float(np.corrcoef(opening_true, opening)[0, 1]),
+            opening.std(), opening_true.std())
+
+
+def test_lips_follow_the_mouth_of_the_synthetic_performer(performer):
+    # Issue 6 follow-up: with whole first-frame patches the lip points stayed at rest while the
+    # mouth opened (mouth-opening correlation ~0); half patches on the lip side, the search and
+    # lip springs that let the mouth open make them follow.
+    frames, truth, fps = performer
+    assert len(frames) == len(truth) and len(frames) >= 170
+    assert np.ptp(truth[:, 66, 1]) > 10  # the mouth really opens in this clip
+    new = tracking.track_frames(frames, truth[0], fps=fps, passes=2)
+    old = tracking.track_frames(frames, truth[0], fps=fps, passes=2, lips=False)
+    lip, rest, corr, std, std_true = _lip_scores(new.points, truth)
+    lip0, rest0, corr0, std0, _ = _lip_scores(old.points, truth)
+    print(f"lips: error {lip:.2f} px (whole patches {lip0:.2f}), mouth-opening correlation {corr:.3f} "
+          f"({corr0:.3f}), opening std {std:.2f} px ({std0:.2f}; truth {std_true:.2f}); "
+          f"other points {rest:.2f} px ({rest0:.2f})")
+    assert corr0 < 0.3 and lip0 > 4.5  # the defect, measured
+    assert corr > 0.7
+    assert lip < 3.5
+    assert std > 0.5 * std_true
+    assert rest < 0.45  # the rest of the face as accurate as before
+    assert rest < rest0 + 0.05
+
+
+def test_lip_patch_sides_point_away_from_the_mouth(performer):
+    _, truth, _ = performer
+    sides = tracking.lip_patch_sides(truth[0])
+    assert sides.shape == (68, 2)
+    # Upper inner lip looks up, lower lip looks down (image y grows downwards), others whole.
+    assert np.all(sides[[61, 62, 63], 1] < -0.9) and np.all(sides[[55, 56, 57, 58, 59, 65, 66, 67], 1] > 0.9)
+    assert np.all(sides[:48] == 0) and np.all(sides[[48, 54, 60, 64]] == 0)
+    with pytest.raises(ValueError, match="68 points"):
+        tracking.lip_patch_sides(truth[0][:40])
+    with pytest.raises(ValueError, match="68 points"):
+        tracking.track_frames(np.zeros((2, 64, 64), np.uint8), [[10, 10], [30, 12], [20, 30]], lips=True)

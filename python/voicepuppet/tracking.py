@@ -200,7 +200,7 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         raise ValueError(f"edges must have shape (E, 2) with E >= 1, got {edges.shape}")
     opts = _options(options)
     mesh = _core.springs_from_points(init, edges, relative_sigma,
-                                     min_sigma if initial_min_sigma is None else initial_min_sigma)
+                                     0.0 if initial_min_sigma is None else initial_min_sigma)
     if lips:
         # Springs that touch a lip point start no stiffer than a std of lip_floor px: the mouth
         # opens by many times the few-pixel gap of closed lips.
@@ -245,7 +245,7 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         ``patch_sides`` (P, 2) half-patch directions, ``search_radius`` px) and
         ``relative_sigma`` (initial spring std as a fraction of length), ``min_sigma`` (px floor
         of re-estimated spring std), ``initial_min_sigma`` (px floor of the initial spring std;
-        default ``min_sigma``), ``lips`` (lip tracking for a 68-point iBUG layout:
+        default none), ``lips`` (lip tracking for a 68-point iBUG layout:
         :func:`lip_patch_sides` half patches, a search radius of 0.065 inter-ocular distances,
         and initial springs touching the lips no stiffer than a std of 0.025 inter-ocular
         distances; default: on when there are 68 points; explicit options win)
