@@ -96,8 +96,8 @@ def test_track_folder_equals_one_by_one_and_reports_failures(client, videos, one
     errors = {f.input: f.error for f in s.failed}
     assert "cannot read the input" in errors["gone.avi"]
     assert "broken.mp4" in errors["broken.mp4"] or "decod" in errors["broken.mp4"] or "open" in errors["broken.mp4"]
-    assert outputs(out) == sorted([batch.MANIFEST_NAME, batch.SUMMARY_NAME, "a.csv", "a.npz", "b.csv", "b.npz",
-                                   "sub/c.csv", "sub/c.npz"])  # nothing half-written left behind
+    assert outputs(out) == sorted([batch.MANIFEST_NAME, batch.SUMMARY_NAME, batch.LOCK_NAME, "a.csv", "a.npz",
+                                   "b.csv", "b.npz", "sub/c.csv", "sub/c.npz"])  # nothing half-written
     for rel in ["a.npz", "a.csv", "b.npz", "b.csv", "sub/c.npz", "sub/c.csv"]:
         assert_same_file(out / rel, one_by_one / rel)
     summary = json.loads((out / batch.SUMMARY_NAME).read_text())
@@ -158,6 +158,19 @@ def test_inputs_that_would_overwrite_each_other_are_reported(client, videos, tmp
     s = batch.track_folder(folder, tmp_path / "out", init=str(init), passes=1, client=client, progress=False)
     assert [(f.input, f.status) for f in s.files] == [("x.avi", "done"), ("x.mkv", "failed")]
     assert "would overwrite those of x.avi" in s.files[1].error
+
+
+def test_a_second_run_into_the_same_folder_is_refused(client, videos, tmp_path):
+    import fcntl
+
+    root, init = videos
+    out = tmp_path / "out"
+    out.mkdir()
+    with open(out / batch.LOCK_NAME, "a") as fh:  # as a run in progress holds it
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(ValueError, match="another voicepuppet batch run is writing"):
+            batch.track_folder(root, out, init=str(init), passes=1, client=client, progress=False)
+    assert not (out / batch.MANIFEST_NAME).exists()
 
 
 def test_manifest_ignores_a_damaged_line(tmp_path):
@@ -303,7 +316,7 @@ def test_real_cluster_with_a_worker_killed_mid_run(tmp_path):
         assert [f.status for f in s.files] == ["done"] * 8, s.text()
         lines = (out / batch.MANIFEST_NAME).read_text().splitlines()
         assert sorted(json.loads(x)["input"] for x in lines) == names  # each input recorded exactly once
-        assert outputs(out) == sorted([batch.MANIFEST_NAME, batch.SUMMARY_NAME]
+        assert outputs(out) == sorted([batch.MANIFEST_NAME, batch.SUMMARY_NAME, batch.LOCK_NAME]
                                       + [n.replace(".avi", e) for n in names for e in (".npz", ".csv")])
         ref = tmp_path / "ref"
         ref.mkdir()

@@ -27,6 +27,7 @@ How a run behaves:
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -46,6 +47,7 @@ AUDIO_SUFFIXES = (".wav", ".flac", ".ogg", ".mp3", ".m4a", ".aac", ".opus", ".ai
 VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v", ".mpg", ".mpeg")
 MANIFEST_NAME = ".voicepuppet-batch.jsonl"
 SUMMARY_NAME = "batch-summary.json"
+LOCK_NAME = ".voicepuppet-batch.lock"
 _PARTIAL = ".partial"
 
 
@@ -245,9 +247,6 @@ def run_batch(verb: str, jobs: list[tuple[str, Path, tuple]], task: Callable, ou
     -------
     BatchSummary
     """
-    from distributed import as_completed
-    from tqdm.auto import tqdm
-
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -255,6 +254,32 @@ def run_batch(verb: str, jobs: list[tuple[str, Path, tuple]], task: Callable, ou
         raise ValueError(f"cannot create the output folder {str(out_dir)!r}: {exc}") from None
     if not os.access(out_dir, os.W_OK | os.X_OK):
         raise ValueError(f"output folder {str(out_dir)!r} is not writable; choose another with -o")
+    with _exclusive(out_dir):
+        return _run_batch(verb, jobs, task, out_dir, settings, client, progress, clashes)
+
+
+@contextlib.contextmanager
+def _exclusive(out_dir: Path):
+    """Holds ``OUT_DIR/.voicepuppet-batch.lock`` (an advisory lock) for the run: two runs writing
+    into one folder would remove each other's temporaries and interleave the manifest."""
+    import fcntl
+
+    fh = open(out_dir / LOCK_NAME, "a")
+    try:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise ValueError(f"another voicepuppet batch run is writing into {str(out_dir)!r}; wait for it "
+                             "to finish or choose another output folder") from None
+        yield
+    finally:
+        fh.close()
+
+
+def _run_batch(verb, jobs, task, out_dir: Path, settings, client, progress, clashes) -> BatchSummary:
+    from distributed import as_completed
+    from tqdm.auto import tqdm
+
     t0 = time.perf_counter()
     _remove_partials(out_dir)
     manifest = Manifest(out_dir)
