@@ -151,6 +151,21 @@ def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "outp
             tmp_path.unlink()
 
 
+def write_npz(fh, arrays: dict) -> None:
+    """``np.savez_compressed`` with fixed member timestamps, so equal arrays give equal bytes
+    (numpy stamps the current time into each member, which makes re-runs differ byte for byte).
+    ``fh`` is a binary file object; members are ``NAME.npy`` in the given order."""
+    import zipfile
+
+    with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, value in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            with zf.open(info, "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+
+
 def _csv_header(P: int) -> str:
     return "frame,time," + ",".join(f"x{i},y{i}" for i in range(P))
 
@@ -165,7 +180,7 @@ def save_animation(anim: Animation, path) -> Path:
             if anim.confidence is not None:
                 arrays["confidence"] = anim.confidence
             with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, **arrays)
+                write_npz(fh, arrays)
         else:
             T, P, _ = anim.points.shape
             table = np.column_stack([np.arange(T), anim.times, anim.points.reshape(T, -1)])
