@@ -148,6 +148,29 @@ def plp_from_bands(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps
 
 
 # --------------------------------------------------------------------------- one analysis pass
+def analysis_window(window_s: float, rate: float, n_fft: int | None = None):
+    """The spectral analysis window: ``(n_fft, window [n_fft], freqs [n_fft//2+1], parseval)``.
+
+    A Hann window of ``round(window_s * rate)`` samples centred in ``n_fft`` (default the next
+    fast length); ``parseval`` weights turn one-sided power into the mean square of the windowed
+    frame over the window energy. Shared by the offline pass and the stream (audio.stream).
+    """
+    length = int(round(window_s * rate))
+    if n_fft is None:
+        n_fft = fast_len(max(length, 2))
+    if length > n_fft:
+        raise ValueError(f"window of {length} samples exceeds n_fft={n_fft}")
+    win = centred_window(hann(length), n_fft)
+    win_energy = float(np.sum(win * win))
+    freqs = np.fft.rfftfreq(n_fft, 1.0 / rate)
+    parseval = np.full(freqs.shape[0], 2.0)
+    parseval[0] = 1.0
+    if n_fft % 2 == 0:
+        parseval[-1] = 1.0
+    parseval /= n_fft * win_energy
+    return n_fft, win, freqs, parseval
+
+
 def spectral_features(x: np.ndarray, rate: float, fps: float, n_out: int, *,
                       want: set, window_s: float = 0.025, n_fft: int | None = None,
                       n_mfcc: int = 13, n_mels: int = 40, fmin: float = 0.0,
@@ -168,20 +191,7 @@ def spectral_features(x: np.ndarray, rate: float, fps: float, n_out: int, *,
     """
     from scipy.fft import rfft
 
-    length = int(round(window_s * rate))
-    if n_fft is None:
-        n_fft = fast_len(max(length, 2))
-    if length > n_fft:
-        raise ValueError(f"window of {length} samples exceeds n_fft={n_fft}")
-    win = centred_window(hann(length), n_fft)
-    win_energy = float(np.sum(win * win))
-    freqs = np.fft.rfftfreq(n_fft, 1.0 / rate)
-    # Parseval weights: one-sided power -> mean square of the windowed frame / window energy.
-    parseval = np.full(freqs.shape[0], 2.0)
-    parseval[0] = 1.0
-    if n_fft % 2 == 0:
-        parseval[-1] = 1.0
-    parseval /= n_fft * win_energy
+    n_fft, win, freqs, parseval = analysis_window(window_s, rate, n_fft)
 
     m = max(1, int(round(rasta_rate / fps))) if "rasta_plp" in want else 1
     fine = frame_centres(n_out * m, rate, fps * m)

@@ -37,7 +37,7 @@ from fractions import Fraction
 import numpy as np
 
 from .featureset import FeatureSet, as_feature_set
-from .framing import (centred_window, check_fps, fast_len, hamming, hann, n_frames)
+from .framing import check_fps, hamming, n_frames
 from .loading import MIN_RATE
 
 #: Features the stream can produce.
@@ -573,18 +573,7 @@ class StreamingFeatures:
         # spectral pass
         self.spec_want = want & {"mfcc", "mfcc_deltas", "rasta_plp", "bands", "log_energy"}
         if self.spec_want:
-            length = int(round(window_s * rate_i))
-            n_fft = opt["n_fft"] or fast_len(max(length, 2))
-            if length > n_fft:
-                raise ValueError(f"window of {length} samples exceeds n_fft={n_fft}")
-            win = centred_window(hann(length), n_fft)
-            win_energy = float(np.sum(win * win))
-            freqs = np.fft.rfftfreq(n_fft, 1.0 / rate_i)
-            parseval = np.full(freqs.shape[0], 2.0)
-            parseval[0] = 1.0
-            if n_fft % 2 == 0:
-                parseval[-1] = 1.0
-            parseval /= n_fft * win_energy
+            n_fft, win, freqs, parseval = spectral.analysis_window(window_s, rate_i, opt["n_fft"] or None)
             self.parseval = parseval
             m = max(1, int(round(100.0 / fps))) if "rasta_plp" in want else 1
             self.m = m
