@@ -583,12 +583,13 @@ struct SpringMeshTracker::Impl {
     return std::clamp(w, 0.0, 1.0);
   }
 
-  // Exhaustive search for the half-patch points (the deforming ones: lips), before stage A:
-  // the current template is correlated with the image at every whole-pixel offset within
-  // `search_radius` on pyramid level 1 (level 0 for a one-level pyramid), and a point moves to
-  // the best offset when that correlates better than where it is. A lip can move 8 px between
-  // frames, beyond the reach of the gradient steps, and the coarse pyramid levels do not see
-  // it: their patches are dominated by skin that barely moves.
+  // Exhaustive search for the half-patch points (the deforming ones: lips) that stage A left on
+  // a poor match: the current template is correlated with the finest level at every
+  // whole-pixel offset within `search_radius`, and a point moves to the best-scoring offset
+  // when that correlates at least ncc_full and clearly better than where it is. A lip can move
+  // 8 px between frames, beyond the reach of the gradient steps, and the coarse pyramid levels
+  // do not see it: their patches are dominated by skin that barely moves. Returns whether any
+  // point moved.
   bool search() {
     const Index l = 0;
     const double step = 1.0;

@@ -18,6 +18,10 @@
 /// springs. Springs are scalar-length springs: energy k·(|p_j − p_i| − L)², with L and k
 /// re-estimated from the mean and variance of the tracked distances (`estimate_springs`).
 ///
+/// Lips: a point beside a region whose appearance changes (a lip beside the opening mouth) can
+/// be tracked on one half of its patch (`TrackerOptions::patch_sides`), and such points are
+/// searched for exhaustively when the gradient steps lose them (`TrackerOptions::search_radius`).
+///
 /// Images come in as plain 8-bit grey buffers (`GreyImage`); `tracker_opencv.hpp` adapts a
 /// `cv::Mat` for C++ callers who use OpenCV. Coordinates are pixels, (x, y), the centre of the
 /// top-left pixel at (0, 0).
@@ -106,8 +110,10 @@ struct TrackerOptions {
   /// offset from the point: the side of a lip away from the mouth opening, whose texture moves
   /// with the point while the other side turns from closed lips into the mouth cavity.
   RowMatrixXd patch_sides;
-  /// px: half-patch points are first searched for exhaustively (whole-pixel offsets within this
-  /// radius, on pyramid level 1) and start from the best-correlated offset (0: no search)
+  /// px: a half-patch point that stage A leaves correlating below `ncc_full` with its template
+  /// is searched for exhaustively (whole-pixel offsets within this radius, finest level, longer
+  /// moves penalised); it moves to the best offset if that correlates at least `ncc_full`, and
+  /// the mesh is relaxed again (0: no search)
   double search_radius = 0.0;
 };
 
