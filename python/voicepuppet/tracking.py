@@ -405,11 +405,13 @@ def save_landmarks(path: str | os.PathLike, result: TrackResult, csv: bool = Tru
     if result.names is not None:
         arrays["names"] = np.asarray(result.names, dtype=str)
 
-    def write_npz(tmp: Path) -> None:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
+    def write(tmp: Path) -> None:
+        from voicepuppet.animation import write_npz
 
-    _atomic(path, write_npz)
+        with open(tmp, "wb") as fh:
+            write_npz(fh, arrays)  # fixed zip timestamps: equal tracks are equal bytes
+
+    _atomic(path, write)
     written = [path]
     if csv:
         T, P, _ = result.points.shape
