@@ -32,7 +32,7 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
     """
     if train_on not in ("truth", "tracked"):
         raise ValueError(f"train_on must be 'truth' or 'tracked', got {train_on!r}")
-    from voicepuppet import evaluation, synth, tracking
+    from voicepuppet import evaluation, metrics, synth, tracking
     from voicepuppet.animation import Animation, atomic_path, save_animation
     from voicepuppet.puppet import Puppet
 
@@ -51,11 +51,9 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
     log(f"[2/5] tracking {train.n_frames} frames of {Path(train.video).name} from the first frame's points")
     tracked = tracking.track_video(train.video, init=train.points[0], progress=progress)
     n = min(len(tracked.points), train.n_frames)
-    from voicepuppet import metrics
-
     track_err = metrics.landmark_rmse_iod(tracked.points[:n], train.points[:n])
     timings["track_s"] = time.perf_counter() - t
-    lips = list(range(48, 68))
+    lips = list(metrics.IBUG68_MOUTH)
     lip_err = metrics.landmark_rmse_iod(tracked.points[:n, lips], train.points[:n, lips],
                                         iod=metrics.inter_ocular(train.points[:n]))
     log(f"      tracker error against ground truth: {track_err:.4f} of the inter-ocular distance "
