@@ -171,3 +171,18 @@ def test_separate_face_parts():
                                       arr["face_covars"].reshape(-1, 2 * d), "full", 1.0)
         np.testing.assert_allclose(r.face[:, sl], _core.solve_trajectory(model, r.states[:, k]), atol=1e-9)
     np.testing.assert_allclose(p.animate(states=r.states).animation.points, r.animation.points, atol=1e-12)
+
+
+def test_training_on_a_dask_cluster_equals_one_process():
+    from voicepuppet import distributed
+
+    rng = np.random.default_rng(11)
+    seqs = [_planted(rng, T=300) for _ in range(3)]
+    pts, feats = [s[0] for s in seqs], [s[1] for s in seqs]
+    opts = dict(fps=30.0, n_states=6, n_iter=8, n_components=3, anneal=False)
+    one = Puppet.train(pts, features_list=feats, **opts)
+    with distributed.connect(None, 2, timeout=60) as client:
+        many = Puppet.train(pts, features_list=feats, client=client, **opts)
+    assert set(one.arrays) == set(many.arrays)
+    for name, value in one.arrays.items():
+        np.testing.assert_allclose(many.arrays[name], value, rtol=1e-10, atol=1e-10, err_msg=name)

@@ -180,3 +180,14 @@ def test_animation_files_are_byte_identical_across_writes(tmp_path):
     back = load_animation(tmp_path / "a.npz")
     np.testing.assert_array_equal(back.points, anim.points)
     assert back.fps == 25.0 and back.names == anim.names
+
+
+def test_train_on_a_local_dask_cluster(workdir, tmp_path):
+    from voicepuppet.puppet import load
+
+    d = workdir
+    assert main(["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"),
+                 "-o", str(tmp_path / "q.vpp"), "--states", "6", "--iterations", "4", "--workers", "1",
+                 "--quiet"]) == 0
+    q = load(tmp_path / "q.vpp")
+    assert q.n_points == 10 and q.animate(str(d / "test.wav")).animation.n_frames == 200

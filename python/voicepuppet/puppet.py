@@ -122,7 +122,7 @@ class Puppet:
     # --------------------------------------------------------------------------- training
     @classmethod
     def train(cls, points_list, audio_list=None, *, features_list=None, fps: float = 29.97,
-              progress: bool = False, **options) -> "Puppet":
+              progress: bool = False, client=None, **options) -> "Puppet":
         """Train a puppet from synchronous landmark tracks and audio.
 
         Parameters
@@ -138,6 +138,9 @@ class Puppet:
             Frame rate of the landmarks; the audio features are computed at this rate.
         progress : bool
             Progress bars (features, entropic EM).
+        client : distributed.Client, optional
+            Run the HMM's E-steps on this Dask cluster (:mod:`voicepuppet.distributed`): the same
+            parameters as training in one process, for many hours of video.
         **options
             Overrides of :data:`TRAIN_DEFAULTS`.
 
@@ -204,7 +207,12 @@ class Puppet:
             O = observations(Y[:, sl], lengths)
             hmm = GaussianHMM(opt["n_states"], "full", n_iter=opt["n_iter"], min_covar=opt["min_covar"],
                               random_state=opt["seed"], progress=progress, **prior)
-            hmm.fit(O, lengths)
+            if client is None:
+                hmm.fit(O, lengths)
+            else:
+                from voicepuppet import distributed
+
+                distributed.fit(hmm, O, lengths, client=client)
             gamma = hmm.predict_proba(O, lengths)
             vm, vc = remap(gamma, A, opt["vocal_covariance"], shrinkage=opt["vocal_shrinkage"] * A.shape[1])
             pre = f"hmm/part{k}/"

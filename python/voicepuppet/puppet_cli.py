@@ -92,7 +92,14 @@ def _train(args) -> int:
     options = {k: v for k, v in {"n_states": args.states, "n_iter": args.iterations, "parts": args.parts,
                                   "prior": args.prior, "feature_set": args.feature_set,
                                   "seed": args.seed}.items() if v is not None}
-    puppet = Puppet.train(points_list, audio_list, fps=fps, progress=not args.quiet, **options)
+    if args.scheduler or args.workers:
+        from voicepuppet import distributed
+
+        with distributed.connect(args.scheduler, args.workers) as client:
+            puppet = Puppet.train(points_list, audio_list, fps=fps, progress=not args.quiet, client=client,
+                                  **options)
+    else:
+        puppet = Puppet.train(points_list, audio_list, fps=fps, progress=not args.quiet, **options)
     puppet.save(out)
     for part in puppet.metadata["training"]["parts"]:
         print(f"part {part['part']}: {part['states']} states (from {options.get('n_states', TRAIN_DEFAULTS['n_states'])}), "
@@ -187,6 +194,9 @@ def add_parser(sub) -> None:
     p.add_argument("--prior", choices=["entropic", "ml"], help="entropic MAP (default) or conventional Baum-Welch")
     p.add_argument("--feature-set", help="audio feature set (default: puppet)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run the HMM's E-steps on this Dask scheduler "
+                   "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process")
+    p.add_argument("--workers", type=int, help="run the E-steps on a local Dask cluster of this many processes")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_train)
 
