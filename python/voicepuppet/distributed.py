@@ -148,17 +148,11 @@ def chunk_bounds(lengths, chunk_frames: int = DEFAULT_CHUNK_FRAMES) -> list[tupl
 # Module-level functions: the workers import them from voicepuppet.distributed.
 
 def _aligned(a) -> np.ndarray:
-    """A C-contiguous float64 copy of ``a`` starting on a 64-byte boundary.
+    """Deserialised buffers (and small numpy arrays) sit at varying addresses; see
+    :func:`voicepuppet.hmm.aligned`, which every E-step and M-step input goes through."""
+    from voicepuppet.hmm import aligned
 
-    Deserialised buffers (and small numpy arrays) sit at varying addresses, and the alignment
-    of the data changes how the SIMD kernels split their sums, so the last bits of the results.
-    Aligned copies make every E-step and M-step reproducible bit for bit, run after run."""
-    a = np.asarray(a, dtype=np.float64)
-    buf = np.empty(a.nbytes + 64, dtype=np.uint8)
-    offset = (-buf.ctypes.data) % 64
-    out = buf[offset:offset + a.nbytes].view(np.float64).reshape(a.shape)
-    out[...] = a
-    return out
+    return aligned(a)
 
 
 def _hold(X: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -287,9 +287,10 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
     cluster (:class:`voicepuppet.distributed.DaskEStep`); initialisation, trimming decisions and
     the M-step stay here.
     """
-    from voicepuppet.hmm import check_sequences
+    from voicepuppet.hmm import aligned, check_sequences
 
     X, lengths = check_sequences(X, lengths)
+    X = aligned(X)  # one data layout in every run (see voicepuppet.hmm.aligned)
     model._init(X)
     model._check_params()
     n_iter = model.n_iter

@@ -65,6 +65,20 @@ def check_sequences(X, lengths=None, *, name: str = "X") -> tuple[np.ndarray, np
     return X, np.ascontiguousarray(lengths_arr)
 
 
+def aligned(a) -> np.ndarray:
+    """A C-contiguous float64 copy of ``a`` starting on a 64-byte boundary.
+
+    numpy places buffers at varying addresses, and the alignment of the data changes how the
+    SIMD kernels split their sums, so the last bits of the results. Everything the training
+    kernels read goes through this, so that a fit is reproducible bit for bit for a given seed."""
+    a = np.asarray(a, dtype=np.float64)
+    buf = np.empty(a.nbytes + 64, dtype=np.uint8)
+    offset = (-buf.ctypes.data) % 64
+    out = buf[offset:offset + a.nbytes].view(np.float64).reshape(a.shape)
+    out[...] = a
+    return out
+
+
 class GaussianHMM:
     """Hidden Markov model with Gaussian emissions (full or diagonal covariance).
 
@@ -270,22 +284,26 @@ class GaussianHMM:
         """
         self._check_params()
         X, lengths = self._check_X(X, lengths)
-        shift = X.mean(axis=0) if shift is None else np.ascontiguousarray(shift, dtype=np.float64)
-        return _core.gaussian_hmm_estep(X, lengths, self.startprob_, self.transmat_, self.means_,
-                                        self._covars_2d(), self.covariance, shift)
+        X = X if X.ctypes.data % 64 == 0 else aligned(X)
+        shift = X.mean(axis=0) if shift is None else shift
+        return _core.gaussian_hmm_estep(X, lengths, aligned(self.startprob_), aligned(self.transmat_),
+                                        aligned(self.means_), aligned(self._covars_2d()), self.covariance,
+                                        aligned(shift))
 
     def mstep(self, stats: dict) -> None:
         """Maximum-likelihood update of the parameters named in ``params`` from :meth:`estep`."""
         n = self.n_states
         if "s" in self.params:
-            self.startprob_ = _core.normalize_counts(stats["expected_starts"][None, :],
-                                                     self.startprob_[None, :])[0]
+            self.startprob_ = _core.normalize_counts(aligned(stats["expected_starts"][None, :]),
+                                                     aligned(self.startprob_[None, :]))[0]
         if "t" in self.params:
-            self.transmat_ = _core.normalize_counts(stats["expected_transitions"], self.transmat_)
+            self.transmat_ = _core.normalize_counts(aligned(stats["expected_transitions"]),
+                                                    aligned(self.transmat_))
         if "m" in self.params or "c" in self.params:
-            means, covars = _core.gaussian_mstep(stats["weight"], stats["sum"], stats["outer"], stats["shift"],
-                                                 self.covariance, self._variance_floor, self.means_,
-                                                 self._covars_2d())
+            means, covars = _core.gaussian_mstep(aligned(stats["weight"]), aligned(stats["sum"]),
+                                                 aligned(stats["outer"]), aligned(stats["shift"]),
+                                                 self.covariance, self._variance_floor, aligned(self.means_),
+                                                 aligned(self._covars_2d()))
             if "m" in self.params:
                 self.means_ = means
             if "c" in self.params:
@@ -324,6 +342,7 @@ class GaussianHMM:
             fit_entropic(self, X, lengths, estep=estep)
             return self
         X, lengths = check_sequences(X, lengths)
+        X = aligned(X)  # the same data layout in every run: bit-for-bit reproducible fits
         self._init(X)
         self._check_params()
         shift = X.mean(axis=0)
