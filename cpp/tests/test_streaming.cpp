@@ -7,6 +7,7 @@
 #include <limits>
 #include <random>
 
+#include "random_hmm.hpp"
 #include "voicepuppet/hmm.hpp"
 #include "voicepuppet/streaming.hpp"
 
@@ -14,30 +15,8 @@ using namespace voicepuppet;
 
 namespace {
 
-struct Model {
-  VectorXd pi;
-  RowMatrixXd A;
-  RowMatrixXd log_b;
-};
-
-Model random_model(Index n, Index T, unsigned seed, double sparsity) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(0.05, 1.0);
-  Model m;
-  m.pi.resize(n);
-  m.A.resize(n, n);
-  for (Index i = 0; i < n; ++i) {
-    m.pi[i] = u(rng);
-    for (Index j = 0; j < n; ++j) m.A(i, j) = (j != i && u(rng) < sparsity) ? 0.0 : u(rng);
-    m.A.row(i) /= m.A.row(i).sum();
-  }
-  m.pi /= m.pi.sum();
-  m.log_b.resize(T, n);
-  std::normal_distribution<double> g(-3.0, 2.0);
-  for (Index t = 0; t < T; ++t)
-    for (Index j = 0; j < n; ++j) m.log_b(t, j) = g(rng);
-  return m;
-}
+using testing::Model;
+using testing::random_model;
 
 struct Collected {
   VectorXi states;
