@@ -132,9 +132,12 @@ def rasta_filter(log_bands: np.ndarray, frame_rate: float, pole: float = 0.94) -
     return y
 
 
-def plp_from_bands(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps: int
-                   ) -> np.ndarray:
-    """Equal loudness, cube-root compression and an all-pole fit -> cepstra (T, n_ceps)."""
+def plp_from_bands(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps: int, *,
+                   solve=None, to_cepstrum=None) -> np.ndarray:
+    """Equal loudness, cube-root compression and an all-pole fit -> cepstra (T, n_ceps).
+
+    ``solve`` / ``to_cepstrum`` replace the Levinson recursion and the LPC-to-cepstrum step
+    (default: this module's; the stream passes its small-batch versions)."""
     z = bands * equal_loudness(centres_hz)[None, :]
     z = np.cbrt(np.maximum(z, 0.0))
     z[:, 0] = z[:, 1]
@@ -143,8 +146,8 @@ def plp_from_bands(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps
     # (mirrored, real) is an autocorrelation sequence.
     full = np.concatenate([z, z[:, -2:0:-1]], axis=1)
     r = np.fft.ifft(full, axis=1).real[:, :order + 1]
-    a, err = levinson(r, order)
-    return lpc_to_cepstrum(a, err, n_ceps)
+    a, err = (solve or levinson)(r, order)
+    return (to_cepstrum or lpc_to_cepstrum)(a, err, n_ceps)
 
 
 # --------------------------------------------------------------------------- one analysis pass

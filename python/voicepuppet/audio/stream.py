@@ -129,16 +129,9 @@ def _cepstrum(a: np.ndarray, err: np.ndarray, n_ceps: int) -> np.ndarray:
 
 def _plp(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps: int) -> np.ndarray:
     """``spectral.plp_from_bands`` with the small-batch recursions."""
-    from .spectral import equal_loudness
+    from .spectral import plp_from_bands
 
-    z = bands * equal_loudness(centres_hz)[None, :]
-    z = np.cbrt(np.maximum(z, 0.0))
-    z[:, 0] = z[:, 1]
-    z[:, -1] = z[:, -2]
-    full = np.concatenate([z, z[:, -2:0:-1]], axis=1)
-    r = np.fft.ifft(full, axis=1).real[:, :order + 1]
-    a, err = _levinson(r, order)
-    return _cepstrum(a, err, n_ceps)
+    return plp_from_bands(bands, centres_hz, order, n_ceps, solve=_levinson, to_cepstrum=_cepstrum)
 
 
 class _Signal:
