@@ -12,6 +12,7 @@ void bind_entropic(py::module_& m);
 void bind_puppet(py::module_& m);
 void bind_streaming(py::module_& m);
 void bind_dpds(py::module_& m);
+void bind_audio(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "voicepuppet's C++ kernels (private: use the voicepuppet package)";
@@ -32,4 +33,5 @@ PYBIND11_MODULE(_core, m) {
   bind_puppet(m);
   bind_streaming(m);
   bind_dpds(m);
+  bind_audio(m);
 }

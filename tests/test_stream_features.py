@@ -12,6 +12,7 @@ import pytest
 from scipy.signal import resample_poly
 
 from voicepuppet.audio import extract, load_audio, prepare, samples
+from voicepuppet.audio.featureset import reference_extract
 from voicepuppet.audio.stream import (STREAMABLE, StreamingFeatures, StreamResampler,
                                       pcm_to_float)
 
@@ -27,9 +28,10 @@ def speech():
     return np.concatenate([np.zeros(4800), x[:20000], np.zeros(8000), x[20000:]])
 
 
-def offline(x, fps=29.97, features="puppet"):
-    return extract(prepare(x, RATE, target_rate=None, remove_dc=False), fps=fps,
-                   features=features)
+def offline(x, fps=29.97, features="puppet", n_out=None):
+    """The numpy reference (the oracle of the C++ front end) on the whole signal."""
+    return reference_extract(prepare(x, RATE, target_rate=None, remove_dc=False), fps=fps,
+                             features=features, n_out=n_out)
 
 
 def stream(x, chunks, fps=29.97, features="puppet", **kw):

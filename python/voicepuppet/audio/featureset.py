@@ -238,6 +238,10 @@ def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = No
             progress: bool = False, **options) -> Features:
     """Compute a feature set at video frame times.
 
+    The streamable features (all but ``f0`` and ``voicing``) are computed by the C++ front end
+    (``voicepuppet::StreamingAudioFeatures``) on the whole signal in one push, so offline and
+    streamed features are the same computation; F0 and voicing by :mod:`.pitch`.
+
     Parameters
     ----------
     source : Audio, str or os.PathLike
@@ -259,9 +263,18 @@ def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = No
     Features
         ``values`` (T, D), all finite, ``T = n_out`` or ``ceil(duration * fps)``.
     """
-    from . import lpc as lpc_mod
+    return _extract(source, fps, features, n_out, progress, options, reference=False)
+
+
+def reference_extract(source, fps: float = 29.97, features=None, *, n_out: int | None = None,
+                      **options) -> Features:
+    """:func:`extract` computed by the numpy definitions in :mod:`.spectral` and :mod:`.lpc`
+    (the test oracle of the C++ front end; no production path calls it). Same arguments."""
+    return _extract(source, fps, features, n_out, False, options, reference=True)
+
+
+def _extract(source, fps, features, n_out, progress, options, reference: bool) -> Features:
     from . import pitch as pitch_mod
-    from . import spectral
     from tqdm import tqdm
 
     fps = check_fps(fps)
@@ -278,54 +291,24 @@ def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = No
     else:
         raise ValueError(f"n_out must be a positive whole number of frames, got {n_out!r}")
     want = set(fset.features)
-    window_s = float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
     cols: dict[str, tuple[list[str], np.ndarray]] = {}
-
-    spec_want = want & {"mfcc", "mfcc_deltas", "rasta_plp", "bands", "log_energy"}
-    stages = [bool(spec_want), bool(want & {"lpc", "lpc_cepstra"}), "formants" in want,
-              bool(want & {"f0", "voicing"})]
+    framewise = [f for f in fset.features if f not in ("f0", "voicing")]
+    stages = [bool(framewise), bool(want & {"f0", "voicing"})]
     bar = tqdm(total=sum(stages), desc="features", unit="stage", disable=not progress,
                leave=False)
-    if spec_want:
-        bar.set_postfix_str("spectra")
-        kinds = {("mfcc" if k == "mfcc_deltas" else k) for k in spec_want}
-        sp = spectral.spectral_features(x, rate, fps, T, want=kinds, window_s=window_s,
-                                        n_fft=opt["n_fft"], n_mfcc=opt["n_mfcc"],
-                                        n_mels=opt["n_mels"], rasta_order=opt["rasta_order"],
-                                        rasta_ceps=opt["n_rasta"])
-        if "mfcc" in sp:
-            m = sp["mfcc"]
-            cols["mfcc"] = ([f"mfcc{i}" for i in range(m.shape[1])], m)
-            if "mfcc_deltas" in want:
-                cols["mfcc_deltas"] = ([f"dmfcc{i}" for i in range(m.shape[1])],
-                                       spectral.deltas(m, opt["delta_width"]))
-        if "rasta_plp" in sp:
-            r = sp["rasta_plp"]
-            first = 0 if opt["rasta_c0"] else 1
-            cols["rasta_plp"] = ([f"rplp{i}" for i in range(first, r.shape[1])], r[:, first:])
-        if "bands" in sp:
-            b = sp["bands"]
-            cols["bands"] = ([f"band{i}" for i in range(b.shape[1])], b)
-        if "log_energy" in sp:
-            cols["log_energy"] = (["log_energy"], sp["log_energy"][:, None])
+    if framewise and not reference:
+        from .stream import StreamingFeatures
+
+        bar.set_postfix_str("spectra, lpc, formants")
+        sub = FeatureSet(tuple(framewise), fset.options, fset.name)
+        s = StreamingFeatures(sub, fps=fps, rate=rate)
+        values = s.process(x, T)
+        for f in framewise:
+            idx = [j for j, n in enumerate(s.names) if _feature_of(n) == f]
+            cols[f] = ([s.names[j] for j in idx], values[:, idx])
         bar.update()
-    if want & {"lpc", "lpc_cepstra"}:
-        bar.set_postfix_str("lpc")
-        order = int(opt["lpc_order"])
-        a, err = lpc_mod.lpc_frames(x, rate, fps, T, order=order, window_s=window_s,
-                                    preemph=opt["lpc_preemph"])
-        if "lpc" in want:
-            cols["lpc"] = ([f"lpc{i}" for i in range(1, order + 1)], a[:, 1:])
-        if "lpc_cepstra" in want:
-            n = int(opt["n_lpc_cepstra"])
-            c = lpc_mod.lpc_to_cepstrum(a, err, n + 1)[:, 1:]
-            cols["lpc_cepstra"] = ([f"lpcc{i}" for i in range(1, n + 1)], c)
-        bar.update()
-    if "formants" in want:
-        bar.set_postfix_str("formants")
-        f = lpc_mod.formant_frames(x, rate, fps, T, ceiling=opt["formant_ceiling"],
-                                   max_bandwidth=opt["formant_max_bandwidth"])
-        cols["formants"] = ([f"f{i}" for i in range(1, f.shape[1] + 1)], f)
+    elif framewise:
+        cols.update(_reference_columns(x, rate, fps, T, want, opt))
         bar.update()
     voiced = None
     if want & {"f0", "voicing"}:
@@ -351,6 +334,52 @@ def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = No
         bad = [names[j] for j in np.nonzero(~np.all(np.isfinite(values), axis=0))[0]]
         raise RuntimeError(f"features: non-finite values in {bad}")
     return Features(values, tuple(names), fps, fset, audio.duration, voiced)
+
+
+def _reference_columns(x, rate, fps, T, want, opt) -> dict:
+    """The streamable features by the numpy definitions (``reference_extract``)."""
+    from . import lpc as lpc_mod
+    from . import spectral
+
+    window_s = float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
+    cols: dict[str, tuple[list[str], np.ndarray]] = {}
+    spec_want = want & {"mfcc", "mfcc_deltas", "rasta_plp", "bands", "log_energy"}
+    if spec_want:
+        kinds = {("mfcc" if k == "mfcc_deltas" else k) for k in spec_want}
+        sp = spectral.spectral_features(x, rate, fps, T, want=kinds, window_s=window_s,
+                                        n_fft=opt["n_fft"], n_mfcc=opt["n_mfcc"],
+                                        n_mels=opt["n_mels"], rasta_order=opt["rasta_order"],
+                                        rasta_ceps=opt["n_rasta"])
+        if "mfcc" in sp:
+            m = sp["mfcc"]
+            cols["mfcc"] = ([f"mfcc{i}" for i in range(m.shape[1])], m)
+            if "mfcc_deltas" in want:
+                cols["mfcc_deltas"] = ([f"dmfcc{i}" for i in range(m.shape[1])],
+                                       spectral.deltas(m, opt["delta_width"]))
+        if "rasta_plp" in sp:
+            r = sp["rasta_plp"]
+            first = 0 if opt["rasta_c0"] else 1
+            cols["rasta_plp"] = ([f"rplp{i}" for i in range(first, r.shape[1])], r[:, first:])
+        if "bands" in sp:
+            b = sp["bands"]
+            cols["bands"] = ([f"band{i}" for i in range(b.shape[1])], b)
+        if "log_energy" in sp:
+            cols["log_energy"] = (["log_energy"], sp["log_energy"][:, None])
+    if want & {"lpc", "lpc_cepstra"}:
+        order = int(opt["lpc_order"])
+        a, err = lpc_mod.lpc_frames(x, rate, fps, T, order=order, window_s=window_s,
+                                    preemph=opt["lpc_preemph"])
+        if "lpc" in want:
+            cols["lpc"] = ([f"lpc{i}" for i in range(1, order + 1)], a[:, 1:])
+        if "lpc_cepstra" in want:
+            n = int(opt["n_lpc_cepstra"])
+            c = lpc_mod.lpc_to_cepstrum(a, err, n + 1)[:, 1:]
+            cols["lpc_cepstra"] = ([f"lpcc{i}" for i in range(1, n + 1)], c)
+    if "formants" in want:
+        f = lpc_mod.formant_frames(x, rate, fps, T, ceiling=opt["formant_ceiling"],
+                                   max_bandwidth=opt["formant_max_bandwidth"])
+        cols["formants"] = ([f"f{i}" for i in range(1, f.shape[1] + 1)], f)
+    return cols
 
 
 @dataclass(frozen=True)
