@@ -181,3 +181,134 @@ def test_bad_input():
     assert s.flush().shape == (1, 13)  # a stream that stops mid-frame: its frame, zero padded
     with pytest.raises(ValueError, match="2 channels|channels"):
         pcm_to_float(np.zeros((3, 0)))
+
+
+# --------------------------------------------------------------------------- the C++ front end
+@pytest.fixture(scope="module")
+def espeak_speech():
+    """Two espeak-ng sentences (male, female voice; 16 kHz) with a silence between them."""
+    from voicepuppet import synth
+
+    if not synth.espeak_available():
+        pytest.fail("these tests need espeak-ng (apt-get install espeak-ng; .ci/setup installs it)")
+    a = synth.speak("The quick brown fox jumps over the lazy dog.", sample_rate=RATE)
+    b = synth.speak("Shall we meet at noon, or later?", voice="en-us+f2", sample_rate=RATE)
+    return np.concatenate([a.samples, np.zeros(3000), b.samples]).astype(np.float64)
+
+
+@pytest.mark.parametrize("chunk", [1, 33, 441, 16000])
+def test_every_streamable_feature_on_espeak_speech_any_chunk(espeak_speech, chunk):
+    x = espeak_speech if chunk > 1 else espeak_speech[:16000]
+    ref = offline(x, 29.97, list(STREAMABLE))
+    got, s = stream(x, [(a, a + chunk) for a in range(0, x.shape[0], chunk)], 29.97,
+                    list(STREAMABLE))
+    assert s.names == ref.names
+    for j, name in enumerate(ref.names):
+        np.testing.assert_allclose(got[:, j], ref.values[:, j], rtol=1e-9, atol=1e-9,
+                                   err_msg=name)
+
+
+@pytest.mark.parametrize("fps", [24.0, 29.97, 50.0, 100.0])
+def test_offline_extract_equals_reference_and_stream(speech, fps):
+    """extract (DC removed, one push of the whole signal through the C++ stream) equals the
+    numpy reference to 1e-9, and the stream pushed in chunks to rounding (same operations)."""
+    a = prepare(speech + 0.01, RATE)  # a DC offset: extract sees it removed
+    got = extract(a, fps=fps)
+    ref = reference_extract(a, fps=fps)
+    assert got.names == ref.names
+    np.testing.assert_allclose(got.values, ref.values, rtol=1e-9, atol=1e-9)
+    streamed, _ = stream(a.samples, chunking(a.samples.shape[0], 160, None), fps)
+    np.testing.assert_allclose(streamed, got.values, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("n_out", [10, 200])
+def test_extract_n_out_shorter_and_longer_than_the_audio(speech, n_out):
+    """A frame count other than the audio's (a video's): the formant tracker decides over
+    exactly n_out frames, frames past the end see silence, as the reference."""
+    a = prepare(speech, RATE)
+    got = extract(a, fps=29.97, features=list(STREAMABLE), n_out=n_out)
+    ref = reference_extract(a, fps=29.97, features=list(STREAMABLE), n_out=n_out)
+    assert got.values.shape == ref.values.shape == (n_out, len(ref.names))
+    np.testing.assert_allclose(got.values, ref.values, rtol=1e-9, atol=1e-9)
+
+
+def test_silence_and_empty_chunks_only():
+    """All-zero input (and zero-length chunks) gives the floors and the reference formants,
+    as the reference does."""
+    x = np.zeros(9000)
+    chunks = [(0, 0), (0, 4000), (4000, 4000), (4000, 9000), (9000, 9000)]
+    got, _ = stream(x, chunks, 29.97, list(STREAMABLE))
+    from voicepuppet.audio import AudioWarning
+
+    with pytest.warns(AudioWarning, match="silent"):
+        ref = offline(x, 29.97, list(STREAMABLE))
+    np.testing.assert_allclose(got, ref.values, rtol=1e-9, atol=1e-9)
+    f = ref.names.index("f1")
+    assert np.all(got[:, f:f + 3] == [550.0, 1650.0, 2750.0])
+
+
+def test_formant_lag_counts_forced_frames(speech):
+    exact = StreamingFeatures("puppet", fps=29.97, rate=RATE)
+    lagged = StreamingFeatures("puppet", fps=29.97, rate=RATE, formant_lag=0)
+    for a in range(0, speech.shape[0], 160):
+        exact.push(speech[a:a + 160])
+        lagged.push(speech[a:a + 160])
+    assert exact.formants_forced == 0
+    assert lagged.formants_forced > 0
+
+
+def test_bad_input_names_the_argument():
+    from voicepuppet import _core
+
+    s = StreamingFeatures("puppet")
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        s.push(np.array([0.0, np.inf, 1.0]))
+    with pytest.raises(ValueError, match="samples must be numbers"):
+        s.push(np.array([b"x"]))
+    with pytest.raises(ValueError, match=r"rate must be a whole number of Hz >= 8000, got 7999"):
+        StreamingFeatures("puppet", rate=7999)
+    with pytest.raises(ValueError, match="rate must be a whole number"):
+        StreamingFeatures("puppet", rate=16000.5)
+    with pytest.raises(ValueError, match="fps"):
+        StreamingFeatures("puppet", fps=0)
+    with pytest.raises(ValueError, match="formant_lag"):
+        StreamingFeatures("puppet", formant_lag=1.5)
+    with pytest.raises(ValueError, match="rate_in"):
+        StreamResampler(0, 16000)
+    # the core refuses inconsistent tables, naming the option
+    o = _core.AudioFeatureOptions()
+    o.features = ["log_energy"]
+    o.n_fft = 400
+    o.spectral_window = np.ones(400)
+    o.parseval = np.ones(7)
+    with pytest.raises(ValueError, match="parseval must have 201 entries, got 7"):
+        _core.StreamingAudioFeatures(o)
+    o.features = ["f0"]
+    with pytest.raises(ValueError, match="unknown feature 'f0'"):
+        _core.StreamingAudioFeatures(o)
+    # a NaN pushed into the core directly (bypassing pcm_to_float) is refused, nothing consumed
+    c = StreamingFeatures("mfcc")._core
+    with pytest.raises(ValueError, match="samples contain NaN"):
+        c.push(np.array([0.0, np.nan]))
+    assert c.samples_in == 0
+
+
+def test_core_pieces_against_numpy():
+    """The C++ Levinson, autocorrelation, cepstrum and roots against the numpy definitions."""
+    from voicepuppet import _core
+    from voicepuppet.audio import lpc
+
+    rng = np.random.default_rng(SEED + 3)
+    print("seed", SEED + 3)
+    x = rng.standard_normal(400) * np.hamming(400)
+    r = _core.autocorrelation(x, 12)
+    np.testing.assert_allclose(r, lpc.autocorrelation(x[None, :], 12)[0], rtol=1e-12, atol=1e-12)
+    a, err = _core.levinson(r, 12)
+    A, E = lpc.levinson(r[None, :], 12)
+    np.testing.assert_allclose(a, A[0], rtol=1e-12, atol=1e-12)
+    assert math.isclose(err, E[0], rel_tol=1e-12)
+    np.testing.assert_allclose(_core.lpc_cepstrum(a, err, 14),
+                               lpc.lpc_to_cepstrum(A, E, 14)[0], rtol=1e-11, atol=1e-12)
+    roots = np.array(_core.lpc_roots(a))
+    ref = lpc.lpc_roots(A)[0]
+    np.testing.assert_allclose(np.sort_complex(roots), np.sort_complex(ref), rtol=1e-10)

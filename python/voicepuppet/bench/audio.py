@@ -1,7 +1,7 @@
 """Benchmark suite "audio": the front end on real speech (CMU ARCTIC a0009 tiled to length).
 
-Cases: the default ("puppet") feature set at 29.97 fps on one hour of 16 kHz speech (no peer:
-realtime factor only); MFCC against librosa with matched settings at 100 frames/s on the same
+Cases: the default ("puppet") feature set at 29.97 fps on one hour of 16 kHz speech (the C++
+front end against the numpy reference of the same definitions, ``reference_extract``); MFCC against librosa with matched settings at 100 frames/s on the same
 hour; LPC against ``librosa.lpc`` (Burg) on the same frames; F0 and formants against Praat
 (praat-parselmouth) on five minutes. ``agree`` is the largest relative difference for MFCC and
 LPC, and for F0 / formants the median relative difference on frames both call voiced (these
@@ -59,10 +59,15 @@ def run(quick: bool = False, repeats: int = 3) -> list[dict]:
 
     a = _speech(long_s)
     size = f"{long_s / 60:g} min 16 kHz speech"
-    t, res = _timed({"ours": lambda: audio.extract(a, fps=29.97)}, repeats)
+    from voicepuppet.audio.featureset import reference_extract
+
+    t, res = _timed({"ours": lambda: audio.extract(a, fps=29.97),
+                     "peer": lambda: reference_extract(a, fps=29.97)}, repeats)
     f = res["ours"]
-    cases.append(case("puppet_set_29.97fps", size, t["ours"], None, None, None,
-                      realtime_factor=a.duration / t["ours"], frames=len(f),
+    cases.append(case("puppet_set_29.97fps", size, t["ours"], "numpy reference", t["peer"],
+                      rel_diff(f.values, res["peer"].values),
+                      realtime_factor=a.duration / t["ours"],
+                      peer_realtime_factor=a.duration / t["peer"], frames=len(f),
                       dims=len(f.names)))
 
     x, sr = a.samples, a.rate

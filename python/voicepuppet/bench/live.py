@@ -3,8 +3,9 @@
 Cases (medians of interleaved repeats; per-frame percentiles over every frame of a run):
 
 - ``features_stream``: the streaming front end (:class:`voicepuppet.audio.stream.StreamingFeatures`,
-  default "puppet" set, 10 ms chunks) against the offline front end on the same audio
-  (``agree``: largest relative difference of the exact-mode features);
+  the C++ ``StreamingAudioFeatures``, default "puppet" set, 10 ms chunks) against the numpy
+  reference of the offline front end (``reference_extract``) on the same audio (``agree``:
+  largest relative difference of the exact-mode features);
 - ``puppet_stream_cpp``: ``voicepuppet::StreamingPuppet`` fed one feature frame per push, against
   the offline C++ ``Puppet.animate`` (``agree``: with lags covering the stream);
 - ``live_lag{L}ms``: :class:`voicepuppet.live.LivePuppet` end to end (audio chunks of 10 ms in,
@@ -75,6 +76,7 @@ def _stream_live(live, x):
 def run(quick: bool = False, repeats: int = 3) -> list:
     from voicepuppet import _core
     from voicepuppet.audio import extract, load_audio, prepare
+    from voicepuppet.audio.featureset import reference_extract
     from voicepuppet.audio.stream import StreamingFeatures
     from voicepuppet.live import LivePuppet
 
@@ -102,12 +104,12 @@ def run(quick: bool = False, repeats: int = 3) -> list:
         return np.vstack(rows)
 
     med, res = timeit_interleaved({"ours": stream_features,
-                                   "peer": lambda: extract(audio, fps=puppet.fps,
-                                                           features=puppet.feature_set).values},
+                                   "peer": lambda: reference_extract(
+                                       audio, fps=puppet.fps, features=puppet.feature_set).values},
                                   repeats)
     pf = np.array(per_frame) * 1e3
     cases.append(case("features_stream", f"{secs:.1f} s, 10 ms chunks", med["ours"],
-                      "offline extract", med["peer"], rel_diff(res["ours"], res["peer"]),
+                      "numpy reference (offline)", med["peer"], rel_diff(res["ours"], res["peer"]),
                       frame_ms_p50=float(np.percentile(pf, 50)),
                       frame_ms_p99=float(np.percentile(pf, 99)),
                       realtime_factor=secs / med["ours"]))
