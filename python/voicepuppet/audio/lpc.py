@@ -1,5 +1,10 @@
 """Linear prediction: autocorrelation method, Levinson-Durbin, LPC cepstra and formants.
 
+These numpy functions define the LPC and formant features; the front end computes them in C++
+(``cpp/include/voicepuppet/audio_features.hpp``, through ``stream.StreamingFeatures``), and
+``lpc_frames`` / ``formant_frames`` are its reference (``featureset.reference_extract``, the
+test oracle) and the benchmark peers' counterparts.
+
 Conventions: the inverse filter is ``A(z) = 1 + a_1 z^-1 + ... + a_p z^-p`` (the coefficient
 vector starts with 1, as ``librosa.lpc`` returns it) and the model spectrum is ``err / |A|^2``
 with ``err`` the prediction-error power.

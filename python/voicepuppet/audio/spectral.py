@@ -1,7 +1,9 @@
 """Short-time spectra and the features built on them: MFCC, RASTA-PLP, band energies, energy.
 
 All analysis windows are centred on video frame times (see ``framing``); power spectra are
-``|rfft(window * frame)|^2``.
+``|rfft(window * frame)|^2``. The tables (windows, filterbanks) are used by the C++ front end
+(``stream.core_options``); ``spectral_features`` is the numpy reference of its per-frame work
+(``featureset.reference_extract``, the test oracle).
 """
 
 from __future__ import annotations
@@ -132,12 +134,9 @@ def rasta_filter(log_bands: np.ndarray, frame_rate: float, pole: float = 0.94) -
     return y
 
 
-def plp_from_bands(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps: int, *,
-                   solve=None, to_cepstrum=None) -> np.ndarray:
-    """Equal loudness, cube-root compression and an all-pole fit -> cepstra (T, n_ceps).
-
-    ``solve`` / ``to_cepstrum`` replace the Levinson recursion and the LPC-to-cepstrum step
-    (default: this module's; the stream passes its small-batch versions)."""
+def plp_from_bands(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps: int
+                   ) -> np.ndarray:
+    """Equal loudness, cube-root compression and an all-pole fit -> cepstra (T, n_ceps)."""
     z = bands * equal_loudness(centres_hz)[None, :]
     z = np.cbrt(np.maximum(z, 0.0))
     z[:, 0] = z[:, 1]
@@ -146,8 +145,8 @@ def plp_from_bands(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps
     # (mirrored, real) is an autocorrelation sequence.
     full = np.concatenate([z, z[:, -2:0:-1]], axis=1)
     r = np.fft.ifft(full, axis=1).real[:, :order + 1]
-    a, err = (solve or levinson)(r, order)
-    return (to_cepstrum or lpc_to_cepstrum)(a, err, n_ceps)
+    a, err = levinson(r, order)
+    return lpc_to_cepstrum(a, err, n_ceps)
 
 
 # --------------------------------------------------------------------------- one analysis pass
@@ -156,7 +155,8 @@ def analysis_window(window_s: float, rate: float, n_fft: int | None = None):
 
     A Hann window of ``round(window_s * rate)`` samples centred in ``n_fft`` (default the next
     fast length); ``parseval`` weights turn one-sided power into the mean square of the windowed
-    frame over the window energy. Shared by the offline pass and the stream (audio.stream).
+    frame over the window energy. Shared by the C++ front end (``stream.core_options``) and the
+    numpy reference.
     """
     length = int(round(window_s * rate))
     if n_fft is None:
