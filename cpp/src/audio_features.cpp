@@ -73,18 +73,20 @@ void horner(const double* a, Index p, std::complex<double> z, std::complex<doubl
   }
 }
 
-void roots_raw(const double* a, Index p, std::vector<std::complex<double>>& out,
-               Eigen::MatrixXd& comp) {
-  comp.setZero(p, p);
+void roots_raw(const double* a, Index p, std::vector<std::complex<double>>& out) {
+  Eigen::MatrixXd comp = Eigen::MatrixXd::Zero(p, p);
   for (Index j = 0; j < p; ++j) comp(0, j) = -a[j + 1];
   for (Index i = 1; i < p; ++i) comp(i, i - 1) = 1.0;
   Eigen::EigenSolver<Eigen::MatrixXd> es(comp, false);
-  if (es.info() != Eigen::Success) fail_numeric("lpc_roots: the companion-matrix eigenvalues did not converge");
+  if (es.info() != Eigen::Success)
+    fail_numeric("lpc_roots: the companion-matrix eigenvalues did not converge");
   out.resize(static_cast<size_t>(p));
+  for (Index i = 0; i < p; ++i) out[static_cast<size_t>(i)] = es.eigenvalues()[i];
   for (Index i = 0; i < p; ++i) {
-    std::complex<double> z = es.eigenvalues()[i];
-    // Newton polish on the polynomial (kept only when it lowers |A|): the eigenvalues of an
-    // unbalanced companion matrix are a few ulps off; this brings them to the root.
+    const std::complex<double> z0 = out[static_cast<size_t>(i)];
+    std::complex<double> z = z0;
+    // Newton steps on the polynomial refine the eigenvalue (a step is kept only when it lowers
+    // |A(z)|), so the roots depend less on the eigenvalue solver's rounding.
     for (int it = 0; it < 2; ++it) {
       std::complex<double> f, df;
       horner(a, p, z, f, df);
@@ -95,7 +97,7 @@ void roots_raw(const double* a, Index p, std::vector<std::complex<double>>& out,
       if (!(std::abs(fn) < std::abs(f))) break;
       z = zn;
     }
-    if (es.eigenvalues()[i].imag() == 0.0) z.imag(0.0);  // real stays real
+    if (z0.imag() == 0.0) z.imag(0.0);  // real stays real
     out[static_cast<size_t>(i)] = z;
   }
 }
@@ -137,10 +139,9 @@ struct Signal {
   }
   /// Global samples start .. start + len - 1 into out (zeros outside 0 .. n - 1).
   void read(Index start, Index len, double* out) const {
-    for (Index i = 0; i < len; ++i) {
-      const Index g = start + i;
-      out[i] = (g < 0 || g >= n) ? 0.0 : buf[static_cast<size_t>(g - offset)];
-    }
+    const Index a = std::clamp(start, Index(0), n), b = std::clamp(start + len, Index(0), n);
+    std::fill(out, out + len, 0.0);
+    if (b > a) std::copy(buf.data() + (a - offset), buf.data() + (b - offset), out + (a - start));
   }
   void trim(Index keep_from) {
     const Index cut = keep_from - offset;
@@ -208,6 +209,31 @@ struct Queue {
   }
 };
 
+/// A filterbank's rows with their nonzero span: products skip the exact zeros.
+struct Filterbank {
+  RowMatrixXd w;
+  std::vector<Index> lo, hi;
+  void init(const RowMatrixXd& m) {
+    w = m;
+    lo.assign(static_cast<size_t>(m.rows()), 0);
+    hi.assign(static_cast<size_t>(m.rows()), 0);
+    for (Index r = 0; r < m.rows(); ++r) {
+      Index a = 0, b = m.cols();
+      while (a < b && m(r, a) == 0.0) ++a;
+      while (b > a && m(r, b - 1) == 0.0) --b;
+      lo[static_cast<size_t>(r)] = a;
+      hi[static_cast<size_t>(r)] = b;
+    }
+  }
+  /// out[r] = w[r, :] . P
+  void apply(const Eigen::VectorXd& P, double* out) const {
+    for (Index r = 0; r < w.rows(); ++r) {
+      const Index a = lo[static_cast<size_t>(r)], n = hi[static_cast<size_t>(r)] - a;
+      out[r] = n > 0 ? w.row(r).segment(a, n).dot(P.segment(a, n).transpose()) : 0.0;
+    }
+  }
+};
+
 enum Block { kLpc, kLpcc, kRasta, kMfcc, kDmfcc, kFormants, kBands, kEnergy, kNBlocks };
 
 const char* const kBlockNames[kNBlocks] = {"lpc", "lpc_cepstra", "rasta_plp", "mfcc",
@@ -248,8 +274,7 @@ std::vector<std::complex<double>> lpc_roots(const VectorRef& a) {
     fail_argument("lpc_roots: a must be [1, a_1 .. a_p] with p >= 1, got size ", a.size());
   require_finite(a, "lpc_roots: a");
   std::vector<std::complex<double>> out;
-  Eigen::MatrixXd comp;
-  roots_raw(a.data(), a.size() - 1, out, comp);
+  roots_raw(a.data(), a.size() - 1, out);
   return out;
 }
 
@@ -276,6 +301,14 @@ PolyphaseResampler::PolyphaseResampler(Index up, Index down, const VectorRef& ta
   h_ = VectorXd::Zero(n_pre_pad + taps.size());
   h_.tail(taps.size()) = taps;
   pre_remove_ = (half_len + n_pre_pad) / down;
+  const Index L = h_.size();
+  phases_.resize(static_cast<size_t>(up));
+  for (Index ph = 0; ph < up; ++ph) {
+    const Index K = ph < L ? (L - ph + up - 1) / up : 0;
+    auto& rt = phases_[static_cast<size_t>(ph)];
+    rt.resize(static_cast<size_t>(K));
+    for (Index j = 0; j < K; ++j) rt[static_cast<size_t>(j)] = h_[ph + (K - 1 - j) * up];
+  }
 }
 
 void PolyphaseResampler::reset() {
@@ -284,12 +317,18 @@ void PolyphaseResampler::reset() {
 }
 
 double PolyphaseResampler::output(Index g) const {
-  const Index L = h_.size();
+  // y[g] = sum_i x[i] h[g down - i up]: inputs i0 - K + 1 .. i0 against the taps of phase
+  // g down - i0 up, stored reversed so that both run forwards
   const Index gd = g * down_;
-  const Index lo = std::max<Index>(0, ceil_div(gd - L + 1, up_));
-  const Index hi = std::min(floor_div(gd, up_), n_ - 1);
+  const Index i0 = floor_div(gd, up_);
+  const Index phase = gd - i0 * up_;
+  const std::vector<double>& rt = phases_[static_cast<size_t>(phase)];
+  const Index K = static_cast<Index>(rt.size());
+  const Index first = i0 - K + 1;
+  const Index lo = std::max<Index>(0, first), hi = std::min(i0, n_ - 1);
   double acc = 0.0;
-  for (Index i = lo; i <= hi; ++i) acc += buf_[static_cast<size_t>(i - offset_)] * h_[gd - i * up_];
+  const double* x = buf_.data() - offset_;
+  for (Index i = lo; i <= hi; ++i) acc += x[i] * rt[static_cast<size_t>(i - first)];
   return acc;
 }
 
@@ -588,12 +627,13 @@ struct StreamingAudioFeatures::Impl {
   std::vector<std::vector<double>> mfcc_hist;
   Index mfcc_base = 0, mfcc_done = 0;
   RowMatrixXd plp_cos;           // (rasta_order + 1) x N
+  Filterbank mel_fb, band_fb, bark_fb;
+  Eigen::VectorXd mel, bandE;
   // scratch
   std::vector<double> frame, ac, a, tmp, cep, row, fbuf, ffreq, fband, plp_z;
   std::vector<std::complex<double>> spectrum, roots;
   std::vector<std::pair<double, double>> cand_work;
   Eigen::VectorXd P, logb, filt;
-  Eigen::MatrixXd comp;
 
   explicit Impl(AudioFeatureOptions opt) : o(std::move(opt)) {
     if (!(o.rate >= 1.0) || o.rate != std::floor(o.rate))
@@ -631,12 +671,18 @@ struct StreamingAudioFeatures::Impl {
         if (o.dct.cols() != n_mels || o.dct.rows() < 1)
           fail_argument("audio features: dct must be (n_mfcc, ", n_mels, "), got ", shape_of(o.dct));
         n_mfcc = o.dct.rows();
+        mel_fb.init(o.mel_filters);
+        mel.resize(n_mels);
         if (want[kDmfcc] && o.delta_width < 1)
           fail_argument("audio features: delta_width must be >= 1, got ", o.delta_width);
       }
       if (want[kBands] && (o.band_weights.cols() != n_bins || o.band_weights.rows() < 1))
         fail_argument("audio features: band_weights must be (n_bands, ", n_bins, "), got ",
                       shape_of(o.band_weights));
+      if (want[kBands]) {
+        band_fb.init(o.band_weights);
+        bandE.resize(o.band_weights.rows());
+      }
       if ((want[kEnergy]) && o.parseval.size() != n_bins)
         fail_argument("audio features: parseval must have ", n_bins, " entries, got ", o.parseval.size());
       if (want[kRasta]) {
@@ -644,6 +690,7 @@ struct StreamingAudioFeatures::Impl {
           fail_argument("audio features: bark_filters must be (n_bark >= 3, ", n_bins, "), got ",
                         shape_of(o.bark_filters));
         n_bark = o.bark_filters.rows();
+        bark_fb.init(o.bark_filters);
         if (o.loudness.size() != n_bark)
           fail_argument("audio features: loudness must have ", n_bark, " entries, got ", o.loudness.size());
         if (o.rasta_b.size() != 5 || o.rasta_zi.size() != 4)
@@ -741,7 +788,8 @@ struct StreamingAudioFeatures::Impl {
     for (Index j = 0; j < n_bins; ++j) P[j] = std::norm(spectrum[static_cast<size_t>(j)]);
     const bool video = (k % o.fine) == 0;
     if (want[kRasta]) {
-      logb = o.bark_filters * P;
+      logb.resize(n_bark);
+      bark_fb.apply(P, logb.data());
       for (Index b = 0; b < n_bark; ++b) logb[b] = std::log(logb[b] + kPowerFloor);
       if (!rasta_started) {
         for (Index b = 0; b < n_bark; ++b)
@@ -765,16 +813,16 @@ struct StreamingAudioFeatures::Impl {
     }
     if (!video) return;
     if (want[kMfcc] || want[kDmfcc]) {
-      Eigen::VectorXd mel = o.mel_filters * P;
+      mel_fb.apply(P, mel.data());
       for (Index i = 0; i < n_mels; ++i) mel[i] = 10.0 * std::log10(std::max(mel[i], kPowerFloor));
       Eigen::VectorXd mf = o.dct * mel;
       if (want[kMfcc]) q[kMfcc].push(mf.data());
       if (want[kDmfcc]) mfcc_hist.emplace_back(mf.data(), mf.data() + n_mfcc);
     }
     if (want[kBands]) {
-      Eigen::VectorXd e = o.band_weights * P;
-      for (Index i = 0; i < e.size(); ++i) e[i] = 10.0 * std::log10(e[i] + kPowerFloor);
-      q[kBands].push(e.data());
+      band_fb.apply(P, bandE.data());
+      for (Index i = 0; i < bandE.size(); ++i) bandE[i] = 10.0 * std::log10(bandE[i] + kPowerFloor);
+      q[kBands].push(bandE.data());
     }
     if (want[kEnergy]) {
       const double e = 10.0 * std::log10(o.parseval.dot(P) + kPowerFloor);
@@ -818,7 +866,7 @@ struct StreamingAudioFeatures::Impl {
     fmt_fr.frame(fsig, k, fbuf.data());
     autocorrelation_raw(fbuf.data(), L, p, ac.data());
     levinson_raw(ac.data(), p, a.data(), tmp.data());
-    roots_raw(a.data(), p, roots, comp);
+    roots_raw(a.data(), p, roots);
     candidates_raw(roots, o.formant_rate, o.formant_min_freq, o.formant_max_bandwidth,
                    o.formant_margin, static_cast<Index>(ffreq.size()), ffreq.data(), fband.data(),
                    cand_work);

@@ -87,6 +87,7 @@ class PolyphaseResampler {
   void trim();
   Index up_, down_, pre_remove_;
   VectorXd h_;                     // taps with the offline pre-padding
+  std::vector<std::vector<double>> phases_;  // per phase, its taps reversed
   std::vector<double> buf_;        // inputs from global index offset_
   Index offset_ = 0, n_ = 0, done_ = 0;
 };
