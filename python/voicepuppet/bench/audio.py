@@ -2,7 +2,8 @@
 
 Cases: the default ("puppet") feature set at 29.97 fps on one hour of 16 kHz speech (the C++
 front end against the numpy reference of the same definitions, ``reference_extract``); MFCC against librosa with matched settings at 100 frames/s on the same
-hour; LPC against ``librosa.lpc`` (Burg) on the same frames; F0 and formants against Praat
+hour; LPC against ``librosa.lpc`` (Burg) on the same frames (the numpy ``lpc.levinson`` on a
+matrix of frames: a kernel comparison); F0 and formants against Praat
 (praat-parselmouth) on five minutes. ``agree`` is the largest relative difference for MFCC and
 LPC, and for F0 / formants the median relative difference on frames both call voiced (these
 trackers legitimately disagree on a few frames; the median is what the tests bound).
@@ -143,8 +144,8 @@ def run(quick: bool = False, repeats: int = 3) -> list[dict]:
                                  pre_emphasis_from=50.0)
         return np.array([[fm.get_value_at_time(k, tt) for k in (1, 2, 3)] for tt in times])
 
-    def ours_formants():
-        return lpc.formant_frames(xs, sr, 100.0, T, ceiling=5500.0)
+    def ours_formants():  # the production path (C++ front end), default ceiling 5500 Hz
+        return audio.extract(b, fps=100.0, features=["formants"], n_out=T).values
 
     t, res = _timed({"ours": ours_formants, "peer": praat_formants}, repeats)
     m = np.isfinite(voiced) & np.all(np.isfinite(res["peer"]), axis=1)
