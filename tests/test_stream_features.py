@@ -331,3 +331,31 @@ def test_other_analysis_rates(rate):
         tol = 1e-7 if (rate > 16000 and name.startswith("lpc") and not name.startswith("lpcc")) \
             else 1e-9
         np.testing.assert_allclose(got[:, j], ref.values[:, j], rtol=tol, atol=tol, err_msg=name)
+
+
+def test_push_releases_the_gil(speech):
+    """While one thread is inside the C++ push, another runs Python: iterations of the main
+    thread are seen strictly inside the call's time window (with the GIL held there would be
+    none, whatever the machine's speed)."""
+    import threading
+    import time
+
+    x = np.tile(speech, 40)  # ~2.5 min of audio: a long C++ call
+    s = StreamingFeatures("puppet")
+    window = {}
+
+    def work():
+        t0 = time.perf_counter()
+        s._core.push(x)
+        window["span"] = (t0, time.perf_counter())
+
+    stamps = []
+    th = threading.Thread(target=work)
+    th.start()
+    while th.is_alive():
+        stamps.append(time.perf_counter())
+    th.join()
+    t0, t1 = window["span"]
+    margin = 0.25 * (t1 - t0)
+    inside = [t for t in stamps if t0 + margin < t < t1 - margin]
+    assert len(inside) > 0, (t1 - t0, len(stamps))
