@@ -93,6 +93,28 @@ void bind_audio(py::module_& m) {
       .def_property_readonly("up", &PolyphaseResampler::up)
       .def_property_readonly("down", &PolyphaseResampler::down);
 
+  py::class_<FormantTracker>(m, "FormantTracker",
+                             "Online formant continuity tracker (audio_features.hpp).")
+      .def(py::init<const VectorRef&, Index, Index>(), py::arg("reference"), py::arg("n_cand"),
+           py::arg("max_delay") = -1)
+      .def("push",
+           [](FormantTracker& t, const MatrixRef& freqs, const MatrixRef& bands) {
+             if (freqs.rows() != bands.rows() || freqs.cols() != bands.cols())
+               fail_argument("formant tracker: freqs and bands must have the same shape, got ",
+                             shape_of(freqs), " and ", shape_of(bands));
+             std::vector<double> out;
+             for (Index k = 0; k < freqs.rows(); ++k) {
+               const Eigen::VectorXd f = freqs.row(k).transpose(), b = bands.row(k).transpose();
+               t.push(f.data(), b.data(), out);
+             }
+             return out;
+           },
+           py::arg("freqs"), py::arg("bands"),
+           "Candidates of new frames [K, n_cand] (NaN = none); returns the finished values, flat.")
+      .def("force", [](FormantTracker& t) { std::vector<double> out; t.force(out); return out; })
+      .def("finish", [](FormantTracker& t) { std::vector<double> out; t.finish(out); return out; })
+      .def_property_readonly("forced", &FormantTracker::forced);
+
   m.def("levinson",
         [](const VectorRef& r, Index order) {
           LpcFit f = levinson(r, order);

@@ -359,3 +359,45 @@ def test_push_releases_the_gil(speech):
     margin = 0.25 * (t1 - t0)
     inside = [t for t in stamps if t0 + margin < t < t1 - margin]
     assert len(inside) > 0, (t1 - t0, len(stamps))
+
+
+@pytest.mark.parametrize("lag", [None, 0, 1, 3, 7])
+def test_formant_tracker_equals_its_numpy_oracle(speech, lag):
+    """The C++ tracker against the numpy one (tests/formant_tracker_reference.py, the Python
+    stream's tracker before the port) on the reference candidates of real speech, pushed in
+    random batches with a forced decision after each batch: the same rows, the same number of
+    forced frames. With lag None this is the exact mode (also equal to the offline Viterbi)."""
+    from formant_tracker_reference import FormantTrackerReference
+
+    from voicepuppet import _core
+    from voicepuppet.audio import lpc
+
+    fs = 11000
+    y = resample_poly(speech, 11, 16)
+    T = math.ceil(speech.shape[0] * 29.97 / RATE - 1e-9)
+    a, _ = lpc.lpc_frames(y, fs, 29.97, T, order=10, window_s=0.05,
+                          preemph=math.exp(-2.0 * math.pi * 50.0 / fs), window="gaussian")
+    f, b = lpc.formant_candidates(a, fs, max_bandwidth=1000.0)
+    ref = FormantTrackerReference(3, fs / 2.0, 5, lag)
+    core = _core.FormantTracker(lpc.reference_formants(fs / 2.0, 3), 5,
+                                -1 if lag is None else lag)
+    rng = np.random.default_rng(SEED + 4)
+    print("seed", SEED + 4)
+    edges = np.minimum(np.concatenate([[0], np.cumsum(rng.integers(1, 5, size=T))]), T)
+    got, want = [], []
+    for k0, k1 in zip(edges[:-1], edges[1:]):
+        if k1 <= k0:
+            continue
+        want += ref.push(f[k0:k1], b[k0:k1]) + ref.force()
+        got += list(core.push(f[k0:k1], b[k0:k1])) + list(core.force())
+        assert len(got) == 3 * len(want)  # the same frames leave at the same push
+    want += ref.finish()
+    got += list(core.finish())
+    want = np.vstack(want)
+    np.testing.assert_allclose(np.reshape(got, (-1, 3)), want, rtol=1e-14, atol=0)
+    assert want.shape == (T, 3)
+    assert core.forced == ref.forced
+    assert (core.forced > 0) == (lag is not None)  # the silences make every bound force
+    if lag is None:
+        np.testing.assert_allclose(want, lpc.track_formants(f, b, ceiling=fs / 2.0),
+                                   rtol=1e-14)
