@@ -110,14 +110,31 @@ def lpc_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, order: int
     """
     if order < 1:
         raise ValueError(f"lpc: order must be >= 1, got {order}")
-    length = max(order + 1, int(round(window_s * rate)))
-    w = hamming(length) if window == "hamming" else gaussian_window(length)
+    w = lpc_window(order, window_s, rate, window)
+    length = w.shape[0]
     centres = frame_centres(n_out, rate, fps)
     a = np.empty((n_out, order + 1))
     err = np.empty(n_out)
     for sl, frames in iter_frames(x, centres, length, w, preemph=preemph):
         a[sl], err[sl] = levinson(autocorrelation(frames, order), order)
     return a, err
+
+
+def lpc_window(order: int, window_s: float, rate: float, window: str = "hamming") -> np.ndarray:
+    """The LPC analysis window: ``max(order + 1, round(window_s rate))`` samples, Hamming or
+    (``"gaussian"``) Praat's Gaussian."""
+    length = max(order + 1, int(round(window_s * rate)))
+    return hamming(length) if window == "hamming" else gaussian_window(length)
+
+
+def formant_analysis(rate: int, ceiling: float, n_formants: int = 3):
+    """The formant analysis settings: ``(fs, order, preemph)``, the rate the signal is resampled
+    to (``2 ceiling``, at most ``rate``), the LPC order ``2 (n_formants + 2)`` and the
+    pre-emphasis from 50 Hz."""
+    fs = int(round(2 * ceiling))
+    if fs > rate:
+        fs = int(rate)
+    return fs, 2 * (n_formants + 2), math.exp(-2.0 * math.pi * 50.0 / fs)
 
 
 def gaussian_window(n: int) -> np.ndarray:
@@ -286,13 +303,10 @@ def formant_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, n_form
     """
     from .loading import _resample
 
-    fs = int(round(2 * ceiling))
-    if fs > rate:
-        fs = int(rate)
+    fs, order, preemph = formant_analysis(int(rate), ceiling, n_formants)
     y = _resample(np.asarray(x, dtype=np.float64), int(rate), fs) if fs != rate else x
-    order = 2 * (n_formants + 2)
-    a, _ = lpc_frames(y, fs, fps, n_out, order=order, window_s=window_s,
-                      preemph=math.exp(-2.0 * math.pi * 50.0 / fs), window="gaussian")
+    a, _ = lpc_frames(y, fs, fps, n_out, order=order, window_s=window_s, preemph=preemph,
+                      window="gaussian")
     f, b = formant_candidates(a, fs, max_bandwidth=max_bandwidth)
     if not track:
         return f[:, :n_formants]

@@ -116,6 +116,12 @@ def equal_loudness(f_hz: np.ndarray) -> np.ndarray:
     return (fsq / ftmp) ** 2 * ((fsq + 1.44e6) / (fsq + 9.61e6))
 
 
+def rasta_coefficients(frame_rate: float, pole: float = 0.94) -> tuple[np.ndarray, np.ndarray]:
+    """``(b, a)`` of the RASTA filter at ``frame_rate`` frames/s (pole ``pole^(100 / rate)``)."""
+    b = np.array([0.2, 0.1, 0.0, -0.1, -0.2])
+    return b, np.array([1.0, -(pole ** (100.0 / frame_rate))])
+
+
 def rasta_filter(log_bands: np.ndarray, frame_rate: float, pole: float = 0.94) -> np.ndarray:
     """RASTA band-pass filter along time (Hermansky & Morgan 1994).
 
@@ -126,9 +132,7 @@ def rasta_filter(log_bands: np.ndarray, frame_rate: float, pole: float = 0.94) -
     """
     from scipy.signal import lfilter, lfilter_zi
 
-    b = np.array([0.2, 0.1, 0.0, -0.1, -0.2])
-    p = pole ** (100.0 / frame_rate)
-    a = np.array([1.0, -p])
+    b, a = rasta_coefficients(frame_rate, pole)
     zi = lfilter_zi(b, a)[:, None] * log_bands[:1, :]
     y, _ = lfilter(b, a, log_bands, axis=0, zi=zi)
     return y
@@ -174,6 +178,17 @@ def analysis_window(window_s: float, rate: float, n_fft: int | None = None):
     return n_fft, win, freqs, parseval
 
 
+def band_weights(freqs: np.ndarray, parseval: np.ndarray, bands=SONORANT_BANDS) -> np.ndarray:
+    """Weights turning a one-sided power spectrum into band energies: each band's indicator
+    ``low <= f < high`` times the Parseval weights, shape (len(bands), n_bins)."""
+    w = np.zeros((len(bands), freqs.shape[0]))
+    for i, (lo, hi) in enumerate(bands):
+        if not 0 <= lo < hi:
+            raise ValueError(f"bands must be (low, high) with 0 <= low < high, got {(lo, hi)}")
+        w[i] = ((freqs >= lo) & (freqs < hi)) * parseval
+    return w
+
+
 def spectral_features(x: np.ndarray, rate: float, fps: float, n_out: int, *,
                       want: set, window_s: float = 0.025, n_fft: int | None = None,
                       n_mfcc: int = 13, n_mels: int = 40, fmin: float = 0.0,
@@ -203,11 +218,7 @@ def spectral_features(x: np.ndarray, rate: float, fps: float, n_out: int, *,
         melfb = mel_filterbank(rate, n_fft, n_mels, fmin, fmax)
         mel = np.empty((n_out, n_mels))
     if "bands" in want:
-        band_w = np.zeros((len(bands), freqs.shape[0]))
-        for i, (lo, hi) in enumerate(bands):
-            if not 0 <= lo < hi:
-                raise ValueError(f"bands must be (low, high) with 0 <= low < high, got {(lo, hi)}")
-            band_w[i] = ((freqs >= lo) & (freqs < hi)) * parseval
+        band_w = band_weights(freqs, parseval, bands)
         bandE = np.empty((n_out, len(bands)))
     if "log_energy" in want:
         energy = np.empty(n_out)

@@ -34,13 +34,12 @@ asking for them raises ``ValueError``.
 
 from __future__ import annotations
 
-import math
 from fractions import Fraction
 
 import numpy as np
 
 from .featureset import FeatureSet, as_feature_set
-from .framing import check_fps, hamming, n_frames
+from .framing import check_fps, n_frames
 from .loading import MIN_RATE
 
 #: Features the stream can produce.
@@ -130,14 +129,9 @@ def _window_s(opt: dict, fps: float) -> float:
     return float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
 
 
-def _formant_rate(opt: dict, rate: int) -> int:
-    fs = int(round(2 * float(opt["formant_ceiling"])))
-    return rate if fs > rate else fs
-
-
 def core_options(fset: FeatureSet, fps: float, rate: int, formant_lag: int | None):
     """The ``_core.AudioFeatureOptions`` of a feature set: the analysis tables of the offline
-    definitions (``spectral.analysis_window``, the filterbanks, ``hamming``,
+    definitions (``spectral.analysis_window``, the filterbanks, ``lpc.lpc_window``,
     ``gaussian_window``, ``resample_poly``'s taps, ``reference_formants``)."""
     from scipy.signal import lfilter_zi
 
@@ -164,39 +158,31 @@ def core_options(fset: FeatureSet, fps: float, rate: int, formant_lag: int | Non
             o.dct = np.ascontiguousarray(spectral.dct_ortho(np.eye(n_mels), n_mfcc).T)
             o.delta_width = int(opt["delta_width"])
         if "bands" in want:
-            bands = spectral.SONORANT_BANDS
-            band_w = np.zeros((len(bands), freqs.shape[0]))
-            for i, (lo, hi) in enumerate(bands):
-                band_w[i] = ((freqs >= lo) & (freqs < hi)) * parseval
-            o.band_weights = band_w
+            o.band_weights = spectral.band_weights(freqs, parseval)
         if "rasta_plp" in want:
             barkfb, centres = spectral.bark_filterbank(rate, n_fft)
             o.bark_filters = barkfb
             o.loudness = spectral.equal_loudness(centres)
-            b = np.array([0.2, 0.1, 0.0, -0.1, -0.2])
-            pole = 0.94 ** (100.0 / (fps * m))  # spectral.rasta_filter at the fine frame rate
-            o.rasta_b, o.rasta_pole = b, pole
-            o.rasta_zi = lfilter_zi(b, np.array([1.0, -pole]))
+            b, a = spectral.rasta_coefficients(fps * m)  # at the fine frame rate
+            o.rasta_b, o.rasta_pole = b, float(-a[1])
+            o.rasta_zi = lfilter_zi(b, a)
             o.rasta_order, o.n_rasta = int(opt["rasta_order"]), int(opt["n_rasta"])
             o.rasta_first = 0 if opt["rasta_c0"] else 1
     if want & {"lpc", "lpc_cepstra"}:
         order = int(opt["lpc_order"])
-        length = max(order + 1, int(round(window_s * rate)))
-        o.lpc_window, o.lpc_order = hamming(length), order
+        o.lpc_window, o.lpc_order = lpc_mod.lpc_window(order, window_s, rate), order
         o.lpc_preemph = float(opt["lpc_preemph"])
         o.n_lpc_cepstra = int(opt["n_lpc_cepstra"])
     if "formants" in want:
-        fs = _formant_rate(opt, rate)
+        fs, order, preemph = lpc_mod.formant_analysis(rate, float(opt["formant_ceiling"]))
         frac = Fraction(fs, rate)
         o.resample_up, o.resample_down = frac.numerator, frac.denominator
         if fs != rate:
             o.resample_taps = resample_taps(frac.numerator, frac.denominator)
-        order = 2 * (3 + 2)
-        length = max(order + 1, int(round(0.05 * fs)))
         o.formant_rate = float(fs)
-        o.formant_window = lpc_mod.gaussian_window(length)
+        o.formant_window = lpc_mod.lpc_window(order, 0.05, fs, "gaussian")  # formant_frames'
         o.formant_order = order
-        o.formant_preemph = math.exp(-2.0 * math.pi * 50.0 / fs)
+        o.formant_preemph = preemph
         o.formant_max_bandwidth = float(opt["formant_max_bandwidth"])
         o.formant_reference = lpc_mod.reference_formants(fs / 2.0, 3)
         o.formant_lag = -1 if formant_lag is None else int(formant_lag)
