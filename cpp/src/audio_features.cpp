@@ -609,7 +609,7 @@ struct StreamingAudioFeatures::Impl {
   AudioFeatureOptions o;
   bool want[kNBlocks] = {};
   Index width[kNBlocks] = {};
-  bool spec = false, lpc = false, fmt = false, plp_cos_ready = false;
+  bool spec = false, lpc = false, fmt = false;
   Index n_bins = 0, n_bark = 0, n_mels = 0, n_mfcc = 0;
 
   Signal sig, fsig;
@@ -630,7 +630,7 @@ struct StreamingAudioFeatures::Impl {
   Filterbank mel_fb, band_fb, bark_fb;
   Eigen::VectorXd mel, bandE;
   // scratch
-  std::vector<double> frame, ac, a, tmp, cep, row, fbuf, ffreq, fband, plp_z;
+  std::vector<double> frame, ac, a, tmp, cep, fbuf, ffreq, fband, plp_z;
   std::vector<std::complex<double>> spectrum, roots;
   std::vector<std::pair<double, double>> cand_work;
   Eigen::VectorXd P, logb, filt;
@@ -992,9 +992,14 @@ struct StreamingAudioFeatures::Impl {
 
   RowMatrixXd flush(Index total) {
     if (total < 0) total = default_total();
-    if (total < frames_out)
-      fail_argument("audio features: flush(total=", total, ") is below the ", frames_out,
-                    " frames already emitted");
+    Index computed = frames_out;
+    if (spec) computed = std::max(computed, ceil_div(spec_fr.next, o.fine));
+    if (lpc) computed = std::max(computed, lpc_fr.next);
+    if (fmt) computed = std::max(computed, fmt_fr.next);
+    if (total < computed)
+      fail_argument("audio features: flush(total=", total, ") is below the ", computed,
+                    " frames already computed; to cap a recording at a frame count use "
+                    "process(samples, total)");
     if (total == 0) {
       reset();
       return RowMatrixXd(0, n_features());

@@ -284,6 +284,9 @@ TEST_CASE("the stream gives the same frames for any chunking; bad input is refus
   const RowMatrixXd longer = s.process(x, whole.rows() + 5);
   CHECK((longer.topRows(whole.rows()) - whole).cwiseAbs().maxCoeff() == 0.0);
   CHECK(longer(whole.rows() + 4, 0) == doctest::Approx(-100.0));  // silence: the power floor
+  s.push(x);
+  CHECK_THROWS_AS(s.flush(3), std::invalid_argument);  // below the frames computed
+  s.reset();
   VectorXd bad = x.head(10);
   bad[3] = kNaN;
   CHECK_THROWS_AS(s.push(bad), std::invalid_argument);

@@ -209,13 +209,12 @@ class StreamingAudioFeatures {
 
   /// Feed a chunk (any length, including 0) of finite samples.
   /// @return #K by #n_features, the frames completed by it
-  /// @throws std::invalid_argument on NaN / infinite samples (nothing is consumed) or after
-  ///   `flush` with a frame limit reached
+  /// @throws std::invalid_argument on NaN / infinite samples (then nothing is consumed)
   RowMatrixXd push(const VectorRef& samples);
   /// End of stream: the remaining frames up to `total` in all (default, -1:
   /// `ceil(n_samples fps / rate)`, none if nothing was pushed); windows past the end see zeros.
   /// Then the stream is reset.
-  /// @throws std::invalid_argument if total is below the frames already emitted
+  /// @throws std::invalid_argument if total is below the frames already computed
   RowMatrixXd flush(Index total = -1);
   /// A whole recording in one call: push + flush(total), never emitting more than `total`
   /// frames (-1: the default count); the stream is reset before and after.
