@@ -347,6 +347,15 @@ ForwardBackwardResult screened_forward_backward(const FullEmissions& em, Screene
   }
 }
 
+// The all-double path of the entry points: every log density in double, then `lattice` on them.
+template <class Lattice>
+auto all_double(const MatrixRef& X, const MatrixRef& means, const MatrixRef& covars, CovarianceType type,
+                ScreeningInfo* info, Lattice&& lattice) {
+  const RowMatrixXd log_b = gaussian_log_density(X, means, covars, type);
+  if (info != nullptr) *info = ScreeningInfo{log_b.size(), log_b.size(), 1, true};
+  return lattice(log_b);
+}
+
 }  // namespace
 
 RowMatrixXd gaussian_log_density(const MatrixRef& X, const MatrixRef& means, const MatrixRef& covars,
@@ -383,9 +392,9 @@ double gaussian_hmm_score(const MatrixRef& X, const IndexVectorRef& lengths, con
                           const MatrixRef& transmat, const MatrixRef& means, const MatrixRef& covars,
                           CovarianceType type, bool exact, ScreeningInfo* info) {
   if (type != CovarianceType::Full || exact) {
-    const RowMatrixXd log_b = gaussian_log_density(X, means, covars, type);
-    if (info != nullptr) *info = ScreeningInfo{log_b.size(), log_b.size(), 1, true};
-    return log_likelihood(log_b, startprob, transmat, lengths);
+    return all_double(X, means, covars, type, info, [&](const RowMatrixXd& lb) {
+      return log_likelihood(lb, startprob, transmat, lengths);
+    });
   }
   const FullEmissions em(X, means, covars);
   Screened sc = screen_and_refine(em);
@@ -415,9 +424,9 @@ ViterbiResult gaussian_hmm_decode(const MatrixRef& X, const IndexVectorRef& leng
                                   const MatrixRef& transmat, const MatrixRef& means, const MatrixRef& covars,
                                   CovarianceType type, bool exact, ScreeningInfo* info) {
   if (type != CovarianceType::Full || exact) {
-    const RowMatrixXd log_b = gaussian_log_density(X, means, covars, type);
-    if (info != nullptr) *info = ScreeningInfo{log_b.size(), log_b.size(), 1, true};
-    return viterbi(log_b, startprob, transmat, lengths);
+    return all_double(X, means, covars, type, info, [&](const RowMatrixXd& lb) {
+      return viterbi(lb, startprob, transmat, lengths);
+    });
   }
   const FullEmissions em(X, means, covars);
   Screened sc = screen_and_refine(em);
@@ -455,9 +464,9 @@ ForwardBackwardResult gaussian_hmm_posteriors(const MatrixRef& X, const IndexVec
                                               const MatrixRef& means, const MatrixRef& covars, CovarianceType type,
                                               bool exact, ScreeningInfo* info) {
   if (type != CovarianceType::Full || exact) {
-    const RowMatrixXd log_b = gaussian_log_density(X, means, covars, type);
-    if (info != nullptr) *info = ScreeningInfo{log_b.size(), log_b.size(), 1, true};
-    return forward_backward(log_b, startprob, transmat, lengths);
+    return all_double(X, means, covars, type, info, [&](const RowMatrixXd& lb) {
+      return forward_backward(lb, startprob, transmat, lengths);
+    });
   }
   const FullEmissions em(X, means, covars);
   Screened sc = screen_and_refine(em);
