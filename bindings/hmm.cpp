@@ -24,6 +24,15 @@ py::dict stats_to_dict(const EStepResult& r) {
   return d;
 }
 
+py::dict info_to_dict(const ScreeningInfo& info) {
+  py::dict d;
+  d["entries"] = info.entries;
+  d["refined"] = info.refined;
+  d["rounds"] = info.rounds;
+  d["all_double"] = info.all_double;
+  return d;
+}
+
 py::tuple fb_to_tuple(const ForwardBackwardResult& r) {
   return py::make_tuple(r.log_likelihood, r.posteriors, r.expected_transitions, r.expected_starts,
                         r.sequence_log_likelihoods);
@@ -90,22 +99,92 @@ void bind_hmm(py::module_& m) {
       },
       py::arg("covars"), py::arg("n_states"), py::arg("n_dims"), py::arg("covariance_type"));
   m.def(
+      "gaussian_log_density_screened",
+      [](const MatrixRef& X, const MatrixRef& means, const MatrixRef& covars) {
+        ScreenedLogDensity r;
+        {
+          py::gil_scoped_release release;
+          r = gaussian_log_density_screened(X, means, covars);
+        }
+        return py::make_tuple(r.log_b, r.bound);
+      },
+      py::arg("X"), py::arg("means"), py::arg("covars"),
+      "Full-covariance log densities evaluated in float32, and bounds on their error: "
+      "(log_b [T,N], bound [T,N]); bound is inf where float32 overflowed.");
+  m.def(
+      "gaussian_hmm_score",
+      [](const MatrixRef& X, const IndexVectorRef& lengths, const VectorRef& startprob, const MatrixRef& transmat,
+         const MatrixRef& means, const MatrixRef& covars, const std::string& type, bool exact) {
+        const CovarianceType ct = parse_covariance_type(type);
+        ScreeningInfo info;
+        double ll = 0;
+        {
+          py::gil_scoped_release release;
+          ll = gaussian_hmm_score(X, lengths, startprob, transmat, means, covars, ct, exact, &info);
+        }
+        return py::make_tuple(ll, info_to_dict(info));
+      },
+      py::arg("X"), py::arg("lengths"), py::arg("startprob"), py::arg("transmat"), py::arg("means"),
+      py::arg("covars"), py::arg("covariance_type"), py::arg("exact") = false,
+      "log p(X) of a Gaussian HMM from the data; full covariances are screened in float32 and "
+      "refined in double unless exact. Returns (log_likelihood, screening info dict).");
+  m.def(
+      "gaussian_hmm_decode",
+      [](const MatrixRef& X, const IndexVectorRef& lengths, const VectorRef& startprob, const MatrixRef& transmat,
+         const MatrixRef& means, const MatrixRef& covars, const std::string& type, bool exact) {
+        const CovarianceType ct = parse_covariance_type(type);
+        ScreeningInfo info;
+        ViterbiResult r;
+        {
+          py::gil_scoped_release release;
+          r = gaussian_hmm_decode(X, lengths, startprob, transmat, means, covars, ct, exact, &info);
+        }
+        return py::make_tuple(r.log_probability, r.path, info_to_dict(info));
+      },
+      py::arg("X"), py::arg("lengths"), py::arg("startprob"), py::arg("transmat"), py::arg("means"),
+      py::arg("covars"), py::arg("covariance_type"), py::arg("exact") = false,
+      "Viterbi decoding of a Gaussian HMM from the data (screened unless exact). Returns "
+      "(log_probability, path [T], screening info dict).");
+  m.def(
+      "gaussian_hmm_posteriors",
+      [](const MatrixRef& X, const IndexVectorRef& lengths, const VectorRef& startprob, const MatrixRef& transmat,
+         const MatrixRef& means, const MatrixRef& covars, const std::string& type, bool exact) {
+        const CovarianceType ct = parse_covariance_type(type);
+        ScreeningInfo info;
+        ForwardBackwardResult r;
+        {
+          py::gil_scoped_release release;
+          r = gaussian_hmm_posteriors(X, lengths, startprob, transmat, means, covars, ct, exact, &info);
+        }
+        return py::make_tuple(r.log_likelihood, r.posteriors, r.expected_transitions, r.expected_starts,
+                              r.sequence_log_likelihoods, info_to_dict(info));
+      },
+      py::arg("X"), py::arg("lengths"), py::arg("startprob"), py::arg("transmat"), py::arg("means"),
+      py::arg("covars"), py::arg("covariance_type"), py::arg("exact") = false,
+      "Forward-backward of a Gaussian HMM from the data (screened unless exact). Returns "
+      "(log_likelihood, posteriors [T,N], expected_transitions [N,N], expected_starts [N], "
+      "sequence_log_likelihoods [S], screening info dict).");
+  m.def(
       "gaussian_hmm_estep",
       [](const MatrixRef& X, const IndexVectorRef& lengths, const VectorRef& startprob,
          const MatrixRef& transmat, const MatrixRef& means, const MatrixRef& covars, const std::string& type,
-         const VectorRef& shift) {
+         const VectorRef& shift, bool exact) {
         const CovarianceType ct = parse_covariance_type(type);
         EStepResult r;
+        ScreeningInfo info;
         {
           py::gil_scoped_release release;
-          r = gaussian_hmm_estep(X, lengths, startprob, transmat, means, covars, ct, shift);
+          r = gaussian_hmm_estep(X, lengths, startprob, transmat, means, covars, ct, shift, exact, &info);
         }
-        return stats_to_dict(r);
+        py::dict d = stats_to_dict(r);
+        d["screening"] = info_to_dict(info);
+        return d;
       },
       py::arg("X"), py::arg("lengths"), py::arg("startprob"), py::arg("transmat"), py::arg("means"),
-      py::arg("covars"), py::arg("covariance_type"), py::arg("shift"),
+      py::arg("covars"), py::arg("covariance_type"), py::arg("shift"), py::arg("exact") = false,
       "E-step: dict of log_likelihood, expected_transitions, expected_starts and the Gaussian "
-      "statistics weight [N], sum [N,D], outer (full [N*D,D], diag [N,D]) about shift [D].");
+      "statistics weight [N], sum [N,D], outer (full [N*D,D], diag [N,D]) about shift [D], and "
+      "screening (what the float32 screening did; exact=True evaluates every density in double).");
   m.def(
       "gaussian_stats",
       [](const MatrixRef& X, const MatrixRef& posteriors, const VectorRef& shift, const std::string& type) {

@@ -192,3 +192,180 @@ def test_bad_parameters_are_named(rng):
         GaussianHMM(30).fit(X)
     with pytest.raises(ValueError, match="singular"):
         GaussianHMM(2, min_covar=0.0).fit(np.column_stack([X[:, 0], X[:, 0]]))
+
+
+# ----------------------------------------------------------------- float32 screening (full covariance)
+
+def screening_model(rng, n, d, *, spread, cond=10.0, left_to_right=False, stay=0.9):
+    """Sticky full-covariance model whose means lie `spread` apart (in units of the noise)
+    and whose covariances have condition number `cond`."""
+    m = GaussianHMM(n, "full")
+    m.startprob_ = np.full(n, 1.0 / n)
+    if left_to_right:
+        A = np.eye(n) * stay + np.eye(n, k=1) * (1 - stay)
+        A[-1, -1] = 1.0
+        m.startprob_ = np.eye(n)[0]
+    else:
+        A = rng.dirichlet(np.ones(n), size=n) * (1 - stay) + np.eye(n) * stay
+    m.transmat_ = A
+    m.means_ = rng.normal(0.0, spread / np.sqrt(d), (n, d))
+    covs = []
+    for _ in range(n):
+        Q, _ = np.linalg.qr(rng.normal(size=(d, d)))
+        covs.append((Q * np.geomspace(1.0, 1.0 / cond, d)) @ Q.T)
+    m.covars_ = np.array(covs)
+    return m
+
+
+def exact_twin(m):
+    e = GaussianHMM(m.n_states, m.covariance, exact=True)
+    for attr in ("startprob_", "transmat_", "means_", "covars_"):
+        setattr(e, attr, getattr(m, attr).copy())
+    return e
+
+
+def screened_vs_exact(m, X, lengths):
+    """The screened answers against the all-double ones; returns the screening info."""
+    e = exact_twin(m)
+    assert m.score(X, lengths) == pytest.approx(e.score(X, lengths), rel=1e-12, abs=0)
+    lp, path = m.decode(X, lengths)
+    elp, epath = e.decode(X, lengths)
+    assert lp == pytest.approx(elp, rel=1e-12, abs=0)
+    np.testing.assert_array_equal(path, epath)
+    ll, gamma = m.score_samples(X, lengths)
+    ell, egamma = e.score_samples(X, lengths)
+    assert ll == pytest.approx(ell, rel=1e-12, abs=0)
+    assert np.max(np.abs(gamma - egamma)) < 1e-10
+    args = (X, np.asarray(lengths, dtype=np.int64), m.startprob_, m.transmat_, m.means_,
+            m._covars_2d(), "full")
+    return {"score": _core.gaussian_hmm_score(*args)[1], "decode": _core.gaussian_hmm_decode(*args)[2],
+            "posteriors": _core.gaussian_hmm_posteriors(*args)[5]}
+
+
+def test_float32_screening_bound_holds_where_float32_is_poor(rng):
+    d = 24
+    cases = {
+        "well separated": (screening_model(rng, 6, d, spread=30.0), 0.0),
+        "ill-conditioned covariances": (screening_model(rng, 6, d, spread=30.0, cond=1e7), 0.0),
+        "data far from the origin": (screening_model(rng, 6, d, spread=30.0), 1e5),
+    }
+    for name, (m, offset) in cases.items():
+        X, _ = m.sample(800, random_state=1)
+        m.means_ = m.means_ + offset
+        X = X + offset
+        est, bound = _core.gaussian_log_density_screened(X, m.means_, m._covars_2d())
+        exact = m.log_density(X)
+        assert np.all(np.abs(est - exact) <= bound), name
+        # the bound is not vacuous: within a few hundred times the real error at the top entries
+        top = exact.argmax(axis=1)
+        rows = np.arange(len(X))
+        assert np.median(bound[rows, top]) < 1e-2 * np.median(np.abs(exact[rows, top])) + 1.0, name
+    # float32 overflow is flagged, not trusted
+    m = screening_model(rng, 3, d, spread=5.0)
+    X, _ = m.sample(50, random_state=2)
+    X[7] = 1e30
+    est, bound = _core.gaussian_log_density_screened(X, m.means_, m._covars_2d())
+    assert np.all(np.isinf(bound[7]))
+    assert np.all(np.isfinite(bound[np.arange(50) != 7]))
+
+
+def test_screened_inference_equals_all_double_on_separated_states(rng):
+    m = screening_model(rng, 20, 16, spread=40.0)
+    X, _ = m.sample(6000, random_state=3)
+    lengths = [2500, 500, 3000]
+    info = screened_vs_exact(m, X, lengths)
+    for what, i in info.items():  # the screening really skipped most double evaluations
+        assert not i["all_double"], what
+        assert i["refined"] < 0.2 * i["entries"], what
+
+
+def test_screened_inference_equals_all_double_when_transitions_overrule_emissions(rng):
+    # left-to-right: the best-emitting state is often unreachable, so the first refinement
+    # (near each frame's best emission) misses the states the lattice needs; more rounds follow
+    m = screening_model(rng, 8, 12, spread=25.0, left_to_right=True, stay=0.995)
+    X, _ = m.sample(3000, random_state=4)
+    X[1500:1510] = 0.4 * X[1500:1510] + 0.6 * m.means_[7]  # looks like the last state, too early
+    info = screened_vs_exact(m, X, [3000])
+    for what, i in info.items():
+        assert i["rounds"] >= 2 and not i["all_double"], what
+    assert rel(m.score(X), to_hmmlearn(m).score(X)) < 1e-10
+
+
+@pytest.mark.parametrize("case", ["overlapping states", "ill-conditioned", "far offset", "long and many"])
+def test_screened_inference_equals_all_double_in_hard_cases(rng, case):
+    if case == "overlapping states":  # posteriors dense: falls back to all-double
+        m = screening_model(rng, 10, 10, spread=0.5)
+        X, _ = m.sample(2000, random_state=5)
+        info = screened_vs_exact(m, X, [2000])
+        assert info["score"]["all_double"]
+    elif case == "ill-conditioned":
+        m = screening_model(rng, 8, 20, spread=20.0, cond=1e8)
+        X, _ = m.sample(2000, random_state=6)
+        screened_vs_exact(m, X, [1000, 1000])
+    elif case == "far offset":
+        m = screening_model(rng, 8, 20, spread=20.0)
+        X, _ = m.sample(2000, random_state=7)
+        m.means_ = m.means_ + 3e4
+        screened_vs_exact(m, X + 3e4, [2000])
+    else:
+        m = screening_model(rng, 32, 12, spread=30.0, stay=0.6)
+        X, _ = m.sample(20000, random_state=8)
+        info = screened_vs_exact(m, X, [5000] * 4)
+        assert info["score"]["refined"] < 0.2 * info["score"]["entries"]
+
+
+def test_screened_inference_matches_hmmlearn(rng):
+    m = screening_model(rng, 10, 16, spread=20.0)
+    X, _ = m.sample(3000, random_state=9)
+    h = to_hmmlearn(m)
+    assert rel(m.score(X), h.score(X)) < 1e-10
+    lp, path = m.decode(X)
+    hlp, hpath = h.decode(X, algorithm="viterbi")
+    assert rel(lp, hlp) < 1e-10
+    np.testing.assert_array_equal(path, hpath)
+    assert np.max(np.abs(m.predict_proba(X) - h.predict_proba(X))) < 1e-8
+
+
+def test_screened_em_equals_all_double_em_and_hmmlearn(rng):
+    m = screening_model(rng, 8, 12, spread=15.0)
+    X, _ = m.sample(4000, random_state=10)
+    lengths = [2000, 2000]
+    fits = {}
+    for exact in (False, True):
+        f = GaussianHMM(8, "full", n_iter=3, tol=-np.inf, min_covar=0.0, init_params="", exact=exact)
+        for attr in ("startprob_", "transmat_", "means_", "covars_"):
+            setattr(f, attr, getattr(m, attr).copy())
+        fits[exact] = f.fit(X, lengths)
+    for attr in ("startprob_", "transmat_", "means_", "covars_"):
+        assert rel(getattr(fits[False], attr), getattr(fits[True], attr)) < 1e-10, attr
+    h = to_hmmlearn(m, n_iter=3, tol=-np.inf)
+    h.fit(X, lengths)
+    for attr in ("startprob_", "transmat_", "means_", "_covars_"):
+        assert rel(getattr(fits[False], attr.lstrip("_")), getattr(h, attr)) < 1e-8, attr
+    stats = fits[False].estep(X, lengths)
+    assert not stats["screening"]["all_double"]
+
+
+def test_sparse_outer_statistics_equal_the_dense_sums(rng):
+    T, n, d = 3000, 6, 5
+    X = rng.normal(size=(T, d)) * 3 + 1.0
+    logits = rng.normal(size=(T, n)) * 25  # very peaked posteriors: most γ ≈ 0
+    post = np.exp(logits - logits.max(axis=1, keepdims=True))
+    post /= post.sum(axis=1, keepdims=True)
+    shift = X.mean(axis=0)
+    weight, ssum, outer = _core.gaussian_stats(X, post, shift, "full")
+    Xs = X - shift
+    dense = np.einsum("tn,ti,tj->nij", post, Xs, Xs).reshape(n * d, d)
+    assert rel(outer, dense) < 1e-12
+    np.testing.assert_allclose(weight, post.sum(axis=0), rtol=1e-13)
+    assert (post < 1e-15).mean() > 0.3  # frames were actually skipped
+
+
+def test_screened_fit_is_deterministic_for_a_seed(rng):
+    m = screening_model(rng, 6, 12, spread=20.0)
+    X, _ = m.sample(2000, random_state=12)
+    a = GaussianHMM(6, "full", n_iter=4, random_state=3).fit(X)
+    b = GaussianHMM(6, "full", n_iter=4, random_state=3).fit(X[:, :].copy())
+    np.testing.assert_array_equal(a.means_, b.means_)
+    np.testing.assert_array_equal(a.covars_, b.covars_)
+    assert [h["log_likelihood"] for h in a.history_] == [h["log_likelihood"] for h in b.history_]

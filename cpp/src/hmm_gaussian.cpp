@@ -12,6 +12,9 @@ namespace {
 
 constexpr double kLog2Pi = 1.8378770664093454835606594728112;
 constexpr Index kBlockFrames = 1024;  // frames per block of the emission GEMM (cache-sized)
+constexpr Index kScreenBlock = 1024;  // frames per block of the float32 screening GEMM
+
+constexpr double kStatsSkip = 1e-13;  // relative share of a state's statistics a skipped frame set may hold
 
 void check_means(const MatrixRef& means, Index n_dims) {
   if (means.rows() == 0) fail_argument("means is empty; a model needs at least one state");
@@ -94,58 +97,382 @@ void check_covariances(const MatrixRef& covars, Index n_states, Index d, Covaria
   }
 }
 
-RowMatrixXd gaussian_log_density(const MatrixRef& X, const MatrixRef& means, const MatrixRef& covars,
-                                 CovarianceType type) {
+namespace {
+
+// Shapes and values of X and the full covariances, checked once per entry point.
+void check_full_inputs(const MatrixRef& X, const MatrixRef& means, const MatrixRef& covars) {
   const Index T = X.rows(), d = X.cols(), n_states = means.rows();
   if (T == 0) fail_argument("X has zero frames; pass at least one frame");
   if (d == 0) fail_argument("X has zero columns; observations need at least one dimension");
   require_finite(X, "X");
   check_means(means, d);
-  RowMatrixXd out(T, n_states);
-  if (type == CovarianceType::Diagonal) {
-    check_covariances(covars, n_states, d, type);
-    // −½ Σ_d (x−μ)²/σ² expanded as x²·(1/σ²) − 2x·(μ/σ²) + μ²/σ²: three matrix products.
-    const RowMatrixXd prec = covars.cwiseInverse();
-    const RowMatrixXd mp = means.cwiseProduct(prec);
-    const VectorXd c = (means.cwiseProduct(mp)).rowwise().sum() + covars.array().log().matrix().rowwise().sum() +
-                       VectorXd::Constant(n_states, d * kLog2Pi);
-    out.noalias() = X.cwiseAbs2() * prec.transpose();
-    out.noalias() -= 2.0 * X * mp.transpose();
-    out.rowwise() += c.transpose();
-    out *= -0.5;
-    return out;
-  }
   if (covars.rows() != n_states * d || covars.cols() != d) {
     fail_argument("full covars must have shape (", n_states, "*", d, ", ", d, ") i.e. [N, D, D] stacked, got ",
                   shape_of(covars));
   }
   require_finite(covars, "covars");
-  std::vector<RowMatrixXd> u_inv(static_cast<size_t>(n_states));
-  std::vector<RowMatrixXd> mu_u(static_cast<size_t>(n_states));
-  VectorXd c(n_states);
-  for (Index n = 0; n < n_states; ++n) {
-    double ld = 0;
-    factor_state(covars, n, d, u_inv[static_cast<size_t>(n)], ld);
-    mu_u[static_cast<size_t>(n)] = means.row(n) * u_inv[static_cast<size_t>(n)];
-    c[n] = -0.5 * (d * kLog2Pi + ld);
+}
+
+using RowMatrixXf = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+constexpr double kUnitF32 = 0x1.0p-24;  // unit roundoff of float32 (round to nearest)
+
+// Full-covariance Gaussian log densities of X, evaluated in double for all entries (exact_all),
+// or screened in float32 with a rigorous per-entry error bound and refined in double for
+// chosen entries (screen, refine). See docs/benchmarks.md "## hmm" for the bound.
+class FullEmissions {
+ public:
+  FullEmissions(const MatrixRef& X, const MatrixRef& means, const MatrixRef& covars)
+      : X_(X), means_(means), T_(X.rows()), d_(X.cols()), n_(means.rows()) {
+    check_full_inputs(X, means, covars);
+    u_inv_.resize(static_cast<size_t>(n_));
+    mu_u_.resize(static_cast<size_t>(n_));
+    c_.resize(n_);
+    for (Index n = 0; n < n_; ++n) {
+      double ld = 0;
+      factor_state(covars, n, d_, u_inv_[static_cast<size_t>(n)], ld);
+      mu_u_[static_cast<size_t>(n)] = means.row(n) * u_inv_[static_cast<size_t>(n)];
+      c_[n] = -0.5 * (d_ * kLog2Pi + ld);
+    }
   }
-  // Per state, blocks of frames times the triangular U⁻¹: ‖(x − μ)U⁻¹‖² = ‖xU⁻¹ − μU⁻¹‖².
-  const bool parallel = static_cast<double>(T) * n_states * d * d > 2e7;
+
+  Index frames() const { return T_; }
+  Index states() const { return n_; }
+  bool worth_screening() const { return d_ >= 8 && T_ * n_ >= 64; }
+
+  // Every log density in double: per state, blocks of frames times the triangular U⁻¹,
+  // ‖(x − μ)U⁻¹‖² = ‖xU⁻¹ − μU⁻¹‖².
+  RowMatrixXd exact_all() const {
+    RowMatrixXd out(T_, n_);
+    const bool parallel = static_cast<double>(T_) * n_ * d_ * d_ > 2e7;
 #if defined(_OPENMP)
 #pragma omp parallel for schedule(dynamic, 1) if (parallel)
 #endif
-  for (Index n = 0; n < n_states; ++n) {
-    RowMatrixXd Z;
-    const auto U = u_inv[static_cast<size_t>(n)].triangularView<Eigen::Upper>();
-    for (Index t0 = 0; t0 < T; t0 += kBlockFrames) {
-      const Index len = std::min(kBlockFrames, T - t0);
-      Z.noalias() = X.middleRows(t0, len) * U;
-      Z.rowwise() -= mu_u[static_cast<size_t>(n)].row(0);
-      out.col(n).segment(t0, len) = (-0.5 * Z.rowwise().squaredNorm()).array() + c[n];
+    for (Index n = 0; n < n_; ++n) {
+      RowMatrixXd Z;
+      const auto U = u_inv_[static_cast<size_t>(n)].triangularView<Eigen::Upper>();
+      for (Index t0 = 0; t0 < T_; t0 += kBlockFrames) {
+        const Index len = std::min(kBlockFrames, T_ - t0);
+        Z.noalias() = X_.middleRows(t0, len) * U;
+        Z.rowwise() -= mu_u_[static_cast<size_t>(n)].row(0);
+        out.col(n).segment(t0, len) = (-0.5 * Z.rowwise().squaredNorm()).array() + c_[n];
+      }
+    }
+    (void)parallel;
+    return out;
+  }
+
+  // Float32 estimates of all log densities into `log_b` and bounds |estimate − exact| into
+  // `bound` (+inf where float32 overflowed; the estimate is then meaningless). With x̃ = x − s
+  // (s the mean of the states' means: near the data, and not moved by outlying frames),
+  // m = (μ − s)U⁻¹ and ẑ the float32 value of x̃U⁻¹ − m:
+  //   ‖ẑ − z‖ ≤ e = (D + 4)·u·(‖x̃‖·‖U⁻¹‖_F + ‖m‖ + ‖ẑ‖)   (rounding of x̃, U⁻¹, m; the D-term
+  //   sums of the product, |Σ a_i b_i| error ≤ γ_D Σ|a_i||b_i|, and ‖|x̃||U⁻¹|‖ ≤ ‖x̃‖‖U⁻¹‖_F;
+  //   the subtraction), and q̂ = fl32(‖ẑ‖²) has |q̂ − ‖ẑ‖²| ≤ γ_D‖ẑ‖², so
+  //   |q̂ − ‖z‖²| ≤ (2‖ẑ‖ + e)·e + γ_D·q̂, and the log density (−½q + c) errs by half that.
+  // A factor 1.25 covers the second-order terms of u.
+  void screen(RowMatrixXd& log_b, RowMatrixXd& bound) const {
+    const VectorXd s = means_.colwise().mean().transpose();
+    const RowMatrixXf Xf = (X_.rowwise() - s.transpose()).cast<float>();
+    const VectorXd xnorm = (X_.rowwise() - s.transpose()).rowwise().norm();
+    log_b.resize(T_, n_);
+    bound.resize(T_, n_);
+    const double gamma_d = (d_ + 4) * kUnitF32;
+    const bool parallel = static_cast<double>(T_) * n_ * d_ * d_ > 4e7;
+#if defined(_OPENMP)
+#pragma omp parallel for schedule(dynamic, 1) if (parallel)
+#endif
+    for (Index n = 0; n < n_; ++n) {
+      const RowMatrixXd& U = u_inv_[static_cast<size_t>(n)];
+      const RowMatrixXf Uf = U.cast<float>();
+      const Eigen::RowVectorXd m = (means_.row(n) - s.transpose()) * U;
+      const Eigen::RowVectorXf mf = m.cast<float>();
+      const double u_norm = U.norm(), m_norm = m.norm();
+      // U⁻¹ is upper triangular: the first h columns of xU⁻¹ need only the first h entries of
+      // x, so the product is done as two dense blocks (~3/4 of the dense flops), the wide one a
+      // multiple of 16 columns (whole SIMD panels).
+      const Index h = d_ >= 32 ? d_ - (d_ / 2 + 15) / 16 * 16 : 0;
+      RowMatrixXf Z(std::min(kScreenBlock, T_), d_);
+      Eigen::VectorXf q;
+      for (Index t0 = 0; t0 < T_; t0 += kScreenBlock) {
+        const Index len = std::min(kScreenBlock, T_ - t0);
+        auto Zb = Z.topRows(len);
+        if (h > 0) Zb.leftCols(h).noalias() = Xf.block(t0, 0, len, h) * Uf.topLeftCorner(h, h);
+        Zb.rightCols(d_ - h).noalias() = Xf.middleRows(t0, len) * Uf.rightCols(d_ - h);
+        Zb.rowwise() -= mf;
+        q = Zb.rowwise().squaredNorm();
+        for (Index r = 0; r < len; ++r) {
+          const Index t = t0 + r;
+          const double qh = static_cast<double>(q[r]);
+          if (!std::isfinite(qh) || qh > 1e36) {
+            log_b(t, n) = 0.0;
+            bound(t, n) = std::numeric_limits<double>::infinity();
+            continue;
+          }
+          const double zn = std::sqrt(qh * (1.0 + gamma_d));
+          const double e = gamma_d * (xnorm[t] * u_norm + m_norm + zn);
+          log_b(t, n) = c_[n] - 0.5 * qh;
+          bound(t, n) = 0.625 * ((2.0 * zn + e) * e + gamma_d * qh);  // 1.25 · ½(…)
+        }
+      }
+    }
+    (void)parallel;
+  }
+
+  // Double-precision log densities of the (t, n) entries in `entries` (state-major lists of
+  // frames: entries[n] = frames of state n), written into log_b with bound 0.
+  void refine(const std::vector<std::vector<Index>>& entries, RowMatrixXd& log_b, RowMatrixXd& bound) const {
+    Index total = 0;
+    for (const auto& e : entries) total += static_cast<Index>(e.size());
+    const bool parallel = static_cast<double>(total) * d_ * d_ > 2e7;
+#if defined(_OPENMP)
+#pragma omp parallel for schedule(dynamic, 1) if (parallel)
+#endif
+    for (Index n = 0; n < n_; ++n) {
+      const auto& frames = entries[static_cast<size_t>(n)];
+      if (frames.empty()) continue;
+      const auto U = u_inv_[static_cast<size_t>(n)].triangularView<Eigen::Upper>();
+      RowMatrixXd G, Z;
+      const Index count = static_cast<Index>(frames.size());
+      for (Index k0 = 0; k0 < count; k0 += kBlockFrames) {
+        const Index len = std::min(kBlockFrames, count - k0);
+        G.resize(len, d_);
+        for (Index r = 0; r < len; ++r) G.row(r) = X_.row(frames[static_cast<size_t>(k0 + r)]);
+        Z.noalias() = G * U;
+        Z.rowwise() -= mu_u_[static_cast<size_t>(n)].row(0);
+        for (Index r = 0; r < len; ++r) {
+          const Index t = frames[static_cast<size_t>(k0 + r)];
+          log_b(t, n) = c_[n] - 0.5 * Z.row(r).squaredNorm();
+          bound(t, n) = 0.0;
+        }
+      }
+    }
+    (void)parallel;
+  }
+
+ private:
+  const MatrixRef& X_;
+  const MatrixRef& means_;
+  Index T_, d_, n_;
+  std::vector<RowMatrixXd> u_inv_, mu_u_;
+  VectorXd c_;
+};
+
+constexpr double kScreenMargin = 50.0;  // nats below a frame's best emission: e^-50 ≈ 2e-22
+constexpr double kPosteriorFloor = 1e-13;  // unrefined entries keep γ·e^{2Δ} below this
+constexpr Index kMaxRounds = 6;
+
+// Screened log densities and what it took to get them.
+struct Screened {
+  RowMatrixXd log_b, bound;
+  ScreeningInfo info;
+};
+
+// Adds the listed entries to the refined set and evaluates them in double; returns how many.
+Index refine_entries(const FullEmissions& em, std::vector<std::vector<Index>>& pick, Screened& sc) {
+  Index count = 0;
+  for (const auto& p : pick) count += static_cast<Index>(p.size());
+  if (count > 0) em.refine(pick, sc.log_b, sc.bound);
+  for (auto& p : pick) p.clear();
+  sc.info.refined += count;
+  return count;
+}
+
+void refine_all(const FullEmissions& em, Screened& sc) {
+  sc.log_b = em.exact_all();
+  sc.bound.setZero(em.frames(), em.states());
+  sc.info.refined = em.frames() * em.states();
+  sc.info.all_double = true;
+}
+
+// Float32 screening followed by the first refinement: every entry whose float32 value, raised
+// by its bound, comes within kScreenMargin nats of the frame's best lower bound (and every entry
+// where float32 overflowed). Falls back to all-double when that is most of the matrix.
+Screened screen_and_refine(const FullEmissions& em) {
+  Screened sc;
+  sc.info.entries = em.frames() * em.states();
+  if (!em.worth_screening()) {
+    refine_all(em, sc);
+    return sc;
+  }
+  em.screen(sc.log_b, sc.bound);
+  const Index T = em.frames(), N = em.states();
+  std::vector<std::vector<Index>> pick(static_cast<size_t>(N));
+  Index count = 0;
+  for (Index t = 0; t < T; ++t) {
+    double best = -std::numeric_limits<double>::infinity();
+    for (Index n = 0; n < N; ++n) best = std::max(best, sc.log_b(t, n) - sc.bound(t, n));
+    for (Index n = 0; n < N; ++n) {
+      if (!std::isfinite(sc.bound(t, n)) || sc.log_b(t, n) + sc.bound(t, n) >= best - kScreenMargin) {
+        pick[static_cast<size_t>(n)].push_back(t);
+        ++count;
+      }
     }
   }
-  (void)parallel;
+  if (2 * count > T * N) {
+    refine_all(em, sc);
+    return sc;
+  }
+  refine_entries(em, pick, sc);
+  return sc;
+}
+
+// Refines every unrefined entry whose posterior could exceed kPosteriorFloor (γ·e^{2Δ} above
+// it); returns the number refined.
+Index refine_by_posterior(const FullEmissions& em, const RowMatrixXd& gamma, Screened& sc) {
+  std::vector<std::vector<Index>> pick(static_cast<size_t>(em.states()));
+  const double log_floor = std::log(kPosteriorFloor);
+  for (Index t = 0; t < em.frames(); ++t) {
+    for (Index n = 0; n < em.states(); ++n) {
+      const double b = sc.bound(t, n);
+      // γ computed as 0 underflowed below ~1e-300; an entry with a large bound still matters
+      if (b > 0 && std::log(std::max(gamma(t, n), 1e-300)) + 2.0 * b > log_floor) {
+        pick[static_cast<size_t>(n)].push_back(t);
+      }
+    }
+  }
+  return refine_entries(em, pick, sc);
+}
+
+// Forward-backward on the screened densities until no unrefined entry can carry posterior
+// mass above kPosteriorFloor; then log p(X) errs by at most Σ_unrefined γ·Δ ≤ kPosteriorFloor·
+// max_Δ Δe^{-2Δ}·count ≤ 0.19·kPosteriorFloor per unrefined entry, to first order.
+ForwardBackwardResult screened_forward_backward(const FullEmissions& em, Screened& sc, const VectorRef& startprob,
+                                                const MatrixRef& transmat, const IndexVectorRef& lengths) {
+  for (Index round = 0;; ++round) {
+    ForwardBackwardResult fb = forward_backward(sc.log_b, startprob, transmat, lengths);
+    ++sc.info.rounds;
+    if (sc.info.all_double) return fb;
+    if (refine_by_posterior(em, fb.posteriors, sc) == 0) return fb;
+    if (round + 1 >= kMaxRounds) refine_all(em, sc);
+  }
+}
+
+// The all-double path of the entry points: every log density in double, then `lattice` on them.
+template <class Lattice>
+auto all_double(const MatrixRef& X, const MatrixRef& means, const MatrixRef& covars, CovarianceType type,
+                ScreeningInfo* info, Lattice&& lattice) {
+  const RowMatrixXd log_b = gaussian_log_density(X, means, covars, type);
+  if (info != nullptr) *info = ScreeningInfo{log_b.size(), log_b.size(), 1, true};
+  return lattice(log_b);
+}
+
+}  // namespace
+
+RowMatrixXd gaussian_log_density(const MatrixRef& X, const MatrixRef& means, const MatrixRef& covars,
+                                 CovarianceType type) {
+  const Index T = X.rows(), d = X.cols(), n_states = means.rows();
+  if (type == CovarianceType::Full) return FullEmissions(X, means, covars).exact_all();
+  if (T == 0) fail_argument("X has zero frames; pass at least one frame");
+  if (d == 0) fail_argument("X has zero columns; observations need at least one dimension");
+  require_finite(X, "X");
+  check_means(means, d);
+  check_covariances(covars, n_states, d, type);
+  // −½ Σ_d (x−μ)²/σ² expanded as x²·(1/σ²) − 2x·(μ/σ²) + μ²/σ²: three matrix products.
+  RowMatrixXd out(T, n_states);
+  const RowMatrixXd prec = covars.cwiseInverse();
+  const RowMatrixXd mp = means.cwiseProduct(prec);
+  const VectorXd c = (means.cwiseProduct(mp)).rowwise().sum() + covars.array().log().matrix().rowwise().sum() +
+                     VectorXd::Constant(n_states, d * kLog2Pi);
+  out.noalias() = X.cwiseAbs2() * prec.transpose();
+  out.noalias() -= 2.0 * X * mp.transpose();
+  out.rowwise() += c.transpose();
+  out *= -0.5;
   return out;
+}
+
+ScreenedLogDensity gaussian_log_density_screened(const MatrixRef& X, const MatrixRef& means,
+                                                 const MatrixRef& covars) {
+  const FullEmissions em(X, means, covars);
+  ScreenedLogDensity r;
+  em.screen(r.log_b, r.bound);
+  return r;
+}
+
+double gaussian_hmm_score(const MatrixRef& X, const IndexVectorRef& lengths, const VectorRef& startprob,
+                          const MatrixRef& transmat, const MatrixRef& means, const MatrixRef& covars,
+                          CovarianceType type, bool exact, ScreeningInfo* info) {
+  if (type != CovarianceType::Full || exact) {
+    return all_double(X, means, covars, type, info, [&](const RowMatrixXd& lb) {
+      return log_likelihood(lb, startprob, transmat, lengths);
+    });
+  }
+  const FullEmissions em(X, means, covars);
+  Screened sc = screen_and_refine(em);
+  // log p(X) is increasing in every log density, so raising each unrefined entry by its bound
+  // and lowering it by its bound brackets the all-double value rigorously.
+  double result = 0;
+  for (Index round = 0;; ++round) {
+    ++sc.info.rounds;
+    if (sc.info.all_double) {
+      result = log_likelihood(sc.log_b, startprob, transmat, lengths);
+      break;
+    }
+    const double hi = log_likelihood(sc.log_b + sc.bound, startprob, transmat, lengths);
+    const double lo = log_likelihood(sc.log_b - sc.bound, startprob, transmat, lengths);
+    if (hi - lo <= 1e-13 * std::max(1.0, std::abs(lo))) {
+      result = 0.5 * (hi + lo);
+      break;
+    }
+    const ForwardBackwardResult fb = forward_backward(sc.log_b, startprob, transmat, lengths);
+    if (refine_by_posterior(em, fb.posteriors, sc) == 0 || round + 1 >= kMaxRounds) refine_all(em, sc);
+  }
+  if (info != nullptr) *info = sc.info;
+  return result;
+}
+
+ViterbiResult gaussian_hmm_decode(const MatrixRef& X, const IndexVectorRef& lengths, const VectorRef& startprob,
+                                  const MatrixRef& transmat, const MatrixRef& means, const MatrixRef& covars,
+                                  CovarianceType type, bool exact, ScreeningInfo* info) {
+  if (type != CovarianceType::Full || exact) {
+    return all_double(X, means, covars, type, info, [&](const RowMatrixXd& lb) {
+      return viterbi(lb, startprob, transmat, lengths);
+    });
+  }
+  const FullEmissions em(X, means, covars);
+  Screened sc = screen_and_refine(em);
+  // Viterbi on upper bounds (exact where refined): if the best path only visits refined entries,
+  // its score is exact and every other path's true score is at most its upper score, so no
+  // path beats it. Otherwise refine the path's unrefined entries and their frames' rivals.
+  ViterbiResult vit;
+  std::vector<std::vector<Index>> pick(static_cast<size_t>(em.states()));
+  for (Index round = 0;; ++round) {
+    ++sc.info.rounds;
+    vit = viterbi(sc.log_b + sc.bound, startprob, transmat, lengths);
+    if (sc.info.all_double) break;
+    Index missing = 0;
+    for (Index t = 0; t < em.frames(); ++t) {
+      const Index s = vit.path[t];
+      if (sc.bound(t, s) == 0) continue;
+      ++missing;
+      const double floor_t = sc.log_b(t, s) - sc.bound(t, s) - kScreenMargin;
+      for (Index n = 0; n < em.states(); ++n) {
+        if (sc.bound(t, n) > 0 && sc.log_b(t, n) + sc.bound(t, n) >= floor_t) {
+          pick[static_cast<size_t>(n)].push_back(t);
+        }
+      }
+    }
+    if (missing == 0) break;
+    refine_entries(em, pick, sc);
+    if (round + 1 >= kMaxRounds) refine_all(em, sc);
+  }
+  if (info != nullptr) *info = sc.info;
+  return vit;
+}
+
+ForwardBackwardResult gaussian_hmm_posteriors(const MatrixRef& X, const IndexVectorRef& lengths,
+                                              const VectorRef& startprob, const MatrixRef& transmat,
+                                              const MatrixRef& means, const MatrixRef& covars, CovarianceType type,
+                                              bool exact, ScreeningInfo* info) {
+  if (type != CovarianceType::Full || exact) {
+    return all_double(X, means, covars, type, info, [&](const RowMatrixXd& lb) {
+      return forward_backward(lb, startprob, transmat, lengths);
+    });
+  }
+  const FullEmissions em(X, means, covars);
+  Screened sc = screen_and_refine(em);
+  ForwardBackwardResult fb = screened_forward_backward(em, sc, startprob, transmat, lengths);
+  if (info != nullptr) *info = sc.info;
+  return fb;
 }
 
 GaussianStats& GaussianStats::operator+=(const GaussianStats& o) {
@@ -176,15 +503,31 @@ GaussianStats gaussian_stats(const MatrixRef& X, const MatrixRef& posteriors, co
     return s;
   }
   s.outer.resize(n_states * d, d);
+  // Frames whose share of a state's statistics is negligible are left out of its outer
+  // products: with r_t = ‖x_t − shift‖² and S_n = Σ_t γ_tn (1 + r_t), a frame is skipped when
+  // γ_tn (1 + r_t) < 1e-13·S_n / T, so the skipped frames hold at most 1e-13·S_n of the
+  // state's weight + trace(outer), and the outer sum (PSD) moves by at most that in any norm.
+  const VectorXd r1 = (Xs.rowwise().squaredNorm().array() + 1.0).matrix();
+  const VectorXd state_total = posteriors.transpose() * r1;
   const bool parallel = static_cast<double>(T) * n_states * d * d > 2e7;
 #if defined(_OPENMP)
 #pragma omp parallel for schedule(dynamic, 1) if (parallel)
 #endif
   for (Index n = 0; n < n_states; ++n) {
-    // Σ_t γ_tn x_t x_tᵀ as a symmetric rank-T update with rows scaled by √γ (half the flops).
-    const RowMatrixXd W = posteriors.col(n).cwiseSqrt().asDiagonal() * Xs;
+    const double cut = kStatsSkip * state_total[n] / static_cast<double>(T);
+    std::vector<Index> keep;
+    keep.reserve(static_cast<size_t>(T));
+    for (Index t = 0; t < T; ++t) {
+      if (posteriors(t, n) * r1[t] >= cut && posteriors(t, n) > 0) keep.push_back(t);
+    }
+    // Σ_t γ_tn x_t x_tᵀ as a symmetric rank-k update with rows scaled by √γ (half the flops).
+    RowMatrixXd W(static_cast<Index>(keep.size()), d);
+    for (Index k = 0; k < W.rows(); ++k) {
+      const Index t = keep[static_cast<size_t>(k)];
+      W.row(k) = std::sqrt(posteriors(t, n)) * Xs.row(t);
+    }
     RowMatrixXd C = RowMatrixXd::Zero(d, d);
-    C.selfadjointView<Eigen::Lower>().rankUpdate(W.transpose());
+    if (W.rows() > 0) C.selfadjointView<Eigen::Lower>().rankUpdate(W.transpose());
     s.outer.middleRows(n * d, d) = C.selfadjointView<Eigen::Lower>();
   }
   (void)parallel;
@@ -257,9 +600,9 @@ EStepResult& EStepResult::operator+=(const EStepResult& o) {
 
 EStepResult gaussian_hmm_estep(const MatrixRef& X, const IndexVectorRef& lengths, const VectorRef& startprob,
                                const MatrixRef& transmat, const MatrixRef& means, const MatrixRef& covars,
-                               CovarianceType type, const VectorRef& shift) {
-  const RowMatrixXd log_b = gaussian_log_density(X, means, covars, type);
-  const ForwardBackwardResult fb = forward_backward(log_b, startprob, transmat, lengths);
+                               CovarianceType type, const VectorRef& shift, bool exact, ScreeningInfo* info) {
+  const ForwardBackwardResult fb =
+      gaussian_hmm_posteriors(X, lengths, startprob, transmat, means, covars, type, exact, info);
   EStepResult r;
   r.log_likelihood = fb.log_likelihood;
   r.expected_transitions = fb.expected_transitions;

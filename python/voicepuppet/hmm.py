@@ -112,6 +112,11 @@ class GaussianHMM:
         temperature), or one value per iteration (see :func:`voicepuppet.entropic.anneal_schedule`).
     trim : bool
         With the entropic prior, trim arcs and states whenever that raises the log posterior.
+    exact : bool
+        False (default): with full covariances, :meth:`score`, :meth:`decode`,
+        :meth:`score_samples` and the E-step evaluate the log densities in float32 first and in
+        double only where they can change the answer (docs/benchmarks.md, "hmm"); the results
+        equal the all-double ones to ~1e-13. True: every log density in double.
 
     Attributes
     ----------
@@ -127,7 +132,7 @@ class GaussianHMM:
     def __init__(self, n_states: int = 1, covariance: str = "full", *, n_iter: int = 10,
                  tol: float = 1e-2, min_covar: float = 1e-3, random_state: int = 0,
                  init_params: str = "stmc", params: str = "stmc", progress: bool = False,
-                 prior: str | None = None, z=1.0, trim: bool = True):
+                 prior: str | None = None, z=1.0, trim: bool = True, exact: bool = False):
         if int(n_states) != n_states or n_states < 1:
             raise ValueError(f"n_states must be a positive integer, got {n_states!r}")
         if covariance not in ("full", "diag"):
@@ -156,6 +161,7 @@ class GaussianHMM:
         self.prior = prior
         self.z = z
         self.trim = bool(trim)
+        self.exact = bool(exact)
         self.history_: list[dict] = []
         self._variance_floor = 0.0
 
@@ -211,19 +217,20 @@ class GaussianHMM:
         X, _ = self._check_X(X, None)
         return _core.gaussian_log_density(X, self.means_, self._covars_2d(), self.covariance)
 
+    def _model_args(self, X, lengths) -> tuple:
+        return (X, lengths, self.startprob_, self.transmat_, self.means_, self._covars_2d(), self.covariance)
+
     def score(self, X, lengths=None) -> float:
         """Total log-likelihood log p(X) of all sequences."""
         self._check_params()
         X, lengths = self._check_X(X, lengths)
-        log_b = _core.gaussian_log_density(X, self.means_, self._covars_2d(), self.covariance)
-        return float(_core.log_likelihood(log_b, self.startprob_, self.transmat_, lengths))
+        return float(_core.gaussian_hmm_score(*self._model_args(X, lengths), exact=self.exact)[0])
 
     def score_samples(self, X, lengths=None) -> tuple[float, np.ndarray]:
         """Log-likelihood and state posteriors γ, shape (T, N)."""
         self._check_params()
         X, lengths = self._check_X(X, lengths)
-        log_b = _core.gaussian_log_density(X, self.means_, self._covars_2d(), self.covariance)
-        ll, gamma, _, _, _ = _core.forward_backward(log_b, self.startprob_, self.transmat_, lengths)
+        ll, gamma = _core.gaussian_hmm_posteriors(*self._model_args(X, lengths), exact=self.exact)[:2]
         return float(ll), gamma
 
     def predict_proba(self, X, lengths=None) -> np.ndarray:
@@ -234,8 +241,7 @@ class GaussianHMM:
         """Viterbi: (log p(best path, X), best state per frame [T])."""
         self._check_params()
         X, lengths = self._check_X(X, lengths)
-        log_b = _core.gaussian_log_density(X, self.means_, self._covars_2d(), self.covariance)
-        logprob, path = _core.viterbi(log_b, self.startprob_, self.transmat_, lengths)
+        logprob, path, _ = _core.gaussian_hmm_decode(*self._model_args(X, lengths), exact=self.exact)
         return float(logprob), path
 
     def predict(self, X, lengths=None) -> np.ndarray:
@@ -288,7 +294,7 @@ class GaussianHMM:
         shift = X.mean(axis=0) if shift is None else shift
         return _core.gaussian_hmm_estep(X, lengths, aligned(self.startprob_), aligned(self.transmat_),
                                         aligned(self.means_), aligned(self._covars_2d()), self.covariance,
-                                        aligned(shift))
+                                        aligned(shift), exact=self.exact)
 
     def mstep(self, stats: dict) -> None:
         """Maximum-likelihood update of the parameters named in ``params`` from :meth:`estep`."""

@@ -33,6 +33,58 @@ void check_covariances(const MatrixRef& covars, Index n_states, Index n_dims, Co
 RowMatrixXd gaussian_log_density(const MatrixRef& X, const MatrixRef& means, const MatrixRef& covars,
                                  CovarianceType type);
 
+/// Float32 estimates of full-covariance log densities with a rigorous bound on their error.
+struct ScreenedLogDensity {
+  RowMatrixXd log_b;  ///< #T by #N float32-evaluated log N(x_t; μ_n, Σ_n)
+  RowMatrixXd bound;  ///< #T by #N bound on |log_b − exact| (+inf where float32 overflowed)
+};
+
+/// The screening step alone (full covariance): the log densities in float32 and their error
+/// bounds (see gaussian_hmm_score). For tests and diagnostics.
+ScreenedLogDensity gaussian_log_density_screened(const MatrixRef& X, const MatrixRef& means,
+                                                 const MatrixRef& covars);
+
+/// What the screened evaluation did: how many of the T·N log densities were evaluated in
+/// double, in how many lattice rounds, and whether it fell back to all-double.
+struct ScreeningInfo {
+  Index entries = 0;
+  Index refined = 0;
+  Index rounds = 0;
+  bool all_double = false;
+};
+
+/// log p(X) of a Gaussian HMM, summed over sequences.
+///
+/// With full covariances and `exact = false`, the log densities are first evaluated in float32
+/// with a per-entry error bound, then in double only where they can matter: entries within 50
+/// nats of their frame's best, refined further until raising and lowering every remaining float32
+/// entry by its bound moves log p(X) by at most 1e-13 relative (log p(X) is increasing in every
+/// log density, so this brackets the all-double value; the midpoint is returned). It falls back
+/// to all-double when most entries need it. `exact = true` (or diagonal covariances) evaluates
+/// every density in double.
+/// @param[in] X        #T by #D observations of all sequences
+/// @param[in] lengths  #S sequence lengths (empty: one sequence)
+/// @param[out] info    optional: what the screening did
+double gaussian_hmm_score(const MatrixRef& X, const IndexVectorRef& lengths, const VectorRef& startprob,
+                          const MatrixRef& transmat, const MatrixRef& means, const MatrixRef& covars,
+                          CovarianceType type, bool exact = false, ScreeningInfo* info = nullptr);
+
+/// Viterbi decoding of a Gaussian HMM. Screened as gaussian_hmm_score: Viterbi runs on the
+/// upper bounds of the unrefined entries, and the path is accepted once it visits only entries
+/// evaluated in double (no other path can then beat it); otherwise its unrefined entries and
+/// their rivals are refined and Viterbi reruns.
+ViterbiResult gaussian_hmm_decode(const MatrixRef& X, const IndexVectorRef& lengths, const VectorRef& startprob,
+                                  const MatrixRef& transmat, const MatrixRef& means, const MatrixRef& covars,
+                                  CovarianceType type, bool exact = false, ScreeningInfo* info = nullptr);
+
+/// Forward-backward of a Gaussian HMM. Screened: forward-backward reruns until every entry left
+/// in float32 has γ·e^{2Δ} ≤ 1e-13 (Δ its bound), so log p(X) errs from the all-double value by
+/// at most Σ γΔ ≤ 2e-14 per such entry (to first order; d log p / d log b_tn = γ_tn).
+ForwardBackwardResult gaussian_hmm_posteriors(const MatrixRef& X, const IndexVectorRef& lengths,
+                                              const VectorRef& startprob, const MatrixRef& transmat,
+                                              const MatrixRef& means, const MatrixRef& covars, CovarianceType type,
+                                              bool exact = false, ScreeningInfo* info = nullptr);
+
 /// Posterior-weighted sufficient statistics of Gaussian emissions. Moments are taken about
 /// `shift` (a fixed vector, e.g. the data mean) so that large offsets do not cancel.
 /// Statistics of disjoint data add: merge them with `+=`.
@@ -45,7 +97,9 @@ struct GaussianStats {
   GaussianStats& operator+=(const GaussianStats& other);
 };
 
-/// Accumulates GaussianStats of X under posteriors γ (#T by #N).
+/// Accumulates GaussianStats of X under posteriors γ (#T by #N). Full covariance: a frame
+/// whose γ_tn·(1 + ‖x_t − shift‖²) is below 1e-13/T of the state's total is left out of the
+/// state's outer products (it changes them by at most 1e-13 of weight + trace).
 GaussianStats gaussian_stats(const MatrixRef& X, const MatrixRef& posteriors, const VectorRef& shift,
                              CovarianceType type);
 
@@ -69,11 +123,13 @@ struct EStepResult {
   EStepResult& operator+=(const EStepResult& other);
 };
 
-/// The E-step: log densities, forward-backward and statistics, in one call.
+/// The E-step: log densities, forward-backward (gaussian_hmm_posteriors, screened unless
+/// `exact`) and statistics, in one call.
 EStepResult gaussian_hmm_estep(const MatrixRef& X, const IndexVectorRef& lengths,
                                const VectorRef& startprob, const MatrixRef& transmat,
                                const MatrixRef& means, const MatrixRef& covars,
-                               CovarianceType type, const VectorRef& shift);
+                               CovarianceType type, const VectorRef& shift, bool exact = false,
+                               ScreeningInfo* info = nullptr);
 
 /// Maximum-likelihood re-estimate of a row-stochastic matrix (or a start vector, as one row)
 /// from expected counts; rows with no evidence are kept from `old`.

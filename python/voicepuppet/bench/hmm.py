@@ -2,8 +2,9 @@
 
 Sizes as the foundation issue fixes them: N = 26 states, D = 100 (25 points x 2 coordinates,
 pose + velocity), T = 18,000 frames (10 minutes at 30 fps). Cases ``score``, ``decode`` and
-``fit`` (10 EM iterations from identical starting parameters), plus the emission kernel's
-GFLOP/s beside numpy's large matrix multiply measured in the same run.
+``fit`` (10 EM iterations from identical starting parameters), plus the GFLOP/s of the emission
+kernels (all-double, and the float32 screening pass that score, decode and fit run first) beside
+numpy's large matrix multiply in double and in float32, measured in the same run.
 """
 
 from __future__ import annotations
@@ -40,8 +41,8 @@ def make_problem(n: int, d: int, T: int, seed: int = 0) -> tuple[GaussianHMM, np
     return m, X
 
 
-def _matmul_gflops(repeats: int) -> float:
-    a = np.random.default_rng(0).normal(size=(2000, 2000))
+def _matmul_gflops(repeats: int, dtype=np.float64) -> float:
+    a = np.random.default_rng(0).normal(size=(2000, 2000)).astype(dtype)
     b = a.T.copy()
     best = np.inf
     for _ in range(max(2, repeats)):
@@ -70,16 +71,23 @@ def run(quick: bool = False, repeats: int = 3) -> list[dict]:
     reset_peer()
     cases = []
 
+    covars2d = model.covars_.reshape(n * d, d)
+    args = (X, lengths, model.startprob_, model.transmat_, model.means_, covars2d, "full")
+    screening = _core.gaussian_hmm_score(*args)[1]
+    refined = f"{screening['refined'] / screening['entries']:.3f}"
+
     t, r = timeit_interleaved({"ours": lambda: model.score(X), "peer": lambda: peer.score(X)}, repeats)
-    cases.append(case("score", size, t["ours"], "hmmlearn", t["peer"], rel_diff(r["ours"], r["peer"])))
+    cases.append(case("score", size, t["ours"], "hmmlearn", t["peer"], rel_diff(r["ours"], r["peer"]),
+                      refined_in_double=refined,
+                      agree_all_double=rel_diff(r["ours"], _core.gaussian_hmm_score(*args, exact=True)[0])))
 
     t, r = timeit_interleaved({"ours": lambda: model.decode(X), "peer": lambda: peer.decode(X)}, repeats)
     path_agree = float(np.mean(r["ours"][1] == r["peer"][1]))
     cases.append(case("decode", size, t["ours"], "hmmlearn", t["peer"], rel_diff(r["ours"][0], r["peer"][0]),
                       path_agreement=path_agree))
 
-    def fit_ours():
-        f = GaussianHMM(n, "full", n_iter=10, tol=-np.inf, min_covar=0.0, init_params="")
+    def fit_ours(exact=False):
+        f = GaussianHMM(n, "full", n_iter=10, tol=-np.inf, min_covar=0.0, init_params="", exact=exact)
         for attr in ("startprob_", "transmat_", "means_", "covars_"):
             setattr(f, attr, getattr(model, attr).copy())
         return f.fit(X, lengths)
@@ -90,14 +98,20 @@ def run(quick: bool = False, repeats: int = 3) -> list[dict]:
 
     fit_repeats = max(1, (repeats + 2) // 3)  # hmmlearn's 10 iterations take over a minute
     t, r = timeit_interleaved({"ours": fit_ours, "peer": fit_peer}, fit_repeats)
-    agree = max(rel_diff(r["ours"].means_, r["peer"].means_), rel_diff(r["ours"].covars_, r["peer"].covars_),
-                rel_diff(r["ours"].transmat_, r["peer"].transmat_))
-    cases.append(case("fit", size + " 10 EM iterations", t["ours"], "hmmlearn", t["peer"], agree))
+    def agreement(a, b):
+        return max(rel_diff(a.means_, b.means_), rel_diff(a.covars_, b.covars_), rel_diff(a.transmat_, b.transmat_))
 
-    covars2d = model.covars_.reshape(n * d, d)
-    t, _ = timeit_interleaved({"ours": lambda: _core.gaussian_log_density(X, model.means_, covars2d, "full")},
+    exact_fit = fit_ours(exact=True)
+    cases.append(case("fit", size + " 10 EM iterations", t["ours"], "hmmlearn", t["peer"],
+                      agreement(r["ours"], r["peer"]), agree_all_double=agreement(r["ours"], exact_fit)))
+
+    t, _ = timeit_interleaved({"double": lambda: _core.gaussian_log_density(X, model.means_, covars2d, "full"),
+                               "float32": lambda: _core.gaussian_log_density_screened(X, model.means_, covars2d)},
                               repeats)
-    flops = n * T * (2.0 * d * d + 3.0 * d)
-    cases.append(case("emission_kernel", size, t["ours"], None, None, None,
-                      gflops=flops / t["ours"] / 1e9, numpy_matmul_gflops=_matmul_gflops(repeats)))
+    flops = n * T * (2.0 * d * d + 3.0 * d)  # counted as a dense D x D product per frame and state
+    cases.append(case("emission_kernel", size + " double", t["double"], None, None, None,
+                      gflops=flops / t["double"] / 1e9, numpy_matmul_gflops=_matmul_gflops(repeats)))
+    cases.append(case("emission_screen_f32", size + " float32 + error bounds", t["float32"], None, None, None,
+                      gflops=flops / t["float32"] / 1e9,
+                      numpy_matmul_f32_gflops=_matmul_gflops(repeats, np.float32)))
     return cases
