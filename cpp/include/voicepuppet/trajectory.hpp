@@ -60,6 +60,7 @@ class TrajectoryModel {
     Eigen::MatrixXd first;  ///< (K^xx)⁻¹, frame 0
     Eigen::MatrixXd next;   ///< C, added to the previous frame's diagonal block
     Eigen::MatrixXd up;     ///< −(Bᵀ + C) = H[t−1, t]
+    Eigen::MatrixXd up_t;   ///< upᵀ = H[t, t−1] (stored for the solve's column-major panels)
     VectorXd r_self;        ///< (A + Bᵀ) μ + (B + C) μ̇
     VectorXd r_first;       ///< (K^xx)⁻¹ μ
     VectorXd r_next;        ///< −(Bᵀ μ + C μ̇), added to the previous frame's right-hand side
