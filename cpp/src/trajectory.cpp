@@ -6,10 +6,15 @@
 #include <Eigen/Core>
 
 #include <algorithm>
+#include <cstdint>
 #include <cmath>
 #include <limits>
 #include <memory>
 #include <vector>
+
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 
 namespace voicepuppet {
 namespace {
@@ -76,11 +81,15 @@ void panel_trsm(double* p, Index ld, Index j0, Index r0, Index r1, const double*
   const double* l = p + j0;  // L(i, k) = l[i + k·ld]
   for (Index i = r0; i < r1; i += 8) {
     Vec8 c[NB];
+    #pragma GCC unroll 8
     for (int j = 0; j < NB; ++j) c[j] = load8(p + j * ld + i);
+    #pragma GCC unroll 8
     for (int j = 0; j < NB; ++j) {
+      #pragma GCC unroll 8
       for (int k = 0; k < j; ++k) c[j] -= c[k] * l[j + k * ld];
       c[j] *= rinv[j];
     }
+    #pragma GCC unroll 8
     for (int j = 0; j < NB; ++j) store8(p + j * ld + i, c[j]);
   }
 }
@@ -95,6 +104,7 @@ bool factor_column_block(double* cur, const double* prev, Index ld, Index d, Ind
   if (prev != nullptr) panel_update<NB>(cj + j0, ld, prev + d + 1 + j0, ld, prev + d + 1 + j0, ld, d + 1 - j0, d);
   panel_update<NB>(cj + j0, ld, cur + j0, ld, cur + j0, ld, 2 * d + 1 - j0, j0);
   double rinv[NB];
+  #pragma GCC unroll 8
   for (int j = 0; j < NB; ++j) {
     double* colj = cj + j * ld + j0;
     const double piv = colj[j];
@@ -102,13 +112,16 @@ bool factor_column_block(double* cur, const double* prev, Index ld, Index d, Ind
     lo = std::min(lo, piv);
     hi = std::max(hi, piv);
     const double l = std::sqrt(piv);
-    const double r = 1.0 / l;
+    const double r = l * (1.0 / piv);  // 1 / l, the division not waiting for the square root
     rinv[j] = r;
     colj[j] = l;
+    #pragma GCC unroll 8
     for (int i = j + 1; i < NB; ++i) colj[i] *= r;
+    #pragma GCC unroll 8
     for (int k = j + 1; k < NB; ++k) {
       double* colk = cj + k * ld + j0;
       const double f = colj[k];
+      #pragma GCC unroll 8
       for (int i = k; i < NB; ++i) colk[i] -= colj[i] * f;
     }
   }
@@ -132,12 +145,14 @@ bool factor_block_dispatch(double* cur, const double* prev, Index ld, Index d, I
 // ------------------------------------------------------------------ packed factors
 // A frame's lower-triangular D×D factor is stored column by column, rows j..D−1 of column j,
 // with the reciprocal 1 / l_jj in place of each diagonal entry (the sweeps only multiply by it).
+// Frames are `stride` doubles apart (a multiple of 8, so each starts on a 64-byte line).
 class PackedFactor {
  public:
   explicit PackedFactor(Index d) : d_(d), off_(static_cast<size_t>(d + 1)) {
     for (Index j = 0; j <= d; ++j) off_[j] = j * d - j * (j - 1) / 2;
   }
   Index size() const { return off_[d_]; }
+  Index stride() const { return (size() + 7) / 8 * 8; }
   // column j of the factor at l, indexed by row: col(l, j)[i] = L(i, j) for i ≥ j
   const double* col(const double* l, Index j) const { return l + off_[j] - j; }
   double* col(double* l, Index j) const { return l + off_[j] - j; }
@@ -145,57 +160,133 @@ class PackedFactor {
   // x ← L⁻¹ x
   void lower_solve(const double* l, double* x) const {
     for (Index j0 = 0; j0 < d_; j0 += kBlock) {
-      const Index w = std::min(kBlock, d_ - j0);
-      double xs[kBlock];
-      const double* cols[kBlock];
-      for (Index j = 0; j < w; ++j) {
-        cols[j] = col(l, j0 + j);
-        const double xj = x[j0 + j] * cols[j][j0 + j];
-        xs[j] = xj;
-        x[j0 + j] = xj;
-        for (Index i = j + 1; i < w; ++i) x[j0 + i] -= xj * cols[j][j0 + i];
-      }
-      Index i = j0 + w;
-      for (; i + 8 <= d_; i += 8) {
-        Vec8 acc = load8(x + i);
-        for (Index j = 0; j < w; ++j) acc -= load8(cols[j] + i) * xs[j];
-        store8(x + i, acc);
-      }
-      for (; i < d_; ++i) {
-        double s = x[i];
-        for (Index j = 0; j < w; ++j) s -= cols[j][i] * xs[j];
-        x[i] = s;
+      if (d_ - j0 >= kBlock) {
+        lower_block<kBlock>(l, x, j0);
+      } else {
+        lower_tail(l, x, j0, d_ - j0);
       }
     }
   }
 
   // x ← L⁻ᵀ x
   void upper_solve(const double* l, double* x) const {
-    for (Index j0 = (d_ - 1) / kBlock * kBlock; j0 >= 0; j0 -= kBlock) {
-      const Index w = std::min(kBlock, d_ - j0);
-      for (Index j = 0; j < w; ++j) {  // the rows below the block are final
-        const double* c = col(l, j0 + j);
-        Vec8 acc{};
-        Index i = j0 + w;
-        for (; i + 8 <= d_; i += 8) acc += load8(c + i) * load8(x + i);
-        double s = 0.0;
-        for (; i < d_; ++i) s += c[i] * x[i];
-        for (int k = 0; k < 8; ++k) s += acc[k];
-        x[j0 + j] -= s;
-      }
-      for (Index j = w - 1; j >= 0; --j) {
-        const double* c = col(l, j0 + j);
-        double s = x[j0 + j];
-        for (Index i = j + 1; i < w; ++i) s -= c[j0 + i] * x[j0 + i];
-        x[j0 + j] = s * c[j0 + j];
-      }
+    const Index last = (d_ - 1) / kBlock * kBlock;
+    if (d_ - last < kBlock) {
+      upper_tail(l, x, last, d_ - last);
+    } else {
+      upper_block<kBlock>(l, x, last);
     }
+    for (Index j0 = last - kBlock; j0 >= 0; j0 -= kBlock) upper_block<kBlock>(l, x, j0);
   }
 
  private:
+  // block [j0, j0 + NB) of L⁻¹ x: the triangle in registers, then the rows below by vectors
+  template <int NB>
+  void lower_block(const double* l, double* x, Index j0) const {
+    const double* c[NB];
+    double xs[NB];
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) {
+      c[j] = col(l, j0 + j);
+      xs[j] = x[j0 + j];
+    }
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) {
+      xs[j] *= c[j][j0 + j];
+      #pragma GCC unroll 8
+      for (int i = j + 1; i < NB; ++i) xs[i] -= xs[j] * c[j][j0 + i];
+    }
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) x[j0 + j] = xs[j];
+    below_update<NB>(c, xs, x, j0 + NB);
+  }
+  template <int NB>
+  void below_update(const double* const* c, const double* xs, double* x, Index r0) const {
+    Index i = r0;
+    for (; i + 8 <= d_; i += 8) {
+      Vec8 acc = load8(x + i);
+      #pragma GCC unroll 8
+      for (int j = 0; j < NB; ++j) acc -= load8(c[j] + i) * xs[j];
+      store8(x + i, acc);
+    }
+    for (; i < d_; ++i) {
+      double s = x[i];
+      #pragma GCC unroll 8
+      for (int j = 0; j < NB; ++j) s -= c[j][i] * xs[j];
+      x[i] = s;
+    }
+  }
+  void lower_tail(const double* l, double* x, Index j0, Index w) const {
+    for (Index j = 0; j < w; ++j) {
+      const double* c = col(l, j0 + j);
+      x[j0 + j] *= c[j0 + j];
+      for (Index i = j + 1; i < w; ++i) x[j0 + i] -= x[j0 + j] * c[j0 + i];
+    }
+  }
+
+  // block [j0, j0 + NB) of L⁻ᵀ x (the rows below it are final): NB dot products, then the triangle
+  template <int NB>
+  void upper_block(const double* l, double* x, Index j0) const {
+    const double* c[NB];
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) c[j] = col(l, j0 + j);
+    Vec8 acc[NB];
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) acc[j] = Vec8{};
+    Index i = j0 + NB;
+    for (; i + 8 <= d_; i += 8) {
+      const Vec8 xv = load8(x + i);
+      #pragma GCC unroll 8
+      for (int j = 0; j < NB; ++j) acc[j] += load8(c[j] + i) * xv;
+    }
+    double xs[NB];
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) {
+      double s = 0.0;
+      for (Index k = i; k < d_; ++k) s += c[j][k] * x[k];
+      #pragma GCC unroll 8
+      for (int k = 0; k < 8; ++k) s += acc[j][k];
+      xs[j] = x[j0 + j] - s;
+    }
+    #pragma GCC unroll 8
+    for (int j = NB - 1; j >= 0; --j) {
+      #pragma GCC unroll 8
+      for (int k = j + 1; k < NB; ++k) xs[j] -= c[j][j0 + k] * xs[k];
+      xs[j] *= c[j][j0 + j];
+    }
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) x[j0 + j] = xs[j];
+  }
+  void upper_tail(const double* l, double* x, Index j0, Index w) const {  // the last block: nothing below
+    for (Index j = w - 1; j >= 0; --j) {
+      const double* c = col(l, j0 + j);
+      double s = x[j0 + j];
+      for (Index k = j + 1; k < w; ++k) s -= c[j0 + k] * x[j0 + k];
+      x[j0 + j] = s * c[j0 + j];
+    }
+  }
+
   Index d_;
   std::vector<Index> off_;
 };
+
+// Writes n (a multiple of 8) doubles from src to the 64-byte aligned dst, bypassing the caches
+// where the target has streaming stores: the factor store is written once and read back only
+// after the whole forward pass, so caching it would only cost the reads of its old contents.
+inline void stream_copy(const double* src, double* dst, Index n) {
+#if defined(__AVX512F__)
+  for (Index i = 0; i < n; i += 8) _mm512_stream_pd(dst + i, _mm512_loadu_pd(src + i));
+#elif defined(__AVX__)
+  for (Index i = 0; i < n; i += 4) _mm256_stream_pd(dst + i, _mm256_loadu_pd(src + i));
+#else
+  std::copy_n(src, n, dst);
+#endif
+}
+inline void stream_fence() {
+#if defined(__AVX__)
+  _mm_sfence();
+#endif
+}
 #pragma GCC diagnostic pop
 
 // The factor store of a solve (one packed factor per frame, T·D(D+1)/2 doubles) is its one large
@@ -206,7 +297,8 @@ constexpr size_t kKeptStoreBytes = size_t(256) << 20;
 
 class FactorStore {
  public:
-  explicit FactorStore(size_t n) : n_(n) {
+  explicit FactorStore(size_t n) {
+    n += 8;
     Cache& c = cache();
     if (c.capacity >= n) {
       data_ = std::move(c.data);
@@ -226,7 +318,10 @@ class FactorStore {
   }
   FactorStore(const FactorStore&) = delete;
   FactorStore& operator=(const FactorStore&) = delete;
-  double* get() { return data_.get(); }
+  /// 64-byte aligned start (n + 8 doubles are allocated)
+  double* get() {
+    return reinterpret_cast<double*>((reinterpret_cast<std::uintptr_t>(data_.get()) + 63) & ~std::uintptr_t(63));
+  }
 
  private:
   struct Cache {
@@ -237,7 +332,6 @@ class FactorStore {
     thread_local Cache c;
     return c;
   }
-  size_t n_;
   std::unique_ptr<double[]> data_;
   size_t capacity_ = 0;
 };
@@ -346,8 +440,9 @@ RowMatrixXd solve_full(Provider& p, Index n_frames, Index d) {
   double* cur = panels.data();
   double* prev = cur + ld * d;
   const PackedFactor pf(d);
-  const Index psz = pf.size();
+  const Index psz = pf.stride();
   FactorStore factors(static_cast<size_t>(n_frames * psz));
+  std::vector<double> stage(static_cast<size_t>(psz), 0.0);  // one frame's factor, then streamed out
   double lo = std::numeric_limits<double>::infinity(), hi = 0.0;
   for (Index t = 0; t < n_frames; ++t) {
     const MatrixXd& hd = p.diag(t);
@@ -378,22 +473,26 @@ RowMatrixXd solve_full(Provider& p, Index n_frames, Index d) {
       }
     }
     if (hi > kTrajectoryMaxCondition * lo) fail_singular(t, hi / lo);
-    double* f = factors.get() + t * psz;
     for (Index j = 0; j < d; ++j) {
       double* col = cur + j * ld;
-      double* fj = pf.col(f, j);
+      double* fj = pf.col(stage.data(), j);
       std::copy_n(col + j, d - j, fj + j);
       fj[j] = 1.0 / col[j];
       y(t, j) = col[d];
       col[2 * d + 1] = col[d];
     }
+    stream_copy(stage.data(), factors.get() + t * psz, psz);
     std::swap(cur, prev);
   }
+  stream_fence();
   // backward: y_t = L_t⁻ᵀ (z_t − L_t⁻¹ H[t,t+1] y_{t+1})
   VectorXd v(d);
   pf.upper_solve(factors.get() + (n_frames - 1) * psz, y.row(n_frames - 1).data());
   for (Index t = n_frames - 2; t >= 0; --t) {
     const double* lt = factors.get() + t * psz;
+    if (t > 0) {  // the previous frame's factor comes from memory while this one is used
+      for (Index i = 0; i < psz; i += 8) __builtin_prefetch(lt - psz + i);
+    }
     v.noalias() = p.up(t + 1) * y.row(t + 1).transpose();
     pf.lower_solve(lt, v.data());
     double* yt = y.row(t).data();
