@@ -42,18 +42,25 @@ constexpr Index kBlock = 8;  // column block width (one vector)
 template <int MR, int NB>
 inline void tile_update(double* c, Index ldc, const double* a, Index lda, const double* b, Index ldb, Index k) {
   Vec8 acc[MR][NB];
+  #pragma GCC unroll 8
   for (int r = 0; r < MR; ++r)
+    #pragma GCC unroll 8
     for (int j = 0; j < NB; ++j) acc[r][j] = Vec8{};
   for (Index p = 0; p < k; ++p) {
     Vec8 av[MR];
+    #pragma GCC unroll 8
     for (int r = 0; r < MR; ++r) av[r] = load8(a + p * lda + 8 * r);
     const double* bp = b + p * ldb;
+    #pragma GCC unroll 8
     for (int j = 0; j < NB; ++j) {
       const double bj = bp[j];
+      #pragma GCC unroll 8
       for (int r = 0; r < MR; ++r) acc[r][j] += av[r] * bj;
     }
   }
+  #pragma GCC unroll 8
   for (int j = 0; j < NB; ++j)
+    #pragma GCC unroll 8
     for (int r = 0; r < MR; ++r) store8(c + j * ldc + 8 * r, load8(c + j * ldc + 8 * r) - acc[r][j]);
 }
 
