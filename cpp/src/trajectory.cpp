@@ -24,8 +24,8 @@ using Eigen::MatrixXd;
 // ------------------------------------------------------------------ small dense kernels
 // The full-covariance solve spends its time in updates of ~100×8 column panels and in small
 // triangular solves. Built from Eigen's dynamic-size product, triangular solve and Cholesky per
-// 50×50 block it took 32–45 µs per frame at D = 50; these kernels, in place on column-major
-// arrays with a register tile of up to 24 rows × 8 columns, take about 7 µs (docs/trajectory.md).
+// 50×50 block it took 28–36 µs per frame at D = 50; these kernels, in place on column-major
+// arrays with a register tile of up to 24 rows × 8 columns, take 7–9 µs (docs/trajectory.md).
 // They use the GCC/Clang vector extension (8 doubles: one AVX-512 register, two AVX2 or four
 // SSE2 registers, whatever -march allows).
 #if !defined(__GNUC__)
