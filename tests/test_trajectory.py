@@ -81,6 +81,22 @@ def test_full_matches_dense_solve(T, d):
     assert rel(y, dense_solve(one_hot(states, 5), means, vel, covars)) < 1e-9
 
 
+@pytest.mark.parametrize("d", [16, 50])
+def test_full_at_benchmark_size_matches_banded_cholesky(d):
+    """D = 50 as in the benchmark (several 8-column panels, a narrow last one) against scipy's
+    band Cholesky on the banded normal equations assembled in numpy."""
+    import scipy.linalg as sla
+
+    from voicepuppet.bench.trajectory import _banded_system
+
+    rng = np.random.default_rng(SEED + d)
+    means, vel, covars = random_model(rng, 6, d)
+    states = dwell_states(rng, 200, 6)
+    ab, rhs = _banded_system(states, means, vel, covars)
+    peer = sla.solveh_banded(ab, rhs, lower=True).reshape(len(states), d)
+    assert rel(tr.solve_trajectory(states, means, vel, covars), peer) < 1e-10
+
+
 def test_diag_matches_dense_solve_and_full_path():
     rng = np.random.default_rng(SEED)
     means, vel, covars = random_model(rng, 4, 3, corr=False)

@@ -7,87 +7,342 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <memory>
 #include <vector>
+
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 
 namespace voicepuppet {
 namespace {
 
 using Eigen::MatrixXd;
 
-// ------------------------------------------------------------------ packed triangular helpers
-// A lower-triangular D×D factor is stored column by column, rows j..D−1 of column j.
-inline Index packed_size(Index d) { return d * (d + 1) / 2; }
-
-void pack_lower(const MatrixXd& l, double* dst) {
-  const Index d = l.rows();
-  for (Index j = 0; j < d; ++j) {
-    const Index len = d - j;
-    Eigen::Map<VectorXd>(dst, len) = l.col(j).tail(len);
-    dst += len;
-  }
-}
-
-// v ← L⁻¹ v
-void packed_forward(const double* l, Index d, double* v) {
-  for (Index j = 0; j < d; ++j) {
-    const double x = v[j] / l[0];
-    v[j] = x;
-    const Index len = d - j - 1;
-    Eigen::Map<VectorXd>(v + j + 1, len) -= x * Eigen::Map<const VectorXd>(l + 1, len);
-    l += len + 1;
-  }
-}
-
-// v ← L⁻ᵀ v
-void packed_backward(const double* l, Index d, double* v) {
-  const double* col_end = l + packed_size(d);  // one past the last column
-  for (Index j = d - 1; j >= 0; --j) {
-    const Index len = d - j - 1;
-    const double* col = col_end - (len + 1);
-    double s = v[j];
-    if (len > 0) s -= Eigen::Map<const VectorXd>(col + 1, len).dot(Eigen::Map<const VectorXd>(v + j + 1, len));
-    v[j] = s / col[0];
-    col_end = col;
-  }
-}
-
 // ------------------------------------------------------------------ small dense kernels
-// Recursive splits hand most of the work to Eigen's matrix product, which is several times
-// faster than its triangular solve and Cholesky at D ≈ 50 (measured: 17 → 8 µs, 7 → 4 µs).
-using BlockRef = Eigen::Ref<MatrixXd, 0, Eigen::OuterStride<>>;
-using ConstBlockRef = Eigen::Ref<const MatrixXd, 0, Eigen::OuterStride<>>;
-constexpr Index kTrsmLeaf = 16;
-constexpr Index kLltLeaf = 25;
+// The full-covariance solve spends its time in updates of ~100×8 column panels and in small
+// triangular solves. Built from Eigen's dynamic-size product, triangular solve and Cholesky per
+// 50×50 block it took 28–36 µs per frame at D = 50; these kernels, in place on column-major
+// arrays with a register tile of up to 24 rows × 8 columns, take 7–9 µs (docs/trajectory.md).
+// They use the GCC/Clang vector extension (8 doubles: one AVX-512 register, two AVX2 or four
+// SSE2 registers, whatever -march allows).
+#if !defined(__GNUC__)
+#error "trajectory.cpp needs the GCC/Clang vector extension (vector_size); build with GCC or Clang"
+#endif
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wpsabi"  // the vector type never crosses a non-inlined call
+typedef double Vec8 __attribute__((vector_size(64)));
+typedef double Vec8u __attribute__((vector_size(64), aligned(8), __may_alias__));
+inline Vec8 load8(const double* p) { return *reinterpret_cast<const Vec8u*>(p); }
+inline void store8(double* p, Vec8 v) { *reinterpret_cast<Vec8u*>(p) = v; }
+constexpr Index kBlock = 8;  // column block width (one vector)
 
-// w ← L⁻¹ w for lower-triangular l
-void lower_solve(const ConstBlockRef& l, BlockRef w) {
-  const Index n = l.rows();
-  if (n <= kTrsmLeaf) {
-    l.triangularView<Eigen::Lower>().solveInPlace(w);
-    return;
+// C[0 : 8·MR, 0 : NB] −= A[0 : 8·MR, 0 : k] · B[0 : NB, 0 : k]ᵀ (column-major, leading dims lda...)
+template <int MR, int NB>
+inline void tile_update(double* c, Index ldc, const double* a, Index lda, const double* b, Index ldb, Index k) {
+  Vec8 acc[MR][NB];
+  #pragma GCC unroll 8
+  for (int r = 0; r < MR; ++r)
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) acc[r][j] = Vec8{};
+  for (Index p = 0; p < k; ++p) {
+    Vec8 av[MR];
+    #pragma GCC unroll 8
+    for (int r = 0; r < MR; ++r) av[r] = load8(a + p * lda + 8 * r);
+    const double* bp = b + p * ldb;
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) {
+      const double bj = bp[j];
+      #pragma GCC unroll 8
+      for (int r = 0; r < MR; ++r) acc[r][j] += av[r] * bj;
+    }
   }
-  const Index h = n / 2;
-  lower_solve(l.topLeftCorner(h, h), w.topRows(h));
-  w.bottomRows(n - h).noalias() -= l.bottomLeftCorner(n - h, h) * w.topRows(h);
-  lower_solve(l.bottomRightCorner(n - h, n - h), w.bottomRows(n - h));
+  #pragma GCC unroll 8
+  for (int j = 0; j < NB; ++j)
+    #pragma GCC unroll 8
+    for (int r = 0; r < MR; ++r) store8(c + j * ldc + 8 * r, load8(c + j * ldc + 8 * r) - acc[r][j]);
 }
 
-// In-place lower Cholesky (reads the lower triangle); false if not positive definite.
-bool cholesky_lower(BlockRef a) {
-  const Index n = a.rows();
-  if (n <= kLltLeaf) {
-    Eigen::LLT<BlockRef, Eigen::Lower> llt(a);
-    return llt.info() == Eigen::Success;
+// C[0 : m, 0 : NB] −= A[0 : m, 0 : k] · B[0 : NB, 0 : k]ᵀ, m rounded up to a multiple of 8: the
+// arrays must have (finite) padding rows below row m.
+template <int NB>
+void panel_update(double* c, Index ldc, const double* a, Index lda, const double* b, Index ldb, Index m, Index k) {
+  if (k == 0 || m <= 0) return;
+  Index i = 0;
+  for (; i + 24 <= m; i += 24) tile_update<3, NB>(c + i, ldc, a + i, lda, b, ldb, k);
+  const Index rem = m - i;
+  if (rem > 16) {
+    tile_update<3, NB>(c + i, ldc, a + i, lda, b, ldb, k);
+  } else if (rem > 8) {
+    tile_update<2, NB>(c + i, ldc, a + i, lda, b, ldb, k);
+  } else if (rem > 0) {
+    tile_update<1, NB>(c + i, ldc, a + i, lda, b, ldb, k);
   }
-  const Index h = n / 2;
-  if (!cholesky_lower(a.topLeftCorner(h, h))) return false;
-  auto l21 = a.bottomLeftCorner(n - h, h);
-  a.topLeftCorner(h, h).triangularView<Eigen::Lower>().transpose().solveInPlace<Eigen::OnTheRight>(l21);
-  a.bottomRightCorner(n - h, n - h).selfadjointView<Eigen::Lower>().rankUpdate(l21, -1.0);
-  return cholesky_lower(a.bottomRightCorner(n - h, n - h));
 }
+
+// P[r0 : r1, 0 : NB] ← P[r0 : r1, 0 : NB] · L⁻ᵀ for the NB×NB lower factor L = P[0 : NB, 0 : NB]
+// (offset by j0 rows) with reciprocal pivots rinv; r1 − r0 rounded up to a multiple of 8.
+template <int NB>
+void panel_trsm(double* p, Index ld, Index j0, Index r0, Index r1, const double* rinv) {
+  const double* l = p + j0;  // L(i, k) = l[i + k·ld]
+  for (Index i = r0; i < r1; i += 8) {
+    Vec8 c[NB];
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) c[j] = load8(p + j * ld + i);
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) {
+      #pragma GCC unroll 8
+      for (int k = 0; k < j; ++k) c[j] -= c[k] * l[j + k * ld];
+      c[j] *= rinv[j];
+    }
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) store8(p + j * ld + i, c[j]);
+  }
+}
+
+// The factorisation of one frame, in a column-major panel of 2D + 2 rows (see solve_full):
+// column block [j0, j0 + NB) is updated by the previous frame's rows and by this frame's earlier
+// columns, then factored (diagonal block) and solved (rows below it). Returns false on a
+// non-positive or non-finite pivot; pivots (squared diagonal entries) go to lo/hi.
+template <int NB>
+bool factor_column_block(double* cur, const double* prev, Index ld, Index d, Index j0, double& lo, double& hi) {
+  double* cj = cur + j0 * ld;
+  if (prev != nullptr) panel_update<NB>(cj + j0, ld, prev + d + 1 + j0, ld, prev + d + 1 + j0, ld, d + 1 - j0, d);
+  panel_update<NB>(cj + j0, ld, cur + j0, ld, cur + j0, ld, 2 * d + 1 - j0, j0);
+  double rinv[NB];
+  #pragma GCC unroll 8
+  for (int j = 0; j < NB; ++j) {
+    double* colj = cj + j * ld + j0;
+    const double piv = colj[j];
+    if (!(piv > 0.0) || !std::isfinite(piv)) return false;
+    lo = std::min(lo, piv);
+    hi = std::max(hi, piv);
+    const double l = std::sqrt(piv);
+    const double r = l * (1.0 / piv);  // 1 / l, the division not waiting for the square root
+    rinv[j] = r;
+    colj[j] = l;
+    #pragma GCC unroll 8
+    for (int i = j + 1; i < NB; ++i) colj[i] *= r;
+    #pragma GCC unroll 8
+    for (int k = j + 1; k < NB; ++k) {
+      double* colk = cj + k * ld + j0;
+      const double f = colj[k];
+      #pragma GCC unroll 8
+      for (int i = k; i < NB; ++i) colk[i] -= colj[i] * f;
+    }
+  }
+  panel_trsm<NB>(cj, ld, j0, j0 + NB, 2 * d + 1, rinv);
+  return true;
+}
+
+bool factor_block_dispatch(double* cur, const double* prev, Index ld, Index d, Index j0, double& lo, double& hi) {
+  switch (std::min(kBlock, d - j0)) {
+    case 1: return factor_column_block<1>(cur, prev, ld, d, j0, lo, hi);
+    case 2: return factor_column_block<2>(cur, prev, ld, d, j0, lo, hi);
+    case 3: return factor_column_block<3>(cur, prev, ld, d, j0, lo, hi);
+    case 4: return factor_column_block<4>(cur, prev, ld, d, j0, lo, hi);
+    case 5: return factor_column_block<5>(cur, prev, ld, d, j0, lo, hi);
+    case 6: return factor_column_block<6>(cur, prev, ld, d, j0, lo, hi);
+    case 7: return factor_column_block<7>(cur, prev, ld, d, j0, lo, hi);
+    default: return factor_column_block<8>(cur, prev, ld, d, j0, lo, hi);
+  }
+}
+
+// ------------------------------------------------------------------ packed factors
+// A frame's lower-triangular D×D factor is stored column by column, rows j..D−1 of column j,
+// with the reciprocal 1 / l_jj in place of each diagonal entry (the sweeps only multiply by it).
+// Frames are `stride` doubles apart (a multiple of 8, so each starts on a 64-byte line).
+class PackedFactor {
+ public:
+  explicit PackedFactor(Index d) : d_(d), off_(static_cast<size_t>(d + 1)) {
+    for (Index j = 0; j <= d; ++j) off_[j] = j * d - j * (j - 1) / 2;
+  }
+  Index size() const { return off_[d_]; }
+  Index stride() const { return (size() + 7) / 8 * 8; }
+  // column j of the factor at l, indexed by row: col(l, j)[i] = L(i, j) for i ≥ j
+  const double* col(const double* l, Index j) const { return l + off_[j] - j; }
+  double* col(double* l, Index j) const { return l + off_[j] - j; }
+
+  // x ← L⁻¹ x
+  void lower_solve(const double* l, double* x) const {
+    for (Index j0 = 0; j0 < d_; j0 += kBlock) {
+      if (d_ - j0 >= kBlock) {
+        lower_block<kBlock>(l, x, j0);
+      } else {
+        lower_tail(l, x, j0, d_ - j0);
+      }
+    }
+  }
+
+  // x ← L⁻ᵀ x
+  void upper_solve(const double* l, double* x) const {
+    const Index last = (d_ - 1) / kBlock * kBlock;
+    if (d_ - last < kBlock) {
+      upper_tail(l, x, last, d_ - last);
+    } else {
+      upper_block<kBlock>(l, x, last);
+    }
+    for (Index j0 = last - kBlock; j0 >= 0; j0 -= kBlock) upper_block<kBlock>(l, x, j0);
+  }
+
+ private:
+  // block [j0, j0 + NB) of L⁻¹ x: the triangle in registers, then the rows below by vectors
+  template <int NB>
+  void lower_block(const double* l, double* x, Index j0) const {
+    const double* c[NB];
+    double xs[NB];
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) {
+      c[j] = col(l, j0 + j);
+      xs[j] = x[j0 + j];
+    }
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) {
+      xs[j] *= c[j][j0 + j];
+      #pragma GCC unroll 8
+      for (int i = j + 1; i < NB; ++i) xs[i] -= xs[j] * c[j][j0 + i];
+    }
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) x[j0 + j] = xs[j];
+    below_update<NB>(c, xs, x, j0 + NB);
+  }
+  template <int NB>
+  void below_update(const double* const* c, const double* xs, double* x, Index r0) const {
+    Index i = r0;
+    for (; i + 8 <= d_; i += 8) {
+      Vec8 acc = load8(x + i);
+      #pragma GCC unroll 8
+      for (int j = 0; j < NB; ++j) acc -= load8(c[j] + i) * xs[j];
+      store8(x + i, acc);
+    }
+    for (; i < d_; ++i) {
+      double s = x[i];
+      #pragma GCC unroll 8
+      for (int j = 0; j < NB; ++j) s -= c[j][i] * xs[j];
+      x[i] = s;
+    }
+  }
+  void lower_tail(const double* l, double* x, Index j0, Index w) const {
+    for (Index j = 0; j < w; ++j) {
+      const double* c = col(l, j0 + j);
+      x[j0 + j] *= c[j0 + j];
+      for (Index i = j + 1; i < w; ++i) x[j0 + i] -= x[j0 + j] * c[j0 + i];
+    }
+  }
+
+  // block [j0, j0 + NB) of L⁻ᵀ x (the rows below it are final): NB dot products, then the triangle
+  template <int NB>
+  void upper_block(const double* l, double* x, Index j0) const {
+    const double* c[NB];
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) c[j] = col(l, j0 + j);
+    Vec8 acc[NB];
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) acc[j] = Vec8{};
+    Index i = j0 + NB;
+    for (; i + 8 <= d_; i += 8) {
+      const Vec8 xv = load8(x + i);
+      #pragma GCC unroll 8
+      for (int j = 0; j < NB; ++j) acc[j] += load8(c[j] + i) * xv;
+    }
+    double xs[NB];
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) {
+      double s = 0.0;
+      for (Index k = i; k < d_; ++k) s += c[j][k] * x[k];
+      #pragma GCC unroll 8
+      for (int k = 0; k < 8; ++k) s += acc[j][k];
+      xs[j] = x[j0 + j] - s;
+    }
+    #pragma GCC unroll 8
+    for (int j = NB - 1; j >= 0; --j) {
+      #pragma GCC unroll 8
+      for (int k = j + 1; k < NB; ++k) xs[j] -= c[j][j0 + k] * xs[k];
+      xs[j] *= c[j][j0 + j];
+    }
+    #pragma GCC unroll 8
+    for (int j = 0; j < NB; ++j) x[j0 + j] = xs[j];
+  }
+  void upper_tail(const double* l, double* x, Index j0, Index w) const {  // the last block: nothing below
+    for (Index j = w - 1; j >= 0; --j) {
+      const double* c = col(l, j0 + j);
+      double s = x[j0 + j];
+      for (Index k = j + 1; k < w; ++k) s -= c[j0 + k] * x[j0 + k];
+      x[j0 + j] = s * c[j0 + j];
+    }
+  }
+
+  Index d_;
+  std::vector<Index> off_;
+};
+
+// Writes n (a multiple of 8) doubles from src to the 64-byte aligned dst, bypassing the caches
+// where the target has streaming stores: the factor store is written once and read back only
+// after the whole forward pass, so caching it would only cost the reads of its old contents.
+inline void stream_copy(const double* src, double* dst, Index n) {
+#if defined(__AVX512F__)
+  for (Index i = 0; i < n; i += 8) _mm512_stream_pd(dst + i, _mm512_loadu_pd(src + i));
+#elif defined(__AVX__)
+  for (Index i = 0; i < n; i += 4) _mm256_stream_pd(dst + i, _mm256_loadu_pd(src + i));
+#else
+  std::copy_n(src, n, dst);
+#endif
+}
+inline void stream_fence() {
+#if defined(__AVX__)
+  _mm_sfence();
+#endif
+}
+#pragma GCC diagnostic pop
+
+// The factor store of a solve (one packed factor per frame, T·D(D+1)/2 doubles) is its one large
+// allocation; fresh pages cost a page fault each on first touch, which on a virtual machine is
+// as slow as the factorisation itself. Each thread keeps its last store, up to
+// kKeptStoreBytes, for its next solve; larger stores are returned to the system after the call.
+constexpr size_t kKeptStoreBytes = size_t(256) << 20;
+
+class FactorStore {
+ public:
+  explicit FactorStore(size_t n) {
+    n += 8;
+    Cache& c = cache();
+    if (c.capacity >= n) {
+      data_ = std::move(c.data);
+      capacity_ = c.capacity;
+      c.capacity = 0;
+    } else {
+      data_.reset(new double[n]);  // not zero-initialised: every entry is written before it is read
+      capacity_ = n;
+    }
+  }
+  ~FactorStore() {
+    Cache& c = cache();
+    if (capacity_ * sizeof(double) <= kKeptStoreBytes && capacity_ > c.capacity) {
+      c.data = std::move(data_);
+      c.capacity = capacity_;
+    }
+  }
+  FactorStore(const FactorStore&) = delete;
+  FactorStore& operator=(const FactorStore&) = delete;
+  /// 64-byte aligned start (n + 8 doubles are allocated)
+  double* get() {
+    return reinterpret_cast<double*>((reinterpret_cast<std::uintptr_t>(data_.get()) + 63) & ~std::uintptr_t(63));
+  }
+
+ private:
+  struct Cache {
+    std::unique_ptr<double[]> data;
+    size_t capacity = 0;
+  };
+  static Cache& cache() {
+    thread_local Cache c;
+    return c;
+  }
+  std::unique_ptr<double[]> data_;
+  size_t capacity_ = 0;
+};
 
 // ------------------------------------------------------------------ argument checks
 void check_states(const IndexVectorRef& states, Index n_states) {
@@ -130,24 +385,6 @@ void check_weights(const MatrixRef& weights, Index n_states, const char* name) {
                "); floor the model's variances (a relative variance floor) and retry");
 }
 
-// Running condition estimate: ratio of the largest to the smallest squared Cholesky pivot.
-struct PivotRange {
-  double lo = std::numeric_limits<double>::infinity();
-  double hi = 0.0;
-  void add(double p2) {
-    lo = std::min(lo, p2);
-    hi = std::max(hi, p2);
-  }
-  double cond() const { return lo > 0.0 ? hi / lo : std::numeric_limits<double>::infinity(); }
-};
-
-// Factor Q (lower) in place; throws on failure or an excessive condition estimate.
-void factor_block(MatrixXd& q, Index t, PivotRange& range) {
-  if (!cholesky_lower(q)) fail_singular(t, std::numeric_limits<double>::infinity());
-  for (Index i = 0; i < q.rows(); ++i) range.add(q(i, i) * q(i, i));
-  if (range.cond() > kTrajectoryMaxCondition) fail_singular(t, range.cond());
-}
-
 // ------------------------------------------------------------------ frame-term providers
 // A provider gives, for frame t, its diagonal block (first or self), right-hand side, the
 // coupling H[t−1,t] and its contribution (next, r_next) to frame t−1.
@@ -157,6 +394,7 @@ struct HardFull {
   const MatrixXd& diag(Index t) { return t == 0 ? b[s[0]].first : b[s[t]].self; }
   const VectorXd& rhs(Index t) { return t == 0 ? b[s[0]].r_first : b[s[t]].r_self; }
   const MatrixXd& up(Index t) { return b[s[t]].up; }
+  const MatrixXd& up_t(Index t) { return b[s[t]].up_t; }
   const MatrixXd& next(Index t) { return b[s[t]].next; }
   const VectorXd& r_next(Index t) { return b[s[t]].r_next; }
 };
@@ -164,10 +402,10 @@ struct HardFull {
 struct WeightedFull {
   const std::vector<TrajectoryModel::FullBlocks>& b;
   const MatrixRef& w;
-  MatrixXd m_diag, m_up, m_next, m_up2;
+  MatrixXd m_diag, m_up, m_up_t, m_next;
   VectorXd v_rhs, v_next;
   WeightedFull(const std::vector<TrajectoryModel::FullBlocks>& blocks, const MatrixRef& weights, Index d)
-      : b(blocks), w(weights), m_diag(d, d), m_up(d, d), m_next(d, d), m_up2(d, d), v_rhs(d), v_next(d) {}
+      : b(blocks), w(weights), m_diag(d, d), m_up(d, d), m_up_t(d, d), m_next(d, d), v_rhs(d), v_next(d) {}
   template <class T, class F>
   const T& sum(Index t, T& out, F field) {
     out.setZero();
@@ -187,50 +425,87 @@ struct WeightedFull {
                   : sum(t, v_rhs, [](const FB& x) -> const VectorXd& { return x.r_self; });
   }
   const MatrixXd& up(Index t) { return sum(t, m_up, [](const FB& x) -> const MatrixXd& { return x.up; }); }
+  const MatrixXd& up_t(Index t) { return sum(t, m_up_t, [](const FB& x) -> const MatrixXd& { return x.up_t; }); }
   const MatrixXd& next(Index t) { return sum(t, m_next, [](const FB& x) -> const MatrixXd& { return x.next; }); }
   const VectorXd& r_next(Index t) {
     return sum(t, v_next, [](const FB& x) -> const VectorXd& { return x.r_next; });
   }
 };
 
-// Block Cholesky of the block-tridiagonal system, then the two triangular sweeps.
+// Block Cholesky of the block-tridiagonal system with the forward substitution fused in, then
+// the backward sweep. Frame t is factored in a column-major panel of 2D + 2 rows (leading
+// dimension ld, finite padding rows below): rows 0..D−1 hold H[t,t] (lower triangle) and become
+// L_t; row D holds the right-hand side and becomes z_tᵀ = (L⁻¹ g)_t; rows D+1..2D hold H[t+1,t]
+// and become L_{t+1,t} = H[t+1,t] L_t⁻ᵀ; row 2D+1 is a copy of z_t, so that rows D+1..2D+1 of the
+// previous frame's panel are the one contiguous operand of the next frame's update. Each column
+// block of the panel is updated left-looking (from the previous panel and its own earlier
+// columns), so almost all flops are register-tiled panel updates.
 template <class Provider>
 RowMatrixXd solve_full(Provider& p, Index n_frames, Index d) {
-  RowMatrixXd y(n_frames, d);  // holds z_t (forward sweep) then y_t
-  const Index psz = packed_size(d);
-  // not zero-initialised: every entry is written by pack_lower before it is read
-  std::unique_ptr<double[]> factors(new double[static_cast<size_t>(n_frames * psz)]);
-  MatrixXd q(d, d), prev(d, d), w(d, d);
-  VectorXd g(d), v(d);
-  PivotRange range;
+  RowMatrixXd y(n_frames, d);  // holds z_t (forward) then y_t
+  const Index ld = (2 * d + 2 + 7 + 7) / 8 * 8;
+  std::vector<double> panels(static_cast<size_t>(2 * ld * d), 0.0);  // padding rows stay finite
+  double* cur = panels.data();
+  double* prev = cur + ld * d;
+  const PackedFactor pf(d);
+  const Index psz = pf.stride();
+  FactorStore factors(static_cast<size_t>(n_frames * psz));
+  std::vector<double> stage(static_cast<size_t>(psz), 0.0);  // one frame's factor, then streamed out
+  double lo = std::numeric_limits<double>::infinity(), hi = 0.0;
   for (Index t = 0; t < n_frames; ++t) {
-    q = p.diag(t);
-    g = p.rhs(t);
+    const MatrixXd& hd = p.diag(t);
+    const VectorXd& g = p.rhs(t);
     if (t + 1 < n_frames) {
-      q += p.next(t + 1);
-      g += p.r_next(t + 1);
+      const MatrixXd& hn = p.next(t + 1);
+      const MatrixXd& low = p.up_t(t + 1);  // H[t+1, t]
+      const VectorXd& gn = p.r_next(t + 1);
+      for (Index j = 0; j < d; ++j) {
+        double* col = cur + j * ld;
+        const double* a = hd.data() + j * d;
+        const double* b = hn.data() + j * d;
+        for (Index i = j; i < d; ++i) col[i] = a[i] + b[i];
+        col[d] = g[j] + gn[j];
+        std::copy_n(low.data() + j * d, d, col + d + 1);
+      }
+    } else {
+      for (Index j = 0; j < d; ++j) {
+        double* col = cur + j * ld;
+        std::copy_n(hd.data() + j * d + j, d - j, col + j);
+        col[d] = g[j];
+        std::fill_n(col + d + 1, d, 0.0);
+      }
     }
-    if (t > 0) {
-      w = p.up(t);
-      lower_solve(prev, w);  // W = L_{t−1}⁻¹ H[t−1,t]
-      q.selfadjointView<Eigen::Lower>().rankUpdate(w.transpose(), -1.0);
-      g.noalias() -= w.transpose() * y.row(t - 1).transpose();
+    for (Index j0 = 0; j0 < d; j0 += kBlock) {
+      if (!factor_block_dispatch(cur, t > 0 ? prev : nullptr, ld, d, j0, lo, hi)) {
+        fail_singular(t, std::numeric_limits<double>::infinity());
+      }
     }
-    factor_block(q, t, range);
-    q.triangularView<Eigen::Lower>().solveInPlace(g);
-    y.row(t) = g.transpose();
-    pack_lower(q, factors.get() + t * psz);
-    std::swap(q, prev);
+    if (hi > kTrajectoryMaxCondition * lo) fail_singular(t, hi / lo);
+    for (Index j = 0; j < d; ++j) {
+      double* col = cur + j * ld;
+      double* fj = pf.col(stage.data(), j);
+      std::copy_n(col + j, d - j, fj + j);
+      fj[j] = 1.0 / col[j];
+      y(t, j) = col[d];
+      col[2 * d + 1] = col[d];
+    }
+    stream_copy(stage.data(), factors.get() + t * psz, psz);
+    std::swap(cur, prev);
   }
+  stream_fence();
   // backward: y_t = L_t⁻ᵀ (z_t − L_t⁻¹ H[t,t+1] y_{t+1})
-  packed_backward(factors.get() + (n_frames - 1) * psz, d, y.row(n_frames - 1).data());
+  VectorXd v(d);
+  pf.upper_solve(factors.get() + (n_frames - 1) * psz, y.row(n_frames - 1).data());
   for (Index t = n_frames - 2; t >= 0; --t) {
     const double* lt = factors.get() + t * psz;
+    if (t > 0) {  // the previous frame's factor comes from memory while this one is used
+      for (Index i = 0; i < psz; i += 8) __builtin_prefetch(lt - psz + i);
+    }
     v.noalias() = p.up(t + 1) * y.row(t + 1).transpose();
-    packed_forward(lt, d, v.data());
+    pf.lower_solve(lt, v.data());
     double* yt = y.row(t).data();
     Eigen::Map<VectorXd>(yt, d) -= v;
-    packed_backward(lt, d, yt);
+    pf.upper_solve(lt, yt);
   }
   return y;
 }
@@ -323,6 +598,7 @@ std::vector<TrajectoryModel::FullBlocks> expand_diag(const TrajectoryModel& mode
     f.first = b.first.row(n).transpose().asDiagonal();
     f.next = b.next.row(n).transpose().asDiagonal();
     f.up = b.up.row(n).transpose().asDiagonal();
+    f.up_t = f.up;
     f.r_self = b.r_self.row(n).transpose();
     f.r_first = b.r_first.row(n).transpose();
     f.r_next = b.r_next.row(n).transpose();
@@ -405,17 +681,26 @@ TrajectoryModel::TrajectoryModel(const MatrixRef& means, const MatrixRef& vel_me
       fail_argument("covars for state ", i, " is not positive definite (condition estimate ", cond,
                     ", limit ", kTrajectoryMaxCondition, "); apply a variance floor");
     }
-    // L⁻¹ from the state's own factor; precision P = L⁻ᵀ L⁻¹, pose marginal precision from L11.
-    MatrixXd linv = MatrixXd::Identity(d2, d2);
-    llt.matrixL().solveInPlace(linv);
-    MatrixXd p = linv.transpose() * linv;
-    p = 0.5 * (p + p.transpose()).eval();
-    const MatrixXd l11inv = linv.topLeftCorner(d, d);
-    MatrixXd a0 = l11inv.transpose() * l11inv;
-    a0 = 0.5 * (a0 + a0.transpose()).eval();
-    const auto A = p.topLeftCorner(d, d);
-    const auto B = p.topRightCorner(d, d);
-    const auto C = p.bottomRightCorner(d, d);
+    // Precision P = K⁻¹ = L⁻ᵀ L⁻¹ by blocks of the state's own factor: L = [[L11, 0], [L21, L22]],
+    // L⁻¹ = [[M1, 0], [X, M2]] with M1 = L11⁻¹, M2 = L22⁻¹, X = −L22⁻¹ L21 M1, so that
+    // A = M1ᵀM1 + XᵀX, B = XᵀM2, C = M2ᵀM2, and the pose marginal precision (K^xx)⁻¹ = M1ᵀM1
+    // (triangular inverses of D×D blocks instead of one 2D×2D solve: about half the flops).
+    const MatrixXd lf = llt.matrixL();
+    MatrixXd m1 = MatrixXd::Identity(d, d), m2 = MatrixXd::Identity(d, d);
+    lf.topLeftCorner(d, d).triangularView<Eigen::Lower>().solveInPlace(m1);
+    lf.bottomRightCorner(d, d).triangularView<Eigen::Lower>().solveInPlace(m2);
+    MatrixXd x = -(lf.bottomLeftCorner(d, d) * m1.triangularView<Eigen::Lower>());
+    lf.bottomRightCorner(d, d).triangularView<Eigen::Lower>().solveInPlace(x);
+    auto gram = [d](const MatrixXd& m) {  // mᵀm, exactly symmetric
+      MatrixXd g = MatrixXd::Zero(d, d);
+      g.selfadjointView<Eigen::Lower>().rankUpdate(m.transpose());
+      g.triangularView<Eigen::StrictlyUpper>() = g.transpose();
+      return g;
+    };
+    const MatrixXd a0 = gram(m1);
+    const MatrixXd C = gram(m2);
+    const MatrixXd A = a0 + gram(x);
+    const MatrixXd B = x.transpose() * m2.triangularView<Eigen::Lower>();
     const VectorXd mu = means.row(i).transpose();
     const VectorXd mudot = vel_means.row(i).transpose() * r;
     FullBlocks& f = full_[i];
@@ -424,6 +709,7 @@ TrajectoryModel::TrajectoryModel(const MatrixRef& means, const MatrixRef& vel_me
     f.first = a0;
     f.next = C;
     f.up = -(B.transpose() + C);
+    f.up_t = f.up.transpose();
     f.r_self = (A + B.transpose()) * mu + (B + C) * mudot;
     f.r_first = a0 * mu;
     f.r_next = -(B.transpose() * mu + C * mudot);

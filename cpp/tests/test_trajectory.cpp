@@ -12,6 +12,7 @@
 #include <cmath>
 #include <random>
 #include <stdexcept>
+#include <thread>
 
 using namespace voicepuppet;
 using Eigen::MatrixXd;
@@ -110,6 +111,43 @@ TEST_CASE("full covariance: block Cholesky equals the dense solve of the objecti
   }
 }
 
+TEST_CASE("full covariance, D up to 50: every panel width, tail block and row tile equals the dense solve") {
+  // D = 8k ± 1 and 50 exercise the 8-column blocks with and without a narrow last block, the
+  // 24/16/8-row tiles of the panel updates and the vector parts of the triangular sweeps.
+  std::mt19937 rng(4321);
+  for (Index d : {7, 8, 9, 16, 17, 24, 31, 50}) {
+    const Index n = 3, T = d >= 24 ? 9 : 25;
+    CAPTURE(d);
+    RandomModel m = random_model(n, d, rng);
+    TrajectoryModel model(m.means, m.vel_means, m.covars, CovarianceType::Full);
+    VectorXi s = random_states(T, n, rng);
+    CHECK(rel(solve_trajectory(model, s), dense_solve(m, one_hot(s, n), false)) < 1e-10);
+    if (d == 17) {
+      for (Index t : {1, 2}) {
+        VectorXi s1 = s.head(t);
+        CHECK(rel(solve_trajectory(model, s1), dense_solve(m, one_hot(s1, n), false)) < 1e-10);
+      }
+    }
+  }
+}
+
+TEST_CASE("the factor store a thread keeps between solves changes no result") {
+  std::mt19937 rng(55);
+  const Index n = 4, d = 13;
+  RandomModel m = random_model(n, d, rng);
+  TrajectoryModel model(m.means, m.vel_means, m.covars, CovarianceType::Full);
+  const VectorXi long_s = random_states(700, n, rng), short_s = random_states(20, n, rng);
+  const RowMatrixXd first = solve_trajectory(model, long_s);
+  // a shorter solve reuses the larger store: still the dense answer
+  CHECK(rel(solve_trajectory(model, short_s), dense_solve(m, one_hot(short_s, n), false)) < 1e-10);
+  // repeated and on another thread (its own store): the same bits
+  CHECK((solve_trajectory(model, long_s).array() == first.array()).all());
+  RowMatrixXd other;
+  std::thread worker([&] { other = solve_trajectory(model, long_s); });
+  worker.join();
+  CHECK((other.array() == first.array()).all());
+}
+
 TEST_CASE("diagonal covariance: tridiagonal path equals the dense solve; single frame works") {
   std::mt19937 rng(99);
   const Index n = 3, d = 4;
@@ -123,18 +161,21 @@ TEST_CASE("diagonal covariance: tridiagonal path equals the dense solve; single 
 
 TEST_CASE("posterior-weighted solve equals the dense weighted objective; one-hot equals hard") {
   std::mt19937 rng(7);
-  const Index n = 3, d = 3, T = 40;
-  RandomModel m = random_model(n, d, rng);
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  RowMatrixXd w = RowMatrixXd::NullaryExpr(T, n, [&] { return u(rng); });
-  w.col(1).setZero();  // exact zeros are skipped
-  for (auto type : {CovarianceType::Full, CovarianceType::Diagonal}) {
-    const bool diag = type == CovarianceType::Diagonal;
-    TrajectoryModel model(m.means, m.vel_means, diag ? diag_of(m) : m.covars, type);
-    CHECK(rel(solve_trajectory_weighted(model, w), dense_solve(m, w, diag)) < 1e-11);
-    VectorXi s = random_states(T, n, rng);
-    RowMatrixXd oh = one_hot(s, n);
-    CHECK(rel(solve_trajectory_weighted(model, oh), solve_trajectory(model, s)) < 1e-14);
+  for (Index d : {3, 19}) {
+    const Index n = 3, T = d > 8 ? 15 : 40;
+    CAPTURE(d);
+    RandomModel m = random_model(n, d, rng);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    RowMatrixXd w = RowMatrixXd::NullaryExpr(T, n, [&] { return u(rng); });
+    w.col(1).setZero();  // exact zeros are skipped
+    for (auto type : {CovarianceType::Full, CovarianceType::Diagonal}) {
+      const bool diag = type == CovarianceType::Diagonal;
+      TrajectoryModel model(m.means, m.vel_means, diag ? diag_of(m) : m.covars, type);
+      CHECK(rel(solve_trajectory_weighted(model, w), dense_solve(m, w, diag)) < 1e-11);
+      VectorXi s = random_states(T, n, rng);
+      RowMatrixXd oh = one_hot(s, n);
+      CHECK(rel(solve_trajectory_weighted(model, oh), solve_trajectory(model, s)) < 1e-14);
+    }
   }
 }
 

@@ -204,6 +204,11 @@ def solve_trajectory(states, means, vel_means, covars, *, covariance_type: str =
         definite.
     RuntimeError
         The normal equations are numerically singular (the message gives the condition estimate).
+
+    Notes
+    -----
+    With full covariance the solve stores one packed D x D factor per frame (about 10 KB at
+    D = 50); the calling thread keeps that store, up to 256 MB, for its next solve.
     """
     scale, fps_in, fps_out = _rates(model_fps, states_fps, out_fps)
     model = make_model(means, vel_means, covars, covariance_type, scale)

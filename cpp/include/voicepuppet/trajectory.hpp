@@ -60,6 +60,7 @@ class TrajectoryModel {
     Eigen::MatrixXd first;  ///< (K^xx)⁻¹, frame 0
     Eigen::MatrixXd next;   ///< C, added to the previous frame's diagonal block
     Eigen::MatrixXd up;     ///< −(Bᵀ + C) = H[t−1, t]
+    Eigen::MatrixXd up_t;   ///< upᵀ = H[t, t−1] (stored for the solve's column-major panels)
     VectorXd r_self;        ///< (A + Bᵀ) μ + (B + C) μ̇
     VectorXd r_first;       ///< (K^xx)⁻¹ μ
     VectorXd r_next;        ///< −(Bᵀ μ + C μ̇), added to the previous frame's right-hand side
@@ -83,6 +84,10 @@ class TrajectoryModel {
 constexpr double kTrajectoryMaxCondition = 1e12;
 
 /// Most probable trajectory for a hard state sequence.
+/// Memory: full covariance stores one packed factor per frame (T·D(D+1)/2 doubles, padded to
+/// 64 bytes per frame); each thread keeps the store of its last full solve, up to 256 MB, for
+/// its next one (the pages of a fresh store are the solve's largest fixed cost), and frees it
+/// when the thread ends. Larger stores are freed after the call.
 /// @param[in] model   per-state blocks
 /// @param[in] states  #T state indices in [0, N)
 /// @return #T by #D trajectory
@@ -92,7 +97,8 @@ constexpr double kTrajectoryMaxCondition = 1e12;
 RowMatrixXd solve_trajectory(const TrajectoryModel& model, const IndexVectorRef& states);
 
 /// Posterior-weighted trajectory: minimises Σ_t Σ_n γ_tn · (frame t's cost under state n), i.e.
-/// the precision blocks and precision-weighted means are γ-weighted sums over states.
+/// the precision blocks and precision-weighted means are γ-weighted sums over states. Memory as
+/// solve_trajectory.
 /// @param[in] weights  #T by #N non-negative state weights (e.g. forward–backward posteriors);
 ///                     every row must have a positive sum (rows need not be normalised)
 /// @return #T by #D trajectory; one-hot weights give exactly the hard solve.
