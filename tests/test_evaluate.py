@@ -187,3 +187,40 @@ def test_voice_puppet_on_the_same_folds():
     assert m["err"]["mean"] < 0.95  # 0.81 at this seed; the mean face scores 1
     assert sum(m["frames"]) == sum(len(s.points) for s in seqs)
     assert "| voice-puppet |" in ev.format_table(res)
+
+
+def test_evaluate_compare_training_verb(tmp_path, capsys):
+    """``--compare-training`` with two ``--variant``s on user data: the paired table and JSON are
+    written (atomically, nothing else), the variants' options reach training, bad variants are
+    refused."""
+    import soundfile
+
+    rng = np.random.default_rng(SEED + 4)
+    data = tmp_path / "data"
+    data.mkdir()
+    seqs = planted_sequences(rng, n_seq=4, T=60)
+    write_user_data(data, seqs)
+    for s in seqs:  # a tone whose pitch follows the first face coordinate: the audio carries the face
+        t = np.arange(int(len(s.points) / s.fps * 16000)) / 16000
+        f0 = 200 + 50 * np.interp(t * s.fps, np.arange(len(s.points)), s.points[:, 48, 1] - s.points[:, 48, 1].mean())
+        soundfile.write(data / f"{s.name}.wav", 0.3 * np.sin(2 * np.pi * np.cumsum(f0) / 16000), 16000)
+    md, js = tmp_path / "c.md", tmp_path / "c.json"
+    rc = main(["evaluate", "--data", str(data), "--folds", "2", "--components", "3", "--compare-training",
+               "--variant", "few:n_states=3,n_iter=4", "--variant", "ml:n_states=3,n_iter=4,prior=\"ml\"",
+               "-o", str(md), "--json", str(js), "-q"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "| few − ml |" in out and f"wrote {js}" in out
+    result = json.loads(js.read_text())
+    assert result["config"]["options"] == {"few": {"n_states": 3, "n_iter": 4},
+                                           "ml": {"n_states": 3, "n_iter": 4, "prior": "ml"}}
+    assert result["variants"]["few"]["states"]["mean"] <= 3
+    assert len(result["differences"]["few"]["err"]["folds"]) == 2
+    assert "--compare-training --variant" in result["command"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "c.md", "data"]
+    assert main(["evaluate", "--data", str(data), "--folds", "2", "--compare-training",
+                 "--variant", "a:n_states", "--variant", "b", "-q"]) == 2
+    assert "expected key=value" in capsys.readouterr().err
+    assert main(["evaluate", "--data", str(data), "--folds", "2", "--compare-training",
+                 "--variant", "a:n_iter=3", "-q"]) == 2
+    assert "at least two" in capsys.readouterr().err

@@ -50,3 +50,51 @@ def test_evaluate_split_on_planted_puppet():
     assert r["model"]["bits_per_frame"] < 2.0
     table = evaluation.format_table(r)
     assert "| voice |" in table and "| ridge |" in table
+
+
+def _planted_sequences(n_seq=6, T=240):
+    from voicepuppet.evaluate import Sequence
+
+    seqs, feats = [], []
+    for s in range(n_seq):
+        pts, f, _ = _planted(np.random.default_rng(100 + s), T=T)
+        seqs.append(Sequence(f"s{s}", pts, 30.0, np.zeros(T, np.int64)))
+        feats.append(f)
+    return seqs, feats
+
+
+def test_compare_training_pairs_folds_and_separates_a_crippled_variant():
+    """A variant whose vocal Gaussians are all the pooled one (shrinkage 1e6: the audio cannot
+    steer the decoding) must lose on Err in every fold, with a paired interval below zero; the
+    differences are the fold-by-fold differences of the variants' values; a variant paired
+    with an identical copy of itself differs by exactly 0."""
+    seqs, feats = _planted_sequences()
+    base = {"n_states": 6, "n_iter": 12, "n_components": 3}
+    variants = {"good": base, "same": dict(base), "deaf": dict(base, vocal_shrinkage=1e6)}
+    r = evaluation.compare_training(seqs, variants, k=3, seed=0, n_components=3, features=feats)
+    good, deaf = r["variants"]["good"], r["variants"]["deaf"]
+    print({n: v["err"]["folds"] for n, v in r["variants"].items()})
+    assert good["err"]["mean"] < 0.3 < deaf["err"]["mean"]
+    d = r["differences"]["good"]["err"]
+    np.testing.assert_allclose(d["folds"], np.subtract(good["err"]["folds"], deaf["err"]["folds"]), atol=1e-12)
+    assert d["high"] < 0 and d["low"] < d["mean"] < d["high"]
+    same = r["differences"]["same"]
+    np.testing.assert_allclose(np.subtract(same["err"]["folds"], d["folds"]), 0, atol=1e-12)  # same == good
+    for m in ("err", "entropy_rate", "states_err"):
+        assert all(np.isfinite(good[m]["folds"])) and len(good[m]["folds"]) == 3
+    assert all(0 <= v < np.log(6) for v in good["entropy_rate"]["folds"])
+    assert sum(len(f) for f in r["config"]["folds"]) == len(seqs)
+    table = evaluation.format_comparison(r)
+    assert "| good − deaf |" in table and "| deaf |" in table
+
+
+def test_compare_training_refuses_bad_input():
+    seqs, feats = _planted_sequences(n_seq=3, T=120)
+    with pytest.raises(ValueError, match="at least two"):
+        evaluation.compare_training(seqs, {"a": {}}, k=2, features=feats)
+    with pytest.raises(ValueError, match="unknown training options"):
+        evaluation.compare_training(seqs, {"a": {}, "b": {"n_stats": 3}}, k=2, features=feats)
+    with pytest.raises(ValueError, match="baseline"):
+        evaluation.compare_training(seqs, {"a": {}, "b": {}}, baseline="c", k=2, features=feats)
+    with pytest.raises(ValueError, match="one row per"):
+        evaluation.compare_training(seqs, {"a": {}, "b": {}}, k=2, features=feats[:2])

@@ -317,11 +317,11 @@ GaussianParams entropic_gaussian_mstep(const GaussianStats& stats, double z, dou
       c = stats.outer.middleRows(n * d, d);
       c.noalias() -= w * (m * m.transpose());
       c = 0.5 * (c + c.transpose()).eval();
-      c.diagonal().array() += prior;
+      c.diagonal().array() += prior * w;  // the floor per frame, as in Baum–Welch
       c /= (w + zp);
     } else {
       p.covars.row(n) = (stats.outer.row(n) - w * m.transpose().cwiseAbs2()).cwiseMax(0.0);
-      p.covars.row(n).array() += prior;
+      p.covars.row(n).array() += prior * w;
       p.covars.row(n) /= (w + zp);
     }
   }

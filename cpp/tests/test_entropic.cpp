@@ -120,7 +120,7 @@ TEST_CASE("entropic multinomial rejects bad input") {
 }
 
 TEST_CASE("entropic covariance is the stationary point of its objective") {
-  // One state, D = 2: K = (S + c I)/(w + Z) maximises −(w+Z)/2 log|K| − ½ tr(K⁻¹(S + cI)).
+  // One state, D = 2: K = (S + c w I)/(w + Z) maximises −(w+Z)/2 log|K| − ½ tr(K⁻¹(S + c w I)).
   GaussianStats st;
   st.type = CovarianceType::Full;
   st.shift = VectorXd::Zero(2);
@@ -136,9 +136,10 @@ TEST_CASE("entropic covariance is the stationary point of its objective") {
   Eigen::Matrix2d S;
   S << 4, 1, 1, 3;
   const Eigen::Matrix2d K = p.covars;
-  CHECK((K - (S + c * Eigen::Matrix2d::Identity()) / 6.0).cwiseAbs().maxCoeff() < 1e-12);
+  CHECK((K - (S + 5.0 * c * Eigen::Matrix2d::Identity()) / 6.0).cwiseAbs().maxCoeff() < 1e-12);
   auto obj = [&](const Eigen::Matrix2d& M) {
-    return -(5.0 + z) / 2 * std::log(M.determinant()) - 0.5 * (M.inverse() * (S + c * Eigen::Matrix2d::Identity())).trace();
+    return -(5.0 + z) / 2 * std::log(M.determinant()) -
+           0.5 * (M.inverse() * (S + 5.0 * c * Eigen::Matrix2d::Identity())).trace();
   };
   std::mt19937 rng(3);
   std::normal_distribution<double> g(0, 0.05);
@@ -148,9 +149,14 @@ TEST_CASE("entropic covariance is the stationary point of its objective") {
     E(1, 0) = E(0, 1);
     CHECK(obj(K + E) <= obj(K) + 1e-12);
   }
-  // Z = 0 and no regulariser: the maximum-likelihood covariance.
+  // Z = 0 and no floor: the maximum-likelihood covariance.
   const GaussianParams ml = entropic_gaussian_mstep(st, 0.0, 0.0, RowMatrixXd(), RowMatrixXd());
   CHECK((ml.covars - RowMatrixXd(S / 5.0)).cwiseAbs().maxCoeff() < 1e-12);
+  // Z = 0 with a floor: Baum–Welch's floored estimate S/w + c I, the same as gaussian_mstep.
+  const GaussianParams bw = entropic_gaussian_mstep(st, 0.0, c, RowMatrixXd(), RowMatrixXd());
+  const GaussianParams bw_ref = gaussian_mstep(st, c, RowMatrixXd(), RowMatrixXd());
+  CHECK((bw.covars - RowMatrixXd(S / 5.0 + c * Eigen::Matrix2d::Identity())).cwiseAbs().maxCoeff() < 1e-12);
+  CHECK((bw.covars - bw_ref.covars).cwiseAbs().maxCoeff() < 1e-12);
 }
 
 TEST_CASE("transition trimming flags weak arcs only and keeps every row alive") {

@@ -253,8 +253,8 @@ def _drop_state(st: _State, i: int, into: int) -> _State | None:
 
 def _state_trim_scores(st: _State, ev, z, gp) -> np.ndarray:
     """Estimated log-posterior gain of deleting each state (the rule of docs/entropic.md):
-    its description cost Z·[H(θ_i·) + ½ log((2πe)^D |K_i|)] + (c/2) tr K_i⁻¹ minus the evidence only
-    it explains, Σ_t γ_ti · max(0, log b_i(x_t) − max_{j≠i} log b_j(x_t))."""
+    its description cost Z·[H(θ_i·) + ½ log((2πe)^D |K_i|)] (+ (gp/2) tr K_i⁻¹; training passes
+    gp = 0) minus the evidence only it explains, Σ_t γ_ti · max(0, log b_i(x_t) − max_{j≠i} log b_j(x_t))."""
     n = st.n
     if n < 2:
         return np.full(n, -np.inf)
@@ -302,7 +302,11 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
                          "or one per iteration (see voicepuppet.entropic.anneal_schedule)")
     for z in zs:
         _check_z(z)
-    gp = model._variance_floor  # covariance regulariser c: K = (S + c I) / (w + Z)
+    # The variance floor c acts per frame, as in Baum-Welch: K = (S + c w I) / (w + Z⁺), so Z = 0
+    # is Baum-Welch with its floor. It is not part of the prior: the log posterior is the
+    # log-likelihood plus Brand's entropic prior alone (gp = 0 in the prior terms).
+    floor = model._variance_floor
+    gp = 0.0
     cov = model.covariance
     shift = X.mean(axis=0)
     data = LocalData(X, lengths, cov) if estep is None else estep
@@ -390,7 +394,7 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
             if "t" in params:
                 st.transmat = _core.entropic_rows(xi, z, st.transmat)
             if "m" in params or "c" in params:
-                means, covars = _core.entropic_gaussian_mstep(weight, ssum, outer, shift, cov, z, gp,
+                means, covars = _core.entropic_gaussian_mstep(weight, ssum, outer, shift, cov, z, floor,
                                                               st.means, st.covars_2d())
                 if "m" in params:
                     st.means = means

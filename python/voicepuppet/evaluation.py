@@ -225,3 +225,171 @@ def format_table(result: dict, title: str = "") -> str:
               f"memory {m['context_memory']:.3g} frames, test decoding entropy rate "
               f"{m['entropy_rate_test']:.4g} nats/frame, state coding {m['bits_per_frame']:.3g} bits/frame"]
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------ paired training comparison
+#: measures of :func:`compare_training` (all: lower is better)
+COMPARE_MEASURES = ("err", "lve", "rmse_iod", "entropy_rate", "states_err")
+
+
+def _sequence_features(seq, fps: float, feature_set) -> np.ndarray:
+    """Raw audio features [T, A] of one :class:`voicepuppet.evaluate.Sequence`, one row per frame."""
+    from voicepuppet import audio as vaudio
+
+    if seq.samples is None:
+        raise ValueError(f"sequence {seq.name} has no audio; the voice puppet needs it")
+    a = vaudio.prepare(np.asarray(seq.samples, dtype=np.float64), int(seq.rate))
+    return vaudio.extract(a, fps=fps, features=feature_set, n_out=len(seq.points)).values
+
+
+def _as_face(points, n, face_space) -> np.ndarray:
+    """Landmarks cut or padded (last frame) to n frames, in ``face_space`` coordinates."""
+    if len(points) < n:
+        points = np.concatenate([points, np.repeat(points[-1:], n - len(points), axis=0)])
+    return face_space.encode(points[:n])[0]
+
+
+def compare_training(sequences, variants: dict, *, baseline: str | None = None, k: int = 10,
+                     seed: int = 0, n_components=0.98, features=None, progress: bool = False) -> dict:
+    """Paired k-fold comparison of puppet training options on the same folds.
+
+    In every fold (:func:`voicepuppet.crossval.kfold` by sequence) each variant is a
+    :meth:`voicepuppet.puppet.Puppet.train` on the same training sequences (landmarks and their
+    audio features, computed once) with ``seed`` and its own options; it animates the test
+    sequences' audio (Viterbi on the vocal HMM). Per fold and variant, pooled over the fold's test
+    frames: ``err`` (eq. 7), ``lve`` and ``rmse_iod`` on the face coordinates of a
+    :class:`voicepuppet.face.FaceSpace` fitted on the fold's training sequences (as
+    :func:`voicepuppet.evaluate.cross_validate`), ``entropy_rate`` of decoding the test audio
+    (nats per frame, frame-weighted) and ``states_err``, the Err of the reconstruction from the
+    facial HMM's Viterbi states of the true motion; plus ``states`` and ``arcs`` kept.
+
+    Parameters
+    ----------
+    sequences : list of voicepuppet.evaluate.Sequence
+        With audio (``samples``, ``rate``).
+    variants : dict
+        name -> dict of :data:`voicepuppet.puppet.TRAIN_DEFAULTS` overrides (``seed`` is set here).
+    baseline : str, optional
+        The variant the others are paired against (default: the last one).
+    k, seed : int
+        Folds and the seed of folds and models.
+    n_components : int or float
+        Evaluation face space per fold, as in ``FaceSpace.fit``.
+    features : list of arrays (T_s, A), optional
+        Raw audio features of each sequence, one row per frame, instead of computing them from
+        the sequences' audio (then every variant uses these).
+
+    Returns
+    -------
+    dict
+        ``variants``: {name: {measure: {"mean", "low", "high", "folds"}}};
+        ``differences``: {name: {measure: {...}}} of ``name − baseline`` per fold, mean and 95%
+        Student-t interval over folds (:func:`voicepuppet.crossval.mean_ci`); ``config``.
+    """
+    from tqdm.auto import tqdm
+
+    from voicepuppet.crossval import kfold, mean_ci
+    from voicepuppet.evaluate import _fold_metrics
+    from voicepuppet.face import FaceSpace
+    from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet
+
+    seqs = list(sequences)
+    if not isinstance(variants, dict) or len(variants) < 2:
+        raise ValueError(f"variants must be a dict of at least two named option sets, got {variants!r}")
+    names = list(variants)
+    baseline = names[-1] if baseline is None else baseline
+    if baseline not in variants:
+        raise ValueError(f"baseline {baseline!r} is not one of the variants {names}")
+    for name, opts in variants.items():
+        unknown = set(opts) - (set(TRAIN_DEFAULTS) - {"seed"})
+        if unknown:
+            raise ValueError(f"variant {name!r} has unknown training options {sorted(unknown)}; known: "
+                             f"{sorted(set(TRAIN_DEFAULTS) - {'seed'})}")
+    if not seqs:
+        raise ValueError("no sequences to compare on")
+    fps = float(seqs[0].fps)
+    if features is not None:
+        features = list(features)
+        if len(features) != len(seqs) or any(np.ndim(f) != 2 or len(f) != len(s.points)
+                                             for f, s in zip(features, seqs)):
+            raise ValueError(f"features must be one (T, A) array per sequence ({len(seqs)}), with one row per "
+                             "frame of its landmarks")
+    fsets = {name: variants[name].get("feature_set", TRAIN_DEFAULTS["feature_set"]) for name in names}
+    feats: dict = {}
+
+    def features_of(i, fset):
+        if features is not None:
+            return np.asarray(features[i], dtype=np.float64)
+        key = (i, str(fset))
+        if key not in feats:
+            feats[key] = _sequence_features(seqs[i], fps, fset)
+        return feats[key]
+
+    folds = kfold(len(seqs), k, seed)
+    per_fold: dict = {n: [] for n in names}
+    bar = tqdm(total=len(folds) * len(names), desc="paired comparison", unit="model", disable=not progress)
+    for fi, (tr, te) in enumerate(folds):
+        fs = FaceSpace.fit([seqs[i].points for i in tr], n_components=n_components)
+        Yte = [fs.encode(seqs[i].points)[0] for i in te]
+        for name in names:
+            bar.set_postfix(fold=fi + 1, variant=name)
+            opts = dict(variants[name], seed=seed)
+            puppet = Puppet.train([seqs[i].points for i in tr], features_list=[features_of(i, fsets[name]) for i in tr],
+                                  fps=fps, **opts)
+            voice, states, rates = [], [], []
+            for i, y in zip(te, Yte):
+                f = features_of(i, fsets[name])
+                voice.append(_as_face(puppet.animate(features=f, fps=fps).animation.points, len(y), fs))
+                s = facial_states(puppet, seqs[i].points)
+                states.append(_as_face(puppet.animate(states=s, fps=fps).animation.points, len(y), fs))
+                rates.append((decoding_entropy_rate(puppet, f), len(y)))
+            row = _fold_metrics(voice, Yte, fs, None)
+            row["states_err"] = _fold_metrics(states, Yte, fs, None)["err"]
+            row["entropy_rate"] = sum(r * n for r, n in rates) / sum(n for _, n in rates)
+            parts = puppet.metadata["training"]["parts"]
+            row["states"] = int(sum(p["states"] for p in parts))
+            row["arcs"] = int(sum(p["arcs"] for p in parts))
+            per_fold[name].append(row)
+            bar.update()
+    bar.close()
+
+    def summary(vals):
+        mean, lo, hi = mean_ci(vals)
+        return {"mean": mean, "low": lo, "high": hi, "folds": [float(v) for v in vals]}
+
+    measures = [m for m in COMPARE_MEASURES + ("states", "arcs") if all(m in r for r in per_fold[baseline])]
+    out = {"variants": {}, "differences": {}, "config": {
+        "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
+        "fps": fps, "n_components": n_components, "baseline": baseline,
+        "options": {n: dict(variants[n]) for n in names},
+        "folds": [[seqs[i].name for i in te] for _, te in folds]}}
+    for name in names:
+        out["variants"][name] = {m: summary([r[m] for r in per_fold[name]]) for m in measures}
+        if name != baseline:
+            out["differences"][name] = {
+                m: summary([a[m] - b[m] for a, b in zip(per_fold[name], per_fold[baseline])]) for m in measures}
+    return out
+
+
+def format_comparison(result: dict) -> str:
+    """Markdown: each variant's measures (mean ± half-width of the 95% interval over folds), then
+    each paired difference against the baseline with its interval."""
+    def cell(v, digits=4):
+        return f"{v['mean']:.{digits}g} ± {0.5 * (v['high'] - v['low']):.2g}"
+
+    measures = [m for m in COMPARE_MEASURES + ("states", "arcs") if m in next(iter(result["variants"].values()))]
+    lines = ["| variant | " + " | ".join(measures) + " |", "|---|" + "---:|" * len(measures)]
+    for name, row in result["variants"].items():
+        lines.append(f"| {name} | " + " | ".join(cell(row[m]) for m in measures) + " |")
+    base = result["config"]["baseline"]
+    lines += ["", f"| paired difference (fold by fold) | " + " | ".join(measures) + " |",
+              "|---|" + "---:|" * len(measures)]
+    for name, row in result["differences"].items():
+        lines.append(f"| {name} − {base} | " + " | ".join(
+            f"{row[m]['mean']:+.3g} [{row[m]['low']:+.3g}, {row[m]['high']:+.3g}]" for m in measures) + " |")
+    c = result["config"]
+    lines += ["", f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} frames "
+              f"at {c['fps']:.4g} fps, seed {c['seed']}); variants: mean over folds ± half-width of the 95% "
+              f"interval; differences: mean [95% interval] of the per-fold differences (Student's t, "
+              f"{c['k'] - 1} degrees of freedom). Lower is better for every measure."]
+    return "\n".join(lines) + "\n"

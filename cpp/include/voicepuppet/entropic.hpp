@@ -47,11 +47,14 @@ VectorXd entropic_multinomial(const VectorRef& omega, double z);
 /// @param[in] old     #R by #K previous estimate (rows used where a row of counts is all zero)
 RowMatrixXd entropic_rows(const MatrixRef& counts, double z, const MatrixRef& old);
 
-/// Entropic MAP means and covariances from Gaussian statistics. Maximises, per state,
-///   Σ_t γ_tn log N(x_t; μ_n, K_n) − (Z⁺/2) log|K_n| − (prior/2) tr K_n⁻¹,
-/// Z⁺ = max(Z, 0) (the Gaussian part of Brand's entropy H_C; the covariance term is not
-/// annealed below 0), giving μ_n = mean, K_n = (S_n + prior·I) / (w_n + Z⁺) with S_n the
-/// centred scatter. With Z = 0 and prior = 0 this is the maximum-likelihood estimate.
+/// Entropic MAP means and covariances from Gaussian statistics, with the variance floor c
+/// (`prior`) of Baum–Welch. Maximises, per state,
+///   Σ_t γ_tn E_ε log N(x_t + ε; μ_n, K_n) − (Z⁺/2) log|K_n|,   ε ~ N(0, c I),
+/// i.e. Σ_t γ_tn log N(x_t; μ_n, K_n) − (c w_n/2) tr K_n⁻¹ − (Z⁺/2) log|K_n|, Z⁺ = max(Z, 0)
+/// (the Gaussian part of Brand's entropy H_C; the covariance term is not annealed below 0),
+/// giving μ_n = mean, K_n = (S_n + c·w_n·I) / (w_n + Z⁺) with S_n the centred scatter and
+/// w_n = Σ_t γ_tn. With Z = 0 this is Baum–Welch's estimate S_n/w_n + c·I (gaussian_mstep)
+/// for every c: the floor acts per frame in both, so the two trainers differ only by the prior.
 /// States with weight below 1e-10 keep `old_means`/`old_covars`.
 /// @throws std::invalid_argument on non-finite Z, a negative prior, or bad old shapes;
 ///         std::runtime_error if a state's w + Z⁺ is not positive.
