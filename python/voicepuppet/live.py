@@ -24,6 +24,7 @@ WebSocket (with a viewer page on the same port) or OSC. See docs/streaming.md.
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import os
@@ -38,6 +39,9 @@ from voicepuppet.audio.stream import StreamingFeatures, StreamResampler, pcm_to_
 
 #: Sample rate of the analysis (the rate puppets are trained at: load_audio's default).
 ANALYSIS_RATE = 16000
+#: Audio pushed per step by ``voicepuppet live`` (ms). A frame waits up to one chunk for its audio
+#: to be read; with ~0.04 ms of compute per frame, small chunks cost nothing.
+CHUNK_MS = 5.0
 
 __all__ = ["LivePuppet", "LiveFrames", "split_lag", "add_parser"]
 
@@ -401,6 +405,9 @@ def run_live(args, out=None) -> int:
         print(f"voicepuppet live: viewer at http://{args.websocket.rpartition(':')[0] or '127.0.0.1'}"
               f":{ws.port}/ (WebSocket on the same port)", file=sys.stderr)
     chunk = max(1, int(round(args.chunk_ms / 1000.0 * live.rate)))
+    # Everything allocated so far (modules, the puppet) leaves the cyclic collector's scans: a full
+    # collection over it took ~2 ms, the largest compute spikes of the stream (docs/streaming.md).
+    gc.freeze()
     latencies, computes = [], []
     t0 = None
     n_frames = 0
@@ -511,8 +518,9 @@ def add_parser(sub) -> None:
                    help="sample format of the PCM on standard input (default s16le)")
     p.add_argument("--channels", type=int, default=1, help="interleaved channels on standard "
                    "input, averaged (default 1)")
-    p.add_argument("--chunk-ms", type=float, default=10.0,
-                   help="audio pushed per step, in ms (default 10)")
+    p.add_argument("--chunk-ms", type=float, default=CHUNK_MS,
+                   help=f"audio pushed per step, in ms (default {CHUNK_MS:g}): the wait for a "
+                        "chunk to fill adds up to this much to the latency")
     p.add_argument("--no-realtime", action="store_true",
                    help="with --input FILE: process as fast as possible instead of at real-time "
                         "pace")

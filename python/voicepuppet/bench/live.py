@@ -3,12 +3,12 @@
 Cases (medians of interleaved repeats; per-frame percentiles over every frame of a run):
 
 - ``features_stream``: the streaming front end (:class:`voicepuppet.audio.stream.StreamingFeatures`,
-  the C++ ``StreamingAudioFeatures``, default "puppet" set, 10 ms chunks) against the numpy
+  the C++ ``StreamingAudioFeatures``, default "puppet" set, 5 ms chunks) against the numpy
   reference of the offline front end (``reference_extract``) on the same audio (``agree``:
   largest relative difference of the exact-mode features);
 - ``puppet_stream_cpp``: ``voicepuppet::StreamingPuppet`` fed one feature frame per push, against
   the offline C++ ``Puppet.animate`` (``agree``: with lags covering the stream);
-- ``live_lag{L}ms``: :class:`voicepuppet.live.LivePuppet` end to end (audio chunks of 10 ms in,
+- ``live_lag{L}ms``: :class:`voicepuppet.live.LivePuppet` end to end (audio chunks of 5 ms in,
   face frames out) for several latency budgets. A frame's end-to-end latency is the audio
   time between the frame's moment and the end of the chunk that completed it, plus the compute
   time of that push: ``latency = lag + compute`` measured, not assumed.
@@ -19,6 +19,7 @@ Cases (medians of interleaved repeats; per-frame percentiles over every frame of
 
 from __future__ import annotations
 
+import gc
 import math
 import statistics
 import time
@@ -28,7 +29,7 @@ import numpy as np
 from voicepuppet.bench import case, rel_diff, timeit_interleaved
 
 LAGS_MS = (0, 50, 100, 150, 250, 330)
-CHUNK = 160  # 10 ms at 16 kHz
+CHUNK = 80  # 5 ms at 16 kHz: the ``voicepuppet live`` default (live.CHUNK_MS)
 
 
 def _corpus(quick: bool):
@@ -53,7 +54,7 @@ def _corpus(quick: bool):
 
 
 def _stream_live(live, x):
-    """Push x in 10 ms chunks; returns points [T, P, 2], per-frame compute (s), latency (s)."""
+    """Push x in 5 ms chunks; returns points [T, P, 2], per-frame compute (s), latency (s)."""
     pts, comp, lat = [], [], []
     rate = live.rate
     for a in range(0, x.shape[0], CHUNK):
@@ -108,7 +109,7 @@ def run(quick: bool = False, repeats: int = 3) -> list:
                                        audio, fps=puppet.fps, features=puppet.feature_set).values},
                                   repeats)
     pf = np.array(per_frame) * 1e3
-    cases.append(case("features_stream", f"{secs:.1f} s, 10 ms chunks", med["ours"],
+    cases.append(case("features_stream", f"{secs:.1f} s, 5 ms chunks", med["ours"],
                       "numpy reference (offline)", med["peer"], rel_diff(res["ours"], res["peer"]),
                       frame_ms_p50=float(np.percentile(pf, 50)),
                       frame_ms_p99=float(np.percentile(pf, 99)),
@@ -142,7 +143,8 @@ def run(quick: bool = False, repeats: int = 3) -> list:
                       frame_ms_p50=float(np.percentile(cf, 50)),
                       frame_ms_p99=float(np.percentile(cf, 99))))
 
-    # 3. end to end, per latency budget
+    # 3. end to end, per latency budget, with the collector's scans frozen as the live verb does
+    gc.freeze()
     for lag in ((50, 150) if quick else (0, 50, 150, 330)):
         comps, lats, times = [], [], []
         for _ in range(max(1, repeats)):
@@ -154,7 +156,7 @@ def run(quick: bool = False, repeats: int = 3) -> list:
             lats.append(lat)
         comp = np.concatenate(comps) * 1e3
         lat = np.concatenate(lats) * 1e3
-        cases.append(case(f"live_lag{lag}ms", f"{secs:.1f} s, 10 ms chunks",
+        cases.append(case(f"live_lag{lag}ms", f"{secs:.1f} s, 5 ms chunks",
                           statistics.median(times), None, None, None,
                           lag_ms=lag, algorithmic_latency_ms=live.latency_s * 1e3,
                           frame_ms_p50=float(np.percentile(comp, 50)),
