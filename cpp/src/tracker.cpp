@@ -1,6 +1,8 @@
 // The spring-mesh SSD facial tracker (Voice Puppetry §4.1). See tracker.hpp for the method.
 #include "voicepuppet/tracker.hpp"
 
+#include <Eigen/LU>
+
 
 #include <algorithm>
 #include <array>
@@ -173,6 +175,48 @@ void check_mesh(const SpringMesh& mesh, Index n_points) {
       fail_argument("mesh stiffness[", e, "] must be finite and >= 0, got ", mesh.stiffness[e]);
     }
   }
+  const bool has_p = mesh.offset_precision.size() != 0, has_m = mesh.offset_mean.size() != 0;
+  if (has_p != has_m) {
+    fail_argument("mesh offset_precision and offset_mean must be given together (or both empty), "
+                  "got shapes ", shape_of(mesh.offset_precision), " and ", shape_of(mesh.offset_mean));
+  }
+  if (!has_p) return;
+  if (mesh.offset_precision.rows() != ne || mesh.offset_precision.cols() != 4) {
+    fail_argument("mesh offset_precision must have shape (", ne, ", 4) (a row-major 2x2 "
+                  "precision per edge), got ", shape_of(mesh.offset_precision));
+  }
+  if (mesh.offset_mean.rows() != ne || mesh.offset_mean.cols() != 2) {
+    fail_argument("mesh offset_mean must have shape (", ne, ", 2) (a mean offset per edge), got ",
+                  shape_of(mesh.offset_mean));
+  }
+  require_finite(mesh.offset_precision, "mesh offset_precision");
+  require_finite(mesh.offset_mean, "mesh offset_mean");
+  for (Index e = 0; e < ne; ++e) {
+    const double a = mesh.offset_precision(e, 0), b = mesh.offset_precision(e, 1),
+                 c = mesh.offset_precision(e, 2), d = mesh.offset_precision(e, 3);
+    const double tol = 1e-9 * (std::abs(a) + std::abs(d) + 1e-300);
+    if (std::abs(b - c) > tol || a < 0 || d < 0 || a * d - b * c < -tol * (std::abs(a) + std::abs(d))) {
+      fail_argument("mesh offset_precision row ", e, " = (", a, ", ", b, ", ", c, ", ", d,
+                    ") is not a symmetric positive semidefinite 2x2 matrix; give inverse covariances");
+    }
+  }
+}
+
+bool has_offset_spring(const SpringMesh& mesh, Index e) {
+  return mesh.offset_precision.size() != 0 &&
+         (mesh.offset_precision(e, 0) != 0 || mesh.offset_precision(e, 3) != 0);
+}
+
+void check_frame_points(const VectorXi& idx, Index n_points, const char* name) {
+  if (idx.size() == 1) {
+    fail_argument(name, " must hold at least 2 point indices (or none), got 1");
+  }
+  for (Index k = 0; k < idx.size(); ++k) {
+    if (idx[k] < 0 || idx[k] >= n_points) {
+      fail_argument(name, "[", k, "] = ", idx[k], " indexes outside the ", n_points,
+                    " points; indices must be in [0, ", n_points - 1, "]");
+    }
+  }
 }
 
 }  // namespace
@@ -205,8 +249,35 @@ SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
   return mesh;
 }
 
+Eigen::Matrix2d face_similarity(const MatrixRef& from, const MatrixRef& to, const VectorXi& idx) {
+  Eigen::Matrix2d A = Eigen::Matrix2d::Identity();
+  if (idx.size() < 2) return A;
+  Eigen::Vector2d mf = Eigen::Vector2d::Zero(), mt = Eigen::Vector2d::Zero();
+  for (Index k = 0; k < idx.size(); ++k) {
+    mf += from.row(idx[k]).transpose();
+    mt += to.row(idx[k]).transpose();
+  }
+  mf /= static_cast<double>(idx.size());
+  mt /= static_cast<double>(idx.size());
+  // Complex least squares: z_to ≈ (a + ib) z_from for the centred points.
+  double num_re = 0, num_im = 0, den = 0;
+  for (Index k = 0; k < idx.size(); ++k) {
+    const double fx = from(idx[k], 0) - mf[0], fy = from(idx[k], 1) - mf[1];
+    const double tx = to(idx[k], 0) - mt[0], ty = to(idx[k], 1) - mt[1];
+    num_re += fx * tx + fy * ty;
+    num_im += fx * ty - fy * tx;
+    den += fx * fx + fy * fy;
+  }
+  if (!(den > 0)) return A;
+  const double a = num_re / den, b = num_im / den;
+  if (!(a * a + b * b > 1e-12)) return A;
+  A << a, -b, b, a;
+  return A;
+}
+
 SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
-                            const SpringMesh& previous, double min_sigma) {
+                            const SpringMesh& previous, double min_sigma,
+                            const VectorXi& frame_points) {
   const Index T = tracks.rows();
   if (tracks.cols() % 2 != 0 || tracks.cols() < 6) {
     fail_argument("tracks must have shape (T, 2*P) with P >= 3 (x0, y0, x1, y1, ... per frame), "
@@ -222,14 +293,30 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
   if (!(std::isfinite(min_sigma) && min_sigma > 0)) {
     fail_argument("min_sigma must be a positive length in pixels, got ", min_sigma);
   }
+  check_frame_points(frame_points, P, "frame_points");
   SpringMesh mesh = previous;
+  // Face frame of every frame (only needed for offset springs): A_t^-1 maps frame t's offsets
+  // into frame 0's.
+  std::vector<Eigen::Matrix2d> to_face;
+  if (mesh.offset_precision.size() != 0) {
+    to_face.resize(static_cast<size_t>(T));
+    RowMatrixXd first(P, 2), frame_t(P, 2);
+    for (Index i = 0; i < P; ++i) first.row(i) << tracks(0, 2 * i), tracks(0, 2 * i + 1);
+    for (Index t = 0; t < T; ++t) {
+      for (Index i = 0; i < P; ++i) frame_t.row(i) << tracks(t, 2 * i), tracks(t, 2 * i + 1);
+      to_face[static_cast<size_t>(t)] = face_similarity(first, frame_t, frame_points).inverse();
+    }
+  }
   std::vector<double> d, dev;
+  std::vector<Index> frames;
   for (Index e = 0; e < mesh.edges.rows(); ++e) {
     const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
     d.clear();
+    frames.clear();
     for (Index t = 0; t < T; ++t) {
       if (lost(t, a) || lost(t, b)) continue;
       d.push_back(std::hypot(tracks(t, 2 * b) - tracks(t, 2 * a), tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1)));
+      frames.push_back(t);
     }
     if (d.size() < 2) continue;
     // Frames where a tracker sat on the wrong feature would inflate the variance and soften the
@@ -249,17 +336,47 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
     const double band = 3.0 * std::max(1.4826 * median(dev), min_sigma);
     double mean = 0, m2 = 0;  // Welford's running mean and variance
     Index count = 0;
-    for (const double x : d) {
+    Eigen::Vector2d fmean = Eigen::Vector2d::Zero();  // ... and of the face-frame offsets
+    Eigen::Matrix2d fm2 = Eigen::Matrix2d::Zero();
+    const bool offset = has_offset_spring(mesh, e);
+    for (size_t k = 0; k < d.size(); ++k) {
+      const double x = d[k];
       if (std::abs(x - med) > band) continue;
       ++count;
       const double delta = x - mean;
       mean += delta / static_cast<double>(count);
       m2 += delta * (x - mean);
+      if (offset) {
+        const Index t = frames[k];
+        const Eigen::Vector2d f = to_face[static_cast<size_t>(t)] *
+            Eigen::Vector2d(tracks(t, 2 * b) - tracks(t, 2 * a), tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1));
+        const Eigen::Vector2d fd = f - fmean;
+        fmean += fd / static_cast<double>(count);
+        fm2 += fd * (f - fmean).transpose();
+      }
     }
     if (count < 2 || !(mean > 0)) continue;
     const double var = m2 / static_cast<double>(count - 1);
     mesh.rest_length[e] = mean;
     mesh.stiffness[e] = 1.0 / std::max(var, min_sigma * min_sigma);
+    if (offset) {
+      // Precision = inverse covariance with its eigenvalues floored at min_sigma²; the length
+      // spring is off (the offset spring's Gaussian already holds the length statistics).
+      // Closed-form eigen-decomposition of the symmetric 2x2 covariance [[p, q], [q, r]].
+      const double n1 = static_cast<double>(count - 1);
+      const double cp = fm2(0, 0) / n1, cq = 0.5 * (fm2(0, 1) + fm2(1, 0)) / n1, cr = fm2(1, 1) / n1;
+      const double mid = 0.5 * (cp + cr), half = std::hypot(0.5 * (cp - cr), cq);
+      const double floor2 = min_sigma * min_sigma;
+      const double l1 = std::max(mid + half, floor2), l2 = std::max(mid - half, floor2);
+      const double phi = 0.5 * std::atan2(2 * cq, cp - cr), c = std::cos(phi), sn = std::sin(phi);
+      // precision = v1 v1^T / l1 + v2 v2^T / l2 with v1 = (c, s), v2 = (-s, c)
+      const double pxx = c * c / l1 + sn * sn / l2, pxy = c * sn * (1 / l1 - 1 / l2),
+                   pyy = sn * sn / l1 + c * c / l2;
+      mesh.offset_precision.row(e) << pxx, pxy, pxy, pyy;
+      mesh.offset_mean(e, 0) = fmean[0];
+      mesh.offset_mean(e, 1) = fmean[1];
+      mesh.stiffness[e] = 0.0;
+    }
   }
   return mesh;
 }
@@ -370,6 +487,8 @@ struct SpringMeshTracker::Impl {
   RowMatrixXd pts;
   RowMatrixXd sides;  // #P by 2 half-patch directions (a zero row: whole patch), or empty
   std::vector<double> prev_weight;  // data weight of each point at the end of the last frame
+  RowMatrixXd init_pts;             // the first frame's points (the face frame's reference)
+  Eigen::Matrix2d to_face = Eigen::Matrix2d::Identity();  // this frame's A^-1 (offset springs)
   std::vector<Level> pyr;
   // templates[(l * P + i)] for the first frame and for the current (guarded) template.
   std::vector<Template> first, current;
@@ -684,9 +803,25 @@ struct SpringMeshTracker::Impl {
         }
         for (Index e = 0; e < mesh.edges.rows(); ++e) {
           coupling[e].setZero();
+          const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
+          if (has_offset_spring(mesh, e) && opt.spring_weight > 0) {
+            // Offset spring: energy (B d - mu)^T Lambda (B d - mu), B = A^-1, d = p_b - p_a;
+            // exactly quadratic in the positions, Hessian/2 = B^T Lambda B.
+            const Eigen::Matrix2d lam =
+                opt.spring_weight * (Eigen::Matrix2d() << mesh.offset_precision(e, 0), mesh.offset_precision(e, 1),
+                                     mesh.offset_precision(e, 2), mesh.offset_precision(e, 3)).finished();
+            const Eigen::Vector2d d(pts(b, 0) - pts(a, 0), pts(b, 1) - pts(a, 1));
+            const Eigen::Vector2d f = to_face * d - mesh.offset_mean.row(e).transpose();
+            const Eigen::Matrix2d h = to_face.transpose() * lam * to_face;
+            const Eigen::Vector2d g = to_face.transpose() * (lam * f);
+            diag[a] += h;
+            diag[b] += h;
+            coupling[e] -= h;
+            rhs[a] += g;
+            rhs[b] -= g;
+          }
           const double k = mesh.stiffness[e] * opt.spring_weight;
           if (k <= 0) continue;
-          const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
           const double dx = pts(b, 0) - pts(a, 0), dy = pts(b, 1) - pts(a, 1);
           const double len = std::sqrt(dx * dx + dy * dy);
           if (len < 1e-9) continue;
@@ -698,7 +833,7 @@ struct SpringMeshTracker::Impl {
           if (r > 0) kuu += (k * r / len) * (Eigen::Matrix2d::Identity() - u * u.transpose());
           diag[a] += kuu;
           diag[b] += kuu;
-          coupling[e] = -kuu;
+          coupling[e] -= kuu;
           rhs[a] += k * r * u;
           rhs[b] -= k * r * u;
         }
@@ -775,6 +910,7 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
     }
   }
   check_mesh(mesh, points.rows());
+  check_frame_points(options.frame_points, points.rows(), "options.frame_points");
   if (options.patch_sides.size() != 0) {
     if (options.patch_sides.rows() != points.rows() || options.patch_sides.cols() != 2) {
       fail_argument("options.patch_sides must have shape (P, 2) = (", points.rows(),
@@ -794,6 +930,7 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   s.n_pix = (2 * s.r + 1) * (2 * s.r + 1);
   s.n_pad = (s.n_pix + kLanes - 1) / kLanes * kLanes;
   s.pts = points;
+  s.init_pts = points;
   // Use a level only if it is at least two patches wide and high.
   s.n_levels = 1;
   while (s.n_levels < options.levels &&
@@ -829,6 +966,9 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
                   s.width, " x ", s.height, " frame; every frame of a sequence must have one size");
   }
   s.build_pyramid(frame);
+  if (s.mesh.offset_precision.size() != 0) {
+    s.to_face = face_similarity(s.init_pts, s.pts, s.opt.frame_points).inverse();
+  }
   TrackerFrame out;
   // Stage A: coarse to fine against the current templates.
   out.iterations = s.relax(s.n_levels - 1, 0, s.current);

@@ -4,6 +4,8 @@
 
 #include "voicepuppet/tracker.hpp"
 
+#include <Eigen/LU>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -191,6 +193,157 @@ TEST_CASE("springs_from_points and estimate_springs: closed-form lengths, means 
   const SpringMesh f = estimate_springs(still, RowMatrixXb::Zero(3, 3), m, 0.5);
   CHECK(f.stiffness[0] == doctest::Approx(4.0));
   CHECK_THROWS_AS(estimate_springs(still, RowMatrixXb::Zero(2, 3), m, 0.5), std::invalid_argument);
+}
+
+TEST_CASE("face_similarity and offset springs: planted rotations, scales and offset statistics") {
+  // Four frame points rotated by 0.1 rad, scaled by 1.2 and moved: recovered exactly.
+  RowMatrixXd from(4, 2), to(4, 2);
+  from << 0, 0, 10, 0, 10, 5, -3, 8;
+  const double c = 1.2 * std::cos(0.1), sn = 1.2 * std::sin(0.1);
+  for (Index i = 0; i < 4; ++i) {
+    to.row(i) << c * from(i, 0) - sn * from(i, 1) + 7, sn * from(i, 0) + c * from(i, 1) - 2;
+  }
+  VectorXi idx(4);
+  idx << 0, 1, 2, 3;
+  const Eigen::Matrix2d A = face_similarity(from, to, idx);
+  CHECK(A(0, 0) == doctest::Approx(c));
+  CHECK(A(1, 0) == doctest::Approx(sn));
+  CHECK(A(0, 1) == doctest::Approx(-sn));
+  CHECK(face_similarity(from, to, VectorXi()).isIdentity());
+  // A pass of T frames: points 0..2 are a rigid triangle under a known similarity A_t; point 3
+  // hangs off point 0 by a face-frame offset f_t drawn from N(mu, Sigma), so edge (0, 3) seen in
+  // the image is A_t f_t. The offset spring must find mu and Sigma^-1 of the drawn f_t
+  // (the face frame undone), and switch the edge's length spring off.
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g(0, 1);
+  const int T = 400;
+  RowMatrixXd base(4, 2);
+  base << 0, 0, 20, 0, 5, 15, 2, 10;
+  RowMatrixXd tracks(T, 8);
+  std::vector<Eigen::Vector2d> drawn;
+  for (int t = 0; t < T; ++t) {
+    const double ang = t == 0 ? 0.0 : 0.05 * g(rng), sc = t == 0 ? 1.0 : 1 + 0.03 * g(rng);
+    Eigen::Matrix2d At;
+    At << sc * std::cos(ang), -sc * std::sin(ang), sc * std::sin(ang), sc * std::cos(ang);
+    const Eigen::Vector2d shift(3 * g(rng), 3 * g(rng));
+    // f = mu + L z with Sigma = L L^T = [[0.25, 0.3], [0.3, 4.0]]
+    const double z1 = g(rng), z2 = g(rng);
+    Eigen::Vector2d f(2 + 0.5 * z1, 10 + 0.6 * z1 + std::sqrt(4.0 - 0.36) * z2);
+    if (t == 0) f << 2, 10;
+    drawn.push_back(f);
+    for (Index i = 0; i < 3; ++i) {
+      const Eigen::Vector2d q = At * base.row(i).transpose() + shift;
+      tracks(t, 2 * i) = q[0];
+      tracks(t, 2 * i + 1) = q[1];
+    }
+    const Eigen::Vector2d q3 = At * (base.row(0).transpose() + f) + shift;
+    tracks(t, 6) = q3[0];
+    tracks(t, 7) = q3[1];
+  }
+  EdgeMatrix e(4, 2);
+  e << 0, 1, 0, 2, 0, 3, 1, 2;
+  SpringMesh m = springs_from_points(base, e);
+  m.offset_precision = RowMatrixXd::Zero(4, 4);
+  m.offset_mean = RowMatrixXd::Zero(4, 2);
+  m.offset_precision.row(2) << 1, 0, 0, 1;
+  VectorXi frame(3);
+  frame << 0, 1, 2;
+  const SpringMesh r = estimate_springs(tracks, RowMatrixXb::Zero(T, 4), m, 0.1, frame);
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const auto& f : drawn) mean += f;
+  mean /= T;
+  Eigen::Matrix2d cov = Eigen::Matrix2d::Zero();
+  for (const auto& f : drawn) cov += (f - mean) * (f - mean).transpose();
+  cov /= T - 1;
+  const Eigen::Matrix2d prec = cov.inverse();
+  CHECK(r.offset_mean(2, 0) == doctest::Approx(mean[0]).epsilon(1e-9));
+  CHECK(r.offset_mean(2, 1) == doctest::Approx(mean[1]).epsilon(1e-9));
+  CHECK(r.offset_precision(2, 0) == doctest::Approx(prec(0, 0)).epsilon(1e-9));
+  CHECK(r.offset_precision(2, 1) == doctest::Approx(prec(0, 1)).epsilon(1e-9));
+  CHECK(r.offset_precision(2, 2) == doctest::Approx(prec(1, 0)).epsilon(1e-9));
+  CHECK(r.offset_precision(2, 3) == doctest::Approx(prec(1, 1)).epsilon(1e-9));
+  CHECK(r.stiffness[2] == 0.0);
+  CHECK(r.stiffness[0] > 0);  // length springs elsewhere as before
+  CHECK(r.offset_precision.row(0).isZero());
+  // The eigenvalue floor: a constant offset gets precision 1/min_sigma^2 in every direction.
+  RowMatrixXd still(3, 8);
+  for (int t = 0; t < 3; ++t) still.row(t) << 0, 0, 20, 0, 5, 15, 2, 10;
+  const SpringMesh f = estimate_springs(still, RowMatrixXb::Zero(3, 4), m, 0.5, frame);
+  CHECK(f.offset_precision(2, 0) == doctest::Approx(4.0));
+  CHECK(f.offset_precision(2, 3) == doctest::Approx(4.0));
+  CHECK(f.offset_precision(2, 1) == doctest::Approx(0.0));
+  // Bad offset springs are refused with a reason.
+  SpringMesh bad = m;
+  bad.offset_precision.row(2) << 1, 2, 2, 1;  // indefinite
+  CHECK_THROWS_WITH_AS(estimate_springs(still, RowMatrixXb::Zero(3, 4), bad, 0.5),
+                       doctest::Contains("positive semidefinite"), std::invalid_argument);
+  bad = m;
+  bad.offset_mean.resize(0, 0);
+  CHECK_THROWS_WITH_AS(estimate_springs(still, RowMatrixXb::Zero(3, 4), bad, 0.5),
+                       doctest::Contains("together"), std::invalid_argument);
+  VectorXi one(1);
+  one << 0;
+  CHECK_THROWS_WITH_AS(estimate_springs(still, RowMatrixXb::Zero(3, 4), m, 0.5, one),
+                       doctest::Contains("at least 2"), std::invalid_argument);
+}
+
+// Point 1 sits on horizontal stripes (texture in y only: the aperture problem of a lip contour),
+// points 0 and 2 on a full texture above; the whole image moves by (dx, dy).
+Frame render_stripes(const Texture& tex, double dx, double dy) {
+  const Index w = 120, h = 110;
+  Frame f{std::vector<std::uint8_t>(static_cast<size_t>(w * h)), w, h};
+  for (Index y = 0; y < h; ++y) {
+    for (Index x = 0; x < w; ++x) {
+      const double u = double(x) - dx, v = double(y) - dy;
+      const double val = v < 50 ? tex(u, v) : 128 + 40 * std::sin(0.45 * v) + 20 * std::sin(0.9 * v + 1);
+      f.pix[static_cast<size_t>(y * w + x)] =
+          static_cast<std::uint8_t>(std::lround(std::clamp(val, 0.0, 255.0)));
+    }
+  }
+  return f;
+}
+
+TEST_CASE("tracker: an offset spring stops a point sliding along its contour") {
+  const Texture tex(11);
+  // Point 1 hangs below point 0 on one spring, across the stripes: a length spring says
+  // nothing about a slide along them (first order), an offset spring does.
+  RowMatrixXd p(3, 2);
+  p << 40, 25, 40, 72, 80, 25;
+  EdgeMatrix e(2, 2);
+  e << 0, 1, 0, 2;
+  TrackerOptions o;
+  o.levels = 1;
+  o.frame_points.resize(2);
+  o.frame_points << 0, 2;
+  const SpringMesh length_only = springs_from_points(p, e, 0.05);
+  // An offset spring on the edge to the striped point: stiff (0.3 px) along x, soft (3 px) along y.
+  SpringMesh offsets = length_only;
+  offsets.offset_precision = RowMatrixXd::Zero(2, 4);
+  offsets.offset_mean = RowMatrixXd::Zero(2, 2);
+  for (const Index k : {Index(0)}) {
+    offsets.offset_precision.row(k) << 1 / 0.09, 0, 0, 1 / 9.0;
+    offsets.offset_mean.row(k) = p.row(e(k, 1)) - p.row(e(k, 0));
+    offsets.stiffness[k] = 0;
+  }
+  const Frame f0 = render_stripes(tex, 0, 0);
+  SpringMeshTracker a(f0.view(), p, length_only, o), b(f0.view(), p, offsets, o);
+  double dx = 0, dy = 0;
+  for (int t = 1; t <= 12; ++t) {
+    dx = 0.6 * t;
+    dy = 0.3 * t;
+    const Frame f = render_stripes(tex, dx, dy);
+    a.track(f.view());
+    b.track(f.view());
+  }
+  const double err_length = std::hypot(a.points()(1, 0) - (40 + dx), a.points()(1, 1) - (72 + dy));
+  const double err_offset = std::hypot(b.points()(1, 0) - (40 + dx), b.points()(1, 1) - (72 + dy));
+  MESSAGE("striped point: error " << err_length << " px with length springs, " << err_offset
+                                  << " px with offset springs");
+  CHECK(err_offset < 0.2);
+  CHECK(err_length > 1.0);  // the length spring lets it lag behind along the stripes (1.4 px)
+  for (const Index i : {Index(0), Index(2)}) {
+    CHECK(std::hypot(b.points()(i, 0) - (p(i, 0) + dx), b.points()(i, 1) - (p(i, 1) + dy)) < 0.1);
+  }
 }
 
 // A mouth seen edge-on: a textured lower lip, `band` px tall, hangs below the line y = y0 + s

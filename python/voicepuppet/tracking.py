@@ -35,10 +35,13 @@ DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
 # to ~0.25 IOD; first-frame springs of 5 % of a 3 px lip gap would hold the lips shut).
 LIP_SEARCH_IOD = 0.065
 LIP_SPRING_FLOOR_IOD = 0.025
+# The face frame of a 68-point layout: points that move rigidly with the head (nose, eye
+# corners); the lip springs' offsets are measured in it.
+FACE_FRAME_POINTS = (27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
 
 _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
-                 "damping", "patch_sides", "search_radius")
+                 "damping", "patch_sides", "search_radius", "frame_points")
 
 
 @dataclass
@@ -106,6 +109,42 @@ def lip_patch_sides(points: np.ndarray) -> np.ndarray:
     sides[[61, 62, 63]] = -down
     sides[[55, 56, 57, 58, 59, 65, 66, 67]] = down
     return sides
+
+
+def _lip_springs(init: np.ndarray, edges: np.ndarray, mesh, relative_sigma: float, min_sigma: float,
+                 floor: float):
+    """The initial springs of a 68-point face with offset springs on the edges that touch a lip.
+
+    A lip spring's offset is free to change by ``floor`` px (std) along the face's vertical axis,
+    where the mouth opens, but only by a length spring's std (``relative_sigma`` of its length,
+    at least ``min_sigma``) along the horizontal one, so lip points do not slide along the lip
+    contours (the aperture problem: a horizontal lip edge says nothing about x). Those edges'
+    length springs are off: the offset spring holds the length too.
+    """
+    touches = np.any(edges >= 48, axis=1)
+    on_lips = np.all(edges >= 48, axis=1)
+    u = init[45] - init[36]
+    u = u / np.linalg.norm(u)
+    v = np.array([-u[1], u[0]])
+    d = init[edges[:, 1]] - init[edges[:, 0]]
+    length = np.linalg.norm(d, axis=1)
+    sig_u = np.maximum(relative_sigma * length, min_sigma)
+    # Only an edge across the mouth opening (a lower-lip point to an upper-lip point or a
+    # corner) changes by the opening; edges within one lip keep a length spring's std.
+    lower = np.zeros(68, dtype=bool)
+    lower[[55, 56, 57, 58, 59, 65, 66, 67]] = True
+    across = lower[edges[:, 0]] != lower[edges[:, 1]]
+    sig_v = np.maximum(relative_sigma * length, min_sigma)
+    sig_v = np.where(across, np.maximum(sig_v, floor), sig_v)
+    prec = (np.einsum("i,j->ij", u, u)[None] / sig_u[:, None, None] ** 2
+            + np.einsum("i,j->ij", v, v)[None] / sig_v[:, None, None] ** 2)
+    prec[~on_lips] = 0.0
+    k = np.asarray(mesh.stiffness).copy()
+    k[touches] = np.minimum(k[touches], 1.0 / floor**2)
+    k[on_lips] = 0.0
+    mean = np.where(on_lips[:, None], d, 0.0)
+    return _core.SpringMesh(edges, np.asarray(mesh.rest_length), k,
+                            np.ascontiguousarray(prec.reshape(-1, 4)), np.ascontiguousarray(mean))
 
 
 def _check_points(points, name: str) -> np.ndarray:
@@ -201,13 +240,12 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
     opts = _options(options)
     mesh = _core.springs_from_points(init, edges, relative_sigma,
                                      0.0 if initial_min_sigma is None else initial_min_sigma)
+    frame_points = np.zeros(0, dtype=np.int64)
     if lips:
-        # Springs that touch a lip point start no stiffer than a std of lip_floor px: the mouth
-        # opens by many times the few-pixel gap of closed lips.
-        on_lips = np.any(edges >= 48, axis=1)
-        k = np.asarray(mesh.stiffness).copy()
-        k[on_lips] = np.minimum(k[on_lips], 1.0 / lip_floor**2)
-        mesh = _core.SpringMesh(edges, np.asarray(mesh.rest_length), k)
+        mesh = _lip_springs(init, edges, mesh, relative_sigma, min_sigma, lip_floor)
+        frame_points = np.asarray(FACE_FRAME_POINTS, dtype=np.int64)
+        options.setdefault("frame_points", frame_points)
+        opts = _options(options)
     history = []
     prev = None
     for k in range(passes):
@@ -217,7 +255,7 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
                "mean_point_change": None if prev is None else float(np.linalg.norm(pts - prev, axis=2).mean()),
                "max_rel_length_change": None}
         if k + 1 < passes:
-            new = _core.estimate_springs(pts.reshape(len(pts), -1), lost, mesh, min_sigma)
+            new = _core.estimate_springs(pts.reshape(len(pts), -1), lost, mesh, min_sigma, frame_points)
             old_len = np.asarray(mesh.rest_length)
             row["max_rel_length_change"] = float(np.max(np.abs(np.asarray(new.rest_length) - old_len) / old_len))
             mesh = new
