@@ -75,7 +75,11 @@ void bind_tracker(py::module_& m) {
       .def_readwrite("damping", &TrackerOptions::damping)
       .def_readwrite("patch_sides", &TrackerOptions::patch_sides)
       .def_readwrite("search_radius", &TrackerOptions::search_radius)
-      .def_readwrite("frame_points", &TrackerOptions::frame_points);
+      .def_readwrite("frame_points", &TrackerOptions::frame_points)
+      .def_readwrite("search_groups", &TrackerOptions::search_groups)
+      .def_readwrite("group_search_radius", &TrackerOptions::group_search_radius)
+      .def_readwrite("spring_outlier", &TrackerOptions::spring_outlier)
+      .def_readwrite("outlier_edges", &TrackerOptions::outlier_edges);
 
   py::class_<TrackerFrame>(m, "TrackerFrame", "One frame's answer of SpringMeshTracker.track.")
       .def_readonly("points", &TrackerFrame::points, "#P by 2 positions (x, y)")

@@ -475,7 +475,8 @@ constexpr double kMinContrast = 0.5;  // grey levels RMS below which a patch is 
 constexpr int kLanes = 16;  // accumulator lanes of the patch sums (n_pad is a multiple)
 constexpr double kCoarseFloor = 0.2;
 constexpr double kSearchMargin = 0.05;  // a searched point moves only for a clearly better match
-constexpr double kSearchPenalty = 0.1;  // score lost by a search move of the full radius  // coarse-level correlation below which a point is ignored
+constexpr double kSearchPenalty = 0.1;  // score lost by a search move of the full radius
+constexpr int kGroupSlack = 2;  // px each point of a jointly searched group may deviate
 
 }  // namespace
 
@@ -488,12 +489,16 @@ struct SpringMeshTracker::Impl {
   RowMatrixXd sides;  // #P by 2 half-patch directions (a zero row: whole patch), or empty
   std::vector<double> prev_weight;  // data weight of each point at the end of the last frame
   RowMatrixXd init_pts;             // the first frame's points (the face frame's reference)
+  std::vector<char> muted;          // points whose data term this frame's relaxations ignore
+  std::vector<char> checked;        // points held by an offset spring (the consistency check)
   Eigen::Matrix2d to_face = Eigen::Matrix2d::Identity();  // this frame's A^-1 (offset springs)
   std::vector<Level> pyr;
   // templates[(l * P + i)] for the first frame and for the current (guarded) template.
   std::vector<Template> first, current;
   // Work buffers.
   std::vector<float> patch, big, window;
+  std::vector<double> nccs;
+  std::vector<std::vector<double>> group_maps;
   RowMatrixXd A;
   // The Gauss-Newton system in block form: 2x2 diagonal blocks per point, one 2x2 coupling
   // block per edge (the spring's -k u u^T), solved by block-Jacobi preconditioned conjugate
@@ -709,45 +714,61 @@ struct SpringMeshTracker::Impl {
   // 8 px between frames, beyond the reach of the gradient steps, and the coarse pyramid levels
   // do not see it: their patches are dominated by skin that barely moves. Returns whether any
   // point moved.
-  bool search() {
+  // NCC of point i's current template (finest level) with the image at every whole-pixel
+  // offset (ox, oy), |ox|, |oy| <= S, from its position: out[(oy + S) * (2S + 1) + ox + S],
+  // -2 where the image is flat. Returns false when the template itself is flat.
+  bool ncc_map(Index i, int S, std::vector<double>& out) {
     const Index l = 0;
-    const double step = 1.0;
-    const int S = static_cast<int>(std::ceil(opt.search_radius / step));
-    bool moved = false;
-    if (S < 1) return moved;
+    const Template& tpl = current[static_cast<size_t>(l * P + i)];
+    const int side = 2 * S + 1;
+    out.assign(static_cast<size_t>(side * side), -2.0);
+    if (tpl.sigma < kMinContrast) return false;
     const int q = r + S, m = 2 * q + 1, n = 2 * r + 1;
     window.resize(static_cast<size_t>(m * m));
+    sample_patch(pyr[l], level_coord(pts(i, 0), l), level_coord(pts(i, 1), l), q, window.data());
+    const float* M = tpl.mask.empty() ? nullptr : tpl.mask.data();
+    const double used = tpl.n_used;
+    for (int oy = -S; oy <= S; ++oy) {
+      for (int ox = -S; ox <= S; ++ox) {
+        // The template is zero-mean on its pixels, so sum T·I is the centred cross term.
+        double s1 = 0, s2 = 0, c = 0;
+        for (int j = 0; j < n; ++j) {
+          const float* row = &window[static_cast<size_t>((j + S + oy) * m + S + ox)];
+          for (int k = 0; k < n; ++k) {
+            const int idx = j * n + k;
+            const double w = M ? M[idx] : 1.0;
+            const double v = row[k];
+            s1 += w * v;
+            s2 += w * v * v;
+            c += tpl.t[static_cast<size_t>(idx)] * v;
+          }
+        }
+        const double mean = s1 / used;
+        const double var = s2 / used - mean * mean;
+        if (!(var > kMinContrast * kMinContrast)) continue;
+        out[static_cast<size_t>((oy + S) * side + ox + S)] = c / (used * std::sqrt(var) * tpl.sigma);
+      }
+    }
+    return true;
+  }
+
+  bool search() {
+    const int S = static_cast<int>(std::ceil(opt.search_radius));
+    bool moved = false;
+    if (S < 1) return moved;
+    const int side = 2 * S + 1;
     for (Index i = 0; i < P; ++i) {
       if (sides.size() == 0 || (sides(i, 0) == 0 && sides(i, 1) == 0)) continue;
-      const Template& tpl = current[static_cast<size_t>(l * P + i)];
-      if (tpl.sigma < kMinContrast) continue;
       const Match m0 = match(0, pts(i, 0), pts(i, 1), current[static_cast<size_t>(i)]);
       if (m0.textured && m0.ncc >= opt.ncc_full) continue;  // stage A found it
-      sample_patch(pyr[l], level_coord(pts(i, 0), l), level_coord(pts(i, 1), l), q, window.data());
-      const float* M = tpl.mask.empty() ? nullptr : tpl.mask.data();
-      const double used = tpl.n_used;
+      if (!ncc_map(i, S, nccs)) continue;
       double best = -2, here = -2;
       int bx = 0, by = 0;
       for (int oy = -S; oy <= S; ++oy) {
         for (int ox = -S; ox <= S; ++ox) {
           if (ox * ox + oy * oy > S * S) continue;
-          // The template is zero-mean on its pixels, so sum T·I is the centred cross term.
-          double s1 = 0, s2 = 0, c = 0;
-          for (int j = 0; j < n; ++j) {
-            const float* row = &window[static_cast<size_t>((j + S + oy) * m + S + ox)];
-            for (int k = 0; k < n; ++k) {
-              const int idx = j * n + k;
-              const double w = M ? M[idx] : 1.0;
-              const double v = row[k];
-              s1 += w * v;
-              s2 += w * v * v;
-              c += tpl.t[static_cast<size_t>(idx)] * v;
-            }
-          }
-          const double mean = s1 / used;
-          const double var = s2 / used - mean * mean;
-          if (!(var > kMinContrast * kMinContrast)) continue;
-          const double ncc = c / (used * std::sqrt(var) * tpl.sigma);
+          const double ncc = nccs[static_cast<size_t>((oy + S) * side + ox + S)];
+          if (ncc < -1.5) continue;
           // Longer moves must correlate better (along a lip contour, every offset matches
           // about as well): the score loses kSearchPenalty at the edge of the search disc.
           const double score = ncc - kSearchPenalty * (ox * ox + oy * oy) / double(S * S);
@@ -760,12 +781,157 @@ struct SpringMeshTracker::Impl {
         }
       }
       if ((bx != 0 || by != 0) && best >= opt.ncc_full && best > here + kSearchMargin) {
-        pts(i, 0) += bx * step;
-        pts(i, 1) += by * step;
+        pts(i, 0) += bx;
+        pts(i, 1) += by;
         moved = true;
       }
     }
     return moved;
+  }
+
+  // Joint search of each point group (`search_groups`: a lower lip that drops further between
+  // two frames than the gradient steps reach, and whose points each have too faint a contour
+  // to be found alone). Every common whole-pixel offset o within `group_search_radius` is
+  // scored by the mean over the group of each point's best correlation with its current
+  // template within kGroupSlack px of o (the points of a lip do not move exactly together),
+  // less the search's distance penalty; the group moves (each point to its own best offset
+  // near o) when the best o is clearly better than staying. Returns whether a group moved.
+  bool group_search() {
+    const int S = static_cast<int>(std::ceil(opt.group_search_radius));
+    if (S < 1 || opt.search_groups.size() == 0) return false;
+    const int D = kGroupSlack, W = S + D, side = 2 * W + 1;
+    const Index n_groups = opt.search_groups.maxCoeff() + 1;
+    bool moved = false;
+    std::vector<Index> members;
+    for (Index g = 0; g < n_groups; ++g) {
+      members.clear();
+      for (Index i = 0; i < P; ++i) {
+        if (opt.search_groups[i] == g) members.push_back(i);
+      }
+      group_maps.resize(members.size());
+      std::vector<Index> used;
+      for (size_t k = 0; k < members.size(); ++k) {
+        if (ncc_map(members[k], W, group_maps[k])) used.push_back(static_cast<Index>(k));
+      }
+      if (used.size() < 2) continue;
+      // Each point's best correlation, and where, within the slack around an offset.
+      auto best_near = [&](size_t k, int ox, int oy, int& bx, int& by) {
+        double b = -2;
+        for (int dy = -D; dy <= D; ++dy) {
+          for (int dx = -D; dx <= D; ++dx) {
+            const double v = group_maps[k][static_cast<size_t>((oy + dy + W) * side + ox + dx + W)];
+            if (v > b) {
+              b = v;
+              bx = ox + dx;
+              by = oy + dy;
+            }
+          }
+        }
+        return b;
+      };
+      double best = -2, here = -2;
+      int gx = 0, gy = 0;
+      for (int oy = -S; oy <= S; ++oy) {
+        for (int ox = -S; ox <= S; ++ox) {
+          if (ox * ox + oy * oy > S * S) continue;
+          double sum = 0;
+          for (const Index k : used) {
+            int bx, by;
+            sum += std::max(best_near(static_cast<size_t>(k), ox, oy, bx, by), -1.0);
+          }
+          const double score = sum / static_cast<double>(used.size()) -
+                               kSearchPenalty * (ox * ox + oy * oy) / double(S * S);
+          if (ox == 0 && oy == 0) here = score;
+          if (score > best) {
+            best = score;
+            gx = ox;
+            gy = oy;
+          }
+        }
+      }
+      if ((gx == 0 && gy == 0) || !(best > here + kSearchMargin) || best < opt.ncc_floor) continue;
+      for (const Index k : used) {
+        int bx = 0, by = 0;
+        best_near(static_cast<size_t>(k), gx, gy, bx, by);
+        pts(members[static_cast<size_t>(k)], 0) += bx;
+        pts(members[static_cast<size_t>(k)], 1) += by;
+      }
+      moved = true;
+    }
+    return moved;
+  }
+
+  // Spring energy of the current positions, per point: the 2x2 Hessian/2 and the negative
+  // half gradient of the springs touching it, the other points held fixed (into diag, rhs).
+  void spring_terms(const VectorXi& edges) {
+    for (Index i = 0; i < P; ++i) {
+      diag[i] = Eigen::Matrix2d::Identity() * opt.damping;
+      rhs[i].setZero();
+    }
+    for (Index q = 0; q < edges.size(); ++q) {
+      const Index e = edges[q];
+      const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
+      const Eigen::Vector2d d(pts(b, 0) - pts(a, 0), pts(b, 1) - pts(a, 1));
+      if (has_offset_spring(mesh, e)) {
+        const Eigen::Matrix2d lam =
+            opt.spring_weight * (Eigen::Matrix2d() << mesh.offset_precision(e, 0), mesh.offset_precision(e, 1),
+                                 mesh.offset_precision(e, 2), mesh.offset_precision(e, 3)).finished();
+        const Eigen::Vector2d f = to_face * d - mesh.offset_mean.row(e).transpose();
+        const Eigen::Matrix2d h = to_face.transpose() * lam * to_face;
+        const Eigen::Vector2d g = to_face.transpose() * (lam * f);
+        diag[a] += h;
+        diag[b] += h;
+        rhs[a] += g;
+        rhs[b] -= g;
+      }
+      const double k = mesh.stiffness[e] * opt.spring_weight;
+      const double len = d.norm();
+      if (k <= 0 || len < 1e-9) continue;
+      const Eigen::Vector2d u = d / len;
+      const double r = len - mesh.rest_length[e];
+      const Eigen::Matrix2d kuu = k * u * u.transpose();
+      diag[a] += kuu;
+      diag[b] += kuu;
+      rhs[a] += k * r * u;
+      rhs[b] -= k * r * u;
+    }
+  }
+
+  // The springs' check on the data: for each end of the `outlier_edges`, the squared
+  // Mahalanobis length m² = gᵀ H⁻¹ g of the step those springs alone would take (its neighbours
+  // held fixed). A point whose data put it more than `spring_outlier` standard deviations from
+  // where its springs want it has matched the wrong feature (a lip corner sliding onto the lip
+  // crease, a lower lip caught by the upper one): its data term is muted for the rest of the
+  // frame and the mesh relaxed again, so the springs place it. Worst points first, never two
+  // neighbours in one round (a wrong point also strains its right neighbours). Returns whether
+  // any point was muted.
+  bool mute_inconsistent() {
+    spring_terms(opt.outlier_edges);
+    std::vector<std::pair<double, Index>> bad;
+    const double limit = opt.spring_outlier * opt.spring_outlier;
+    for (Index i = 0; i < P; ++i) {
+      if (!checked[static_cast<size_t>(i)] || muted[static_cast<size_t>(i)]) continue;
+      const Eigen::Matrix2d& h = diag[i];
+      const double det = h(0, 0) * h(1, 1) - h(0, 1) * h(1, 0);
+      if (!(det > 0)) continue;
+      const Eigen::Vector2d step(( h(1, 1) * rhs[i](0) - h(0, 1) * rhs[i](1)) / det,
+                                 (-h(1, 0) * rhs[i](0) + h(0, 0) * rhs[i](1)) / det);
+      const double m2 = step.dot(h * step);
+      if (m2 > limit) bad.emplace_back(m2, i);
+    }
+    std::sort(bad.begin(), bad.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+    std::vector<char> blocked(static_cast<size_t>(P), 0);
+    bool any = false;
+    for (const auto& [m2, i] : bad) {
+      if (blocked[static_cast<size_t>(i)]) continue;
+      muted[static_cast<size_t>(i)] = 1;
+      any = true;
+      for (Index e = 0; e < mesh.edges.rows(); ++e) {
+        if (mesh.edges(e, 0) == i) blocked[static_cast<size_t>(mesh.edges(e, 1))] = 1;
+        if (mesh.edges(e, 1) == i) blocked[static_cast<size_t>(mesh.edges(e, 0))] = 1;
+      }
+    }
+    return any;
   }
 
   // Joint Gauss–Newton relaxation over levels [l_hi .. l_lo] against `tpls`; updates pts.
@@ -790,6 +956,7 @@ struct SpringMeshTracker::Impl {
           if (l > 0 && m.textured && m.inside >= 0.5 && m.ncc > kCoarseFloor) {
             w = std::max(w, prev_weight[static_cast<size_t>(i)]);
           }
+          if (muted[static_cast<size_t>(i)]) w = 0.0;
           const double c = w * inv_s2;
           if (c > 0) {
             const double cs2 = c * scale * scale;
@@ -877,6 +1044,13 @@ void check_options(const TrackerOptions& o) {
   if (!(std::isfinite(o.search_radius) && o.search_radius >= 0 && o.search_radius <= 64)) {
     fail_argument("options.search_radius must be in [0, 64] pixels, got ", o.search_radius);
   }
+  if (!(std::isfinite(o.group_search_radius) && o.group_search_radius >= 0 && o.group_search_radius <= 64)) {
+    fail_argument("options.group_search_radius must be in [0, 64] pixels, got ", o.group_search_radius);
+  }
+  if (!(std::isfinite(o.spring_outlier) && o.spring_outlier >= 0)) {
+    fail_argument("options.spring_outlier must be a number of standard deviations >= 0 (0: off), got ",
+                  o.spring_outlier);
+  }
   if (!(std::isfinite(o.spring_weight) && o.spring_weight >= 0)) {
     fail_argument("options.spring_weight must be finite and >= 0, got ", o.spring_weight);
   }
@@ -911,6 +1085,19 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   }
   check_mesh(mesh, points.rows());
   check_frame_points(options.frame_points, points.rows(), "options.frame_points");
+  if (options.search_groups.size() != 0) {
+    if (options.search_groups.size() != points.rows() || options.search_groups.minCoeff() < -1) {
+      fail_argument("options.search_groups must hold one group id per point (", points.rows(),
+                    " of them; -1: in no group) or be empty, got ", options.search_groups.size(),
+                    " ids with minimum ", options.search_groups.minCoeff());
+    }
+  }
+  for (Index q = 0; q < options.outlier_edges.size(); ++q) {
+    if (options.outlier_edges[q] < 0 || options.outlier_edges[q] >= mesh.edges.rows()) {
+      fail_argument("options.outlier_edges[", q, "] = ", options.outlier_edges[q],
+                    " is not an edge index; indices must be in [0, ", mesh.edges.rows() - 1, "]");
+    }
+  }
   if (options.patch_sides.size() != 0) {
     if (options.patch_sides.rows() != points.rows() || options.patch_sides.cols() != 2) {
       fail_argument("options.patch_sides must have shape (P, 2) = (", points.rows(),
@@ -952,6 +1139,13 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   }
   s.current = s.first;
   s.prev_weight.assign(static_cast<size_t>(s.P), 1.0);
+  s.muted.assign(static_cast<size_t>(s.P), 0);
+  s.checked.assign(static_cast<size_t>(s.P), 0);
+  for (Index q = 0; q < options.outlier_edges.size(); ++q) {
+    const Index e = options.outlier_edges[q];
+    s.checked[static_cast<size_t>(mesh.edges(e, 0))] = 1;
+    s.checked[static_cast<size_t>(mesh.edges(e, 1))] = 1;
+  }
 }
 
 SpringMeshTracker::~SpringMeshTracker() = default;
@@ -974,7 +1168,15 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
   out.iterations = s.relax(s.n_levels - 1, 0, s.current);
   // Half-patch points that stage A left on a poor match are searched for, and the mesh is
   // relaxed again from where they were found.
+  if (s.opt.group_search_radius > 0 && s.group_search()) {
+    out.iterations += s.relax(0, 0, s.current);
+  }
   if (s.opt.search_radius > 0 && s.search()) {
+    out.iterations += s.relax(0, 0, s.current);
+  }
+  // Points whose data disagree with their offset springs are handed to the springs.
+  std::fill(s.muted.begin(), s.muted.end(), 0);
+  for (int round = 0; round < 2 && s.opt.spring_outlier > 0 && s.mute_inconsistent(); ++round) {
     out.iterations += s.relax(0, 0, s.current);
   }
   const RowMatrixXd stage_a = s.pts;

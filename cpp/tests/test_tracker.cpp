@@ -418,6 +418,93 @@ TEST_CASE("tracker: half patches follow a lip beside an opening mouth; search ca
   CHECK(err_search < 0.1);
 }
 
+TEST_CASE("tracker: a group search finds a lower lip that dropped beyond the point search") {
+  const Texture lip(21), closed(22), chin(23);
+  const double y0 = 60;
+  RowMatrixXd p0(3, 2);
+  p0 << 60, y0, 100, y0, 140, y0;
+  EdgeMatrix edges(2, 2);
+  edges << 0, 1, 1, 2;
+  const SpringMesh mesh = springs_from_points(p0, edges);
+  TrackerOptions alone;
+  alone.patch_sides = RowMatrixXd(3, 2);
+  alone.patch_sides << 0, 1, 0, 1, 0, 1;
+  alone.search_radius = 6;
+  TrackerOptions grouped = alone;
+  grouped.search_groups.resize(3);
+  grouped.search_groups << 0, 0, 0;
+  grouped.group_search_radius = 18;
+  const Frame f0 = render_mouth(lip, closed, chin, y0, 0, false);
+  SpringMeshTracker a(f0.view(), p0, mesh, alone), g(f0.view(), p0, mesh, grouped);
+  // A 15 px drop in one frame: beyond each point's 6 px search, within the group's 18 px.
+  const Frame f = render_mouth(lip, closed, chin, y0, 15, true);
+  const TrackerFrame ra = a.track(f.view()), rg = g.track(f.view());
+  double err_alone = 0, err_group = 0;
+  for (Index i = 0; i < 3; ++i) {
+    err_alone = std::max(err_alone, std::hypot(ra.points(i, 0) - p0(i, 0), ra.points(i, 1) - y0 - 15));
+    err_group = std::max(err_group, std::hypot(rg.points(i, 0) - p0(i, 0), rg.points(i, 1) - y0 - 15));
+  }
+  MESSAGE("15 px lip drop: worst error point search ", err_alone, " px, group search ", err_group, " px");
+  CHECK(err_alone > 5.0);
+  CHECK(err_group < 0.1);
+  CHECK(!rg.lost.any());
+  // Bad group ids are refused.
+  TrackerOptions bad = grouped;
+  bad.search_groups.resize(2);
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p0, mesh, bad), doctest::Contains("search_groups"),
+                       std::invalid_argument);
+}
+
+// The texture, except that the content under point 1 (a box around (73, 40)) has slid 6 px to
+// the right: a feature its tracker may follow though the face has not moved.
+Frame render_distractor(const Texture& tex, bool slid) {
+  const Index w = 130, h = 100;
+  Frame f{std::vector<std::uint8_t>(static_cast<size_t>(w * h)), w, h};
+  for (Index y = 0; y < h; ++y) {
+    for (Index x = 0; x < w; ++x) {
+      const bool box = slid && std::abs(double(x) - 73) <= 12 && std::abs(double(y) - 40) <= 9;
+      const double v = tex(double(x) - (box ? 6.0 : 0.0), double(y));
+      f.pix[static_cast<size_t>(y * w + x)] =
+          static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 255.0)));
+    }
+  }
+  return f;
+}
+
+TEST_CASE("tracker: a point whose data contradict its springs by many sigmas is handed to them") {
+  const Texture tex(5);
+  RowMatrixXd p(4, 2);
+  p << 40, 40, 70, 40, 55, 72, 85, 72;
+  const EdgeMatrix e = delaunay_edges(p);
+  SpringMesh mesh = springs_from_points(p, e);
+  mesh.offset_precision = RowMatrixXd::Zero(e.rows(), 4);
+  mesh.offset_mean = RowMatrixXd::Zero(e.rows(), 2);
+  for (Index k = 0; k < e.rows(); ++k) {
+    mesh.offset_precision.row(k) << 4, 0, 0, 4;  // 0.5 px in every direction
+    mesh.offset_mean.row(k) = p.row(e(k, 1)) - p.row(e(k, 0));
+    mesh.stiffness[k] = 0;
+  }
+  TrackerOptions plain;
+  TrackerOptions checked = plain;
+  checked.spring_outlier = 4;
+  checked.outlier_edges.resize(e.rows());
+  for (Index k = 0; k < e.rows(); ++k) checked.outlier_edges[k] = k;
+  const Frame f0 = render_distractor(tex, false), f1 = render_distractor(tex, true);
+  SpringMeshTracker a(f0.view(), p, mesh, plain), b(f0.view(), p, mesh, checked);
+  const TrackerFrame ra = a.track(f1.view()), rb = b.track(f1.view());
+  const double err_plain = (ra.points.row(1) - p.row(1)).norm(),
+               err_checked = (rb.points.row(1) - p.row(1)).norm();
+  MESSAGE("distracted point: error " << err_plain << " px without the check, " << err_checked
+                                     << " px with it");
+  CHECK(err_plain > 3.0);   // its data (a perfect match 6 px away) outweigh 0.5 px springs
+  CHECK(err_checked < 0.3);  // muted: the springs hold it where its neighbours say
+  for (const Index i : {Index(0), Index(2), Index(3)}) CHECK((rb.points.row(i) - p.row(i)).norm() < 0.3);
+  TrackerOptions bad = checked;
+  bad.outlier_edges[0] = e.rows();
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("outlier_edges"),
+                       std::invalid_argument);
+}
+
 TEST_CASE("tracker: a sub-pixel shift of a textured image is recovered to 0.06 px") {
   const Texture tex(3);
   const Frame f0 = render(tex, 200, 160, 0, 0);

@@ -145,6 +145,20 @@ struct TrackerOptions {
   /// offset springs (`SpringMesh`): the previous frame's positions, so the frame is fixed
   /// within a frame's relaxation; empty: the image frame
   VectorXi frame_points;
+  /// #P group ids (-1: in no group), or empty: points searched for jointly after stage A, by a
+  /// common whole-pixel offset within `group_search_radius` (each point free to deviate 2 px
+  /// from it), scored by the group's mean template correlation; a lower lip moves as one
+  VectorXi search_groups;
+  /// px: radius of the joint search of `search_groups` (0: none)
+  double group_search_radius = 0.0;
+  /// standard deviations: after stage A, an end of an `outlier_edges` spring whose position is
+  /// further than this (Mahalanobis length of the step those springs alone would take) from
+  /// where they put it has its data term muted for the rest of the frame, and the mesh is
+  /// relaxed again (worst first, never two neighbours in one round, two rounds; 0: off)
+  double spring_outlier = 0.0;
+  /// indices into the mesh's edges of the springs the outlier check uses: those that hold
+  /// whatever the face does (within one lip), not those that stretch with an expression
+  VectorXi outlier_edges;
 };
 
 /// One frame's answer.
