@@ -714,12 +714,12 @@ struct SpringMeshTracker::Impl {
   // 8 px between frames, beyond the reach of the gradient steps, and the coarse pyramid levels
   // do not see it: their patches are dominated by skin that barely moves. Returns whether any
   // point moved.
-  // NCC of point i's current template (finest level) with the image at every whole-pixel
+  // NCC of point i's template in `tpls` (finest level) with the image at every whole-pixel
   // offset (ox, oy), |ox|, |oy| <= S, from its position: out[(oy + S) * (2S + 1) + ox + S],
   // -2 where the image is flat. Returns false when the template itself is flat.
-  bool ncc_map(Index i, int S, std::vector<double>& out) {
+  bool ncc_map(Index i, int S, std::vector<double>& out, const std::vector<Template>& tpls) {
     const Index l = 0;
-    const Template& tpl = current[static_cast<size_t>(l * P + i)];
+    const Template& tpl = tpls[static_cast<size_t>(l * P + i)];
     const int side = 2 * S + 1;
     out.assign(static_cast<size_t>(side * side), -2.0);
     if (tpl.sigma < kMinContrast) return false;
@@ -761,7 +761,7 @@ struct SpringMeshTracker::Impl {
       if (sides.size() == 0 || (sides(i, 0) == 0 && sides(i, 1) == 0)) continue;
       const Match m0 = match(0, pts(i, 0), pts(i, 1), current[static_cast<size_t>(i)]);
       if (m0.textured && m0.ncc >= opt.ncc_full) continue;  // stage A found it
-      if (!ncc_map(i, S, nccs)) continue;
+      if (!ncc_map(i, S, nccs, current)) continue;
       double best = -2, here = -2;
       int bx = 0, by = 0;
       for (int oy = -S; oy <= S; ++oy) {
@@ -792,8 +792,9 @@ struct SpringMeshTracker::Impl {
   // Joint search of each point group (`search_groups`: a lower lip that drops further between
   // two frames than the gradient steps reach, and whose points each have too faint a contour
   // to be found alone). Every common whole-pixel offset o within `group_search_radius` is
-  // scored by the mean over the group of each point's best correlation with its current
-  // template within kGroupSlack px of o (the points of a lip do not move exactly together),
+  // scored by the mean over the group of each point's best correlation with its first-frame
+  // template (the lip's own texture, which a current template that followed a wrong feature no
+  // longer holds) within kGroupSlack px of o (the points of a lip do not move exactly together),
   // less the search's distance penalty; the group moves (each point to its own best offset
   // near o) when the best o is clearly better than staying. Returns whether a group moved.
   bool group_search() {
@@ -811,7 +812,7 @@ struct SpringMeshTracker::Impl {
       group_maps.resize(members.size());
       std::vector<Index> used;
       for (size_t k = 0; k < members.size(); ++k) {
-        if (ncc_map(members[k], W, group_maps[k])) used.push_back(static_cast<Index>(k));
+        if (ncc_map(members[k], W, group_maps[k], first)) used.push_back(static_cast<Index>(k));
       }
       if (used.size() < 2) continue;
       // Each point's best correlation, and where, within the slack around an offset.

@@ -147,7 +147,8 @@ struct TrackerOptions {
   VectorXi frame_points;
   /// #P group ids (-1: in no group), or empty: points searched for jointly after stage A, by a
   /// common whole-pixel offset within `group_search_radius` (each point free to deviate 2 px
-  /// from it), scored by the group's mean template correlation; a lower lip moves as one
+  /// from it), scored by the group's mean correlation with the first-frame templates; a lower
+  /// lip moves as one
   VectorXi search_groups;
   /// px: radius of the joint search of `search_groups` (0: none)
   double group_search_radius = 0.0;
