@@ -862,39 +862,54 @@ struct SpringMeshTracker::Impl {
     return moved;
   }
 
-  // Spring energy of the current positions, per point: the 2x2 Hessian/2 and the negative
-  // half gradient of the springs touching it, the other points held fixed (into diag, rhs).
+  // Edge e's springs at the current positions: h, the 2x2 block of their Hessian/2 (added to
+  // both ends' diagonal blocks, and negated their coupling), and g, the negative half gradient
+  // at end a (-g at end b).
+  void edge_terms(Index e, Eigen::Matrix2d& h, Eigen::Vector2d& g) const {
+    h.setZero();
+    g.setZero();
+    if (opt.spring_weight <= 0) return;
+    const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
+    const Eigen::Vector2d d(pts(b, 0) - pts(a, 0), pts(b, 1) - pts(a, 1));
+    if (has_offset_spring(mesh, e)) {
+      // Offset spring: energy (B d - mu)^T Lambda (B d - mu), B = A^-1, d = p_b - p_a;
+      // exactly quadratic in the positions, Hessian/2 = B^T Lambda B.
+      const Eigen::Matrix2d lam =
+          opt.spring_weight * (Eigen::Matrix2d() << mesh.offset_precision(e, 0), mesh.offset_precision(e, 1),
+                               mesh.offset_precision(e, 2), mesh.offset_precision(e, 3)).finished();
+      const Eigen::Vector2d f = to_face * d - mesh.offset_mean.row(e).transpose();
+      h = to_face.transpose() * lam * to_face;
+      g = to_face.transpose() * (lam * f);
+    }
+    const double k = mesh.stiffness[e] * opt.spring_weight;
+    const double len = d.norm();
+    if (k <= 0 || len < 1e-9) return;
+    const Eigen::Vector2d u = d / len;
+    const double r = len - mesh.rest_length[e];
+    h += k * u * u.transpose();
+    // Newton's curvature term of a stretched spring, k (r / len) (I - u u^T), is positive
+    // semidefinite and speeds up motion across the spring; a compressed one's is not.
+    if (r > 0) h += (k * r / len) * (Eigen::Matrix2d::Identity() - u * u.transpose());
+    g += k * r * u;
+  }
+
+  // The springs `edges` alone at the current positions, per point (the other points held
+  // fixed): the 2x2 Hessian/2 into diag, the negative half gradient into rhs.
   void spring_terms(const VectorXi& edges) {
     for (Index i = 0; i < P; ++i) {
       diag[i] = Eigen::Matrix2d::Identity() * opt.damping;
       rhs[i].setZero();
     }
+    Eigen::Matrix2d h;
+    Eigen::Vector2d g;
     for (Index q = 0; q < edges.size(); ++q) {
       const Index e = edges[q];
       const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
-      const Eigen::Vector2d d(pts(b, 0) - pts(a, 0), pts(b, 1) - pts(a, 1));
-      if (has_offset_spring(mesh, e)) {
-        const Eigen::Matrix2d lam =
-            opt.spring_weight * (Eigen::Matrix2d() << mesh.offset_precision(e, 0), mesh.offset_precision(e, 1),
-                                 mesh.offset_precision(e, 2), mesh.offset_precision(e, 3)).finished();
-        const Eigen::Vector2d f = to_face * d - mesh.offset_mean.row(e).transpose();
-        const Eigen::Matrix2d h = to_face.transpose() * lam * to_face;
-        const Eigen::Vector2d g = to_face.transpose() * (lam * f);
-        diag[a] += h;
-        diag[b] += h;
-        rhs[a] += g;
-        rhs[b] -= g;
-      }
-      const double k = mesh.stiffness[e] * opt.spring_weight;
-      const double len = d.norm();
-      if (k <= 0 || len < 1e-9) continue;
-      const Eigen::Vector2d u = d / len;
-      const double r = len - mesh.rest_length[e];
-      const Eigen::Matrix2d kuu = k * u * u.transpose();
-      diag[a] += kuu;
-      diag[b] += kuu;
-      rhs[a] += k * r * u;
-      rhs[b] -= k * r * u;
+      edge_terms(e, h, g);
+      diag[a] += h;
+      diag[b] += h;
+      rhs[a] += g;
+      rhs[b] -= g;
     }
   }
 
@@ -970,40 +985,14 @@ struct SpringMeshTracker::Impl {
           }
         }
         for (Index e = 0; e < mesh.edges.rows(); ++e) {
-          coupling[e].setZero();
           const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
-          if (has_offset_spring(mesh, e) && opt.spring_weight > 0) {
-            // Offset spring: energy (B d - mu)^T Lambda (B d - mu), B = A^-1, d = p_b - p_a;
-            // exactly quadratic in the positions, Hessian/2 = B^T Lambda B.
-            const Eigen::Matrix2d lam =
-                opt.spring_weight * (Eigen::Matrix2d() << mesh.offset_precision(e, 0), mesh.offset_precision(e, 1),
-                                     mesh.offset_precision(e, 2), mesh.offset_precision(e, 3)).finished();
-            const Eigen::Vector2d d(pts(b, 0) - pts(a, 0), pts(b, 1) - pts(a, 1));
-            const Eigen::Vector2d f = to_face * d - mesh.offset_mean.row(e).transpose();
-            const Eigen::Matrix2d h = to_face.transpose() * lam * to_face;
-            const Eigen::Vector2d g = to_face.transpose() * (lam * f);
-            diag[a] += h;
-            diag[b] += h;
-            coupling[e] -= h;
-            rhs[a] += g;
-            rhs[b] -= g;
-          }
-          const double k = mesh.stiffness[e] * opt.spring_weight;
-          if (k <= 0) continue;
-          const double dx = pts(b, 0) - pts(a, 0), dy = pts(b, 1) - pts(a, 1);
-          const double len = std::sqrt(dx * dx + dy * dy);
-          if (len < 1e-9) continue;
-          const Eigen::Vector2d u(dx / len, dy / len);
-          const double r = len - mesh.rest_length[e];
-          Eigen::Matrix2d kuu = k * u * u.transpose();
-          // Newton's curvature term of a stretched spring, k (r / len) (I - u u^T), is positive
-          // semidefinite and speeds up motion across the spring; a compressed one's is not.
-          if (r > 0) kuu += (k * r / len) * (Eigen::Matrix2d::Identity() - u * u.transpose());
-          diag[a] += kuu;
-          diag[b] += kuu;
-          coupling[e] -= kuu;
-          rhs[a] += k * r * u;
-          rhs[b] -= k * r * u;
+          Eigen::Vector2d g;
+          edge_terms(e, coupling[e], g);
+          diag[a] += coupling[e];
+          diag[b] += coupling[e];
+          coupling[e] = -coupling[e];
+          rhs[a] += g;
+          rhs[b] -= g;
         }
         solve();
         double max_step = 0;

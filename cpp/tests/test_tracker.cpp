@@ -287,20 +287,26 @@ TEST_CASE("face_similarity and offset springs: planted rotations, scales and off
                        doctest::Contains("at least 2"), std::invalid_argument);
 }
 
-// Point 1 sits on horizontal stripes (texture in y only: the aperture problem of a lip contour),
-// points 0 and 2 on a full texture above; the whole image moves by (dx, dy).
-Frame render_stripes(const Texture& tex, double dx, double dy) {
-  const Index w = 120, h = 110;
+// A w by h frame of value(x, y), rounded and clipped to 8 bits.
+template <class F>
+Frame render_with(Index w, Index h, F value) {
   Frame f{std::vector<std::uint8_t>(static_cast<size_t>(w * h)), w, h};
   for (Index y = 0; y < h; ++y) {
     for (Index x = 0; x < w; ++x) {
-      const double u = double(x) - dx, v = double(y) - dy;
-      const double val = v < 50 ? tex(u, v) : 128 + 40 * std::sin(0.45 * v) + 20 * std::sin(0.9 * v + 1);
       f.pix[static_cast<size_t>(y * w + x)] =
-          static_cast<std::uint8_t>(std::lround(std::clamp(val, 0.0, 255.0)));
+          static_cast<std::uint8_t>(std::lround(std::clamp(value(double(x), double(y)), 0.0, 255.0)));
     }
   }
   return f;
+}
+
+// Point 1 sits on horizontal stripes (texture in y only: the aperture problem of a lip contour),
+// points 0 and 2 on a full texture above; the whole image moves by (dx, dy).
+Frame render_stripes(const Texture& tex, double dx, double dy) {
+  return render_with(120, 110, [&](double x, double y) {
+    const double u = x - dx, v = y - dy;
+    return v < 50 ? tex(u, v) : 128 + 40 * std::sin(0.45 * v) + 20 * std::sin(0.9 * v + 1);
+  });
 }
 
 TEST_CASE("tracker: an offset spring stops a point sliding along its contour") {
@@ -458,17 +464,10 @@ TEST_CASE("tracker: a group search finds a lower lip that dropped beyond the poi
 // The texture, except that the content under point 1 (a box around (73, 40)) has slid 6 px to
 // the right: a feature its tracker may follow though the face has not moved.
 Frame render_distractor(const Texture& tex, bool slid) {
-  const Index w = 130, h = 100;
-  Frame f{std::vector<std::uint8_t>(static_cast<size_t>(w * h)), w, h};
-  for (Index y = 0; y < h; ++y) {
-    for (Index x = 0; x < w; ++x) {
-      const bool box = slid && std::abs(double(x) - 73) <= 12 && std::abs(double(y) - 40) <= 9;
-      const double v = tex(double(x) - (box ? 6.0 : 0.0), double(y));
-      f.pix[static_cast<size_t>(y * w + x)] =
-          static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 255.0)));
-    }
-  }
-  return f;
+  return render_with(130, 100, [&](double x, double y) {
+    const bool box = slid && std::abs(x - 73) <= 12 && std::abs(y - 40) <= 9;
+    return tex(x - (box ? 6.0 : 0.0), y);
+  });
 }
 
 TEST_CASE("tracker: a point whose data contradict its springs by many sigmas is handed to them") {

@@ -308,8 +308,15 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         of re-estimated spring std), ``initial_min_sigma`` (px floor of the initial spring std;
         default none), ``lips`` (lip tracking for a 68-point iBUG layout:
         :func:`lip_patch_sides` half patches, a search radius of 0.065 inter-ocular distances,
-        and initial springs touching the lips no stiffer than a std of 0.025 inter-ocular
-        distances; default: on when there are 68 points; explicit options win)
+        initial springs from the lips to the face no stiffer than a std of 0.025 inter-ocular
+        distances, offset springs between lip points (a Gaussian on the face-frame vector
+        between them: stiff along the lip contours, soft along the face's vertical axis across
+        the mouth opening; ``frame_points`` the nose and eye corners), the lower lip searched
+        for as one group within 0.15 inter-ocular distances (``search_groups``,
+        ``group_search_radius``) and, from the second pass, a lip point further than 6
+        standard deviations of its within-lip springs from where they put it handed to them
+        for the frame (``spring_outlier``, ``outlier_edges``); default: on when there are 68
+        points; explicit options win)
 
     Returns
     -------
