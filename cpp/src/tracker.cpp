@@ -499,6 +499,7 @@ struct SpringMeshTracker::Impl {
   std::vector<float> patch, big, window;
   std::vector<double> nccs;
   std::vector<std::vector<double>> group_maps;
+  std::vector<std::pair<int, float>> used_px;
   RowMatrixXd A;
   // The Gauss-Newton system in block form: 2x2 diagonal blocks per point, one 2x2 coupling
   // block per edge (the spring's -k u u^T), solved by block-Jacobi preconditioned conjugate
@@ -717,7 +718,8 @@ struct SpringMeshTracker::Impl {
   // NCC of point i's template in `tpls` (finest level) with the image at every whole-pixel
   // offset (ox, oy), |ox|, |oy| <= S, from its position: out[(oy + S) * (2S + 1) + ox + S],
   // -2 where the image is flat. Returns false when the template itself is flat.
-  bool ncc_map(Index i, int S, std::vector<double>& out, const std::vector<Template>& tpls) {
+  bool ncc_map(Index i, int S, std::vector<double>& out, const std::vector<Template>& tpls,
+               int reach = -1) {
     const Index l = 0;
     const Template& tpl = tpls[static_cast<size_t>(l * P + i)];
     const int side = 2 * S + 1;
@@ -726,22 +728,28 @@ struct SpringMeshTracker::Impl {
     const int q = r + S, m = 2 * q + 1, n = 2 * r + 1;
     window.resize(static_cast<size_t>(m * m));
     sample_patch(pyr[l], level_coord(pts(i, 0), l), level_coord(pts(i, 1), l), q, window.data());
-    const float* M = tpl.mask.empty() ? nullptr : tpl.mask.data();
+    // The template's pixels as (offset in the window, value): a half patch uses about half.
+    used_px.clear();
+    for (int j = 0; j < n; ++j) {
+      for (int k = 0; k < n; ++k) {
+        const int idx = j * n + k;
+        if (!tpl.mask.empty() && tpl.mask[static_cast<size_t>(idx)] == 0.0f) continue;
+        used_px.emplace_back(j * m + k, tpl.t[static_cast<size_t>(idx)]);
+      }
+    }
     const double used = tpl.n_used;
+    const int reach2 = reach < 0 ? 2 * S * S : reach * reach;  // offsets beyond it are not needed
     for (int oy = -S; oy <= S; ++oy) {
       for (int ox = -S; ox <= S; ++ox) {
+        if (ox * ox + oy * oy > reach2) continue;
         // The template is zero-mean on its pixels, so sum T·I is the centred cross term.
+        const float* base = &window[static_cast<size_t>((S + oy) * m + S + ox)];
         double s1 = 0, s2 = 0, c = 0;
-        for (int j = 0; j < n; ++j) {
-          const float* row = &window[static_cast<size_t>((j + S + oy) * m + S + ox)];
-          for (int k = 0; k < n; ++k) {
-            const int idx = j * n + k;
-            const double w = M ? M[idx] : 1.0;
-            const double v = row[k];
-            s1 += w * v;
-            s2 += w * v * v;
-            c += tpl.t[static_cast<size_t>(idx)] * v;
-          }
+        for (const auto& [off, tv] : used_px) {
+          const double v = base[off];
+          s1 += v;
+          s2 += v * v;
+          c += tv * v;
         }
         const double mean = s1 / used;
         const double var = s2 / used - mean * mean;
@@ -809,10 +817,19 @@ struct SpringMeshTracker::Impl {
       for (Index i = 0; i < P; ++i) {
         if (opt.search_groups[i] == g) members.push_back(i);
       }
+      // A group whose points all match where they are has been found: no search.
+      double at = 0;
+      for (const Index i : members) {
+        const Match mi = match(0, pts(i, 0), pts(i, 1), first[static_cast<size_t>(i)]);
+        at += mi.textured ? mi.ncc : -1.0;
+      }
+      if (members.empty() || at >= opt.ncc_full * static_cast<double>(members.size())) continue;
       group_maps.resize(members.size());
       std::vector<Index> used;
+      // Offsets within the slack (Chebyshev) of the search disc lie within S + 1.5 D of 0.
+      const int reach = S + (3 * D + 1) / 2;
       for (size_t k = 0; k < members.size(); ++k) {
-        if (ncc_map(members[k], W, group_maps[k], first)) used.push_back(static_cast<Index>(k));
+        if (ncc_map(members[k], W, group_maps[k], first, reach)) used.push_back(static_cast<Index>(k));
       }
       if (used.size() < 2) continue;
       // Each point's best correlation, and where, within the slack around an offset.
