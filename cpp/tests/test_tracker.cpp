@@ -378,17 +378,33 @@ Frame render_mouth(const Texture& lip, const Texture& closed, const Texture& chi
   return f;
 }
 
+// Three points along the top of the lip band of `render_mouth` (y = y0), springs between
+// neighbours, and tracker options with half patches below each point (the lip side).
+struct LipRow {
+  RowMatrixXd p0;
+  SpringMesh mesh;
+  TrackerOptions half;
+};
+
+LipRow lip_row(double y0) {
+  LipRow row;
+  row.p0.resize(3, 2);
+  row.p0 << 60, y0, 100, y0, 140, y0;
+  EdgeMatrix edges(2, 2);
+  edges << 0, 1, 1, 2;
+  row.mesh = springs_from_points(row.p0, edges);
+  row.half.patch_sides = RowMatrixXd(3, 2);
+  row.half.patch_sides << 0, 1, 0, 1, 0, 1;
+  return row;
+}
+
 TEST_CASE("tracker: half patches follow a lip beside an opening mouth; search catches a jump") {
   const Texture lip(21), closed(22), chin(23);
   const double y0 = 70;
-  RowMatrixXd p0(3, 2);
-  p0 << 60, y0, 100, y0, 140, y0;
-  EdgeMatrix edges(2, 2);
-  edges << 0, 1, 1, 2;
-  const SpringMesh mesh = springs_from_points(p0, edges);
-  TrackerOptions half;
-  half.patch_sides = RowMatrixXd(3, 2);
-  half.patch_sides << 0, 1, 0, 1, 0, 1;  // the lip is below each point
+  const LipRow row = lip_row(y0);
+  const RowMatrixXd& p0 = row.p0;
+  const SpringMesh& mesh = row.mesh;
+  const TrackerOptions& half = row.half;
   TrackerOptions searched = half;
   searched.search_radius = 12;
   const Frame f0 = render_mouth(lip, closed, chin, y0, 0, false);
@@ -427,14 +443,10 @@ TEST_CASE("tracker: half patches follow a lip beside an opening mouth; search ca
 TEST_CASE("tracker: a group search finds a lower lip that dropped beyond the point search") {
   const Texture lip(21), closed(22), chin(23);
   const double y0 = 60;
-  RowMatrixXd p0(3, 2);
-  p0 << 60, y0, 100, y0, 140, y0;
-  EdgeMatrix edges(2, 2);
-  edges << 0, 1, 1, 2;
-  const SpringMesh mesh = springs_from_points(p0, edges);
-  TrackerOptions alone;
-  alone.patch_sides = RowMatrixXd(3, 2);
-  alone.patch_sides << 0, 1, 0, 1, 0, 1;
+  const LipRow row = lip_row(y0);
+  const RowMatrixXd& p0 = row.p0;
+  const SpringMesh& mesh = row.mesh;
+  TrackerOptions alone = row.half;
   alone.search_radius = 6;
   TrackerOptions grouped = alone;
   grouped.search_groups.resize(3);
