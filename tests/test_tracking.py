@@ -184,6 +184,17 @@ def test_bad_input_is_refused_clearly(tmp_path, planted):
         tracking.load_init_points(bad_json)
     with pytest.raises(ValueError, match="unknown tracker option"):
         tracking.track_frames(frames, ASTRONAUT_POINTS, patch_size=3)
+    # The lip options, given for any layout, are checked by the kernel.
+    with pytest.raises(ValueError, match="spring_outlier"):
+        tracking.track_frames(frames, ASTRONAUT_POINTS, spring_outlier=-1.0)
+    with pytest.raises(ValueError, match="group_search_radius"):
+        tracking.track_frames(frames, ASTRONAUT_POINTS, group_search_radius=100.0)
+    with pytest.raises(ValueError, match="search_groups"):
+        tracking.track_frames(frames, ASTRONAUT_POINTS, search_groups=np.zeros(3, dtype=np.int64))
+    with pytest.raises(ValueError, match="frame_points"):
+        tracking.track_frames(frames, ASTRONAUT_POINTS, frame_points=np.array([0], dtype=np.int64))
+    with pytest.raises(ValueError, match="outlier_edges"):
+        tracking.track_frames(frames, ASTRONAUT_POINTS, outlier_edges=np.array([10_000], dtype=np.int64))
 
 
 def test_face_leaving_the_frame_is_flagged_lost(planted):
