@@ -20,7 +20,11 @@
 ///
 /// Lips: a point beside a region whose appearance changes (a lip beside the opening mouth) can
 /// be tracked on one half of its patch (`TrackerOptions::patch_sides`), and such points are
-/// searched for exhaustively when the gradient steps lose them (`TrackerOptions::search_radius`).
+/// searched for exhaustively when the gradient steps lose them (`TrackerOptions::search_radius`),
+/// alone or as a group (`search_groups`: a lower lip). Offset springs (`SpringMesh`) hold the
+/// vector between two points in the face frame, so points on a contour do not slide along it,
+/// and a point whose data contradict such springs by many standard deviations is handed to them
+/// for the frame (`spring_outlier`).
 ///
 /// Images come in as plain 8-bit grey buffers (`GreyImage`); `tracker_opencv.hpp` adapts a
 /// `cv::Mat` for C++ callers who use OpenCV. Coordinates are pixels, (x, y), the centre of the
