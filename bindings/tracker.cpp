@@ -40,17 +40,25 @@ GreyImage grey_from_array(const py::array& a, const char* name, py::array& keep)
 
 void bind_tracker(py::module_& m) {
   py::class_<SpringMesh>(m, "SpringMesh", "Springs between trackers: edges, rest lengths, stiffnesses.")
-      .def(py::init([](EdgeMatrix edges, VectorXd rest_length, VectorXd stiffness) {
+      .def(py::init([](EdgeMatrix edges, VectorXd rest_length, VectorXd stiffness,
+                       RowMatrixXd offset_precision, RowMatrixXd offset_mean) {
              SpringMesh s;
              s.edges = std::move(edges);
              s.rest_length = std::move(rest_length);
              s.stiffness = std::move(stiffness);
+             s.offset_precision = std::move(offset_precision);
+             s.offset_mean = std::move(offset_mean);
              return s;
            }),
-           py::arg("edges"), py::arg("rest_length"), py::arg("stiffness"))
+           py::arg("edges"), py::arg("rest_length"), py::arg("stiffness"),
+           py::arg("offset_precision") = RowMatrixXd(), py::arg("offset_mean") = RowMatrixXd())
       .def_readwrite("edges", &SpringMesh::edges, "#E by 2 point indices")
       .def_readwrite("rest_length", &SpringMesh::rest_length, "#E rest lengths in pixels")
-      .def_readwrite("stiffness", &SpringMesh::stiffness, "#E stiffnesses in 1/px^2");
+      .def_readwrite("stiffness", &SpringMesh::stiffness, "#E stiffnesses in 1/px^2")
+      .def_readwrite("offset_precision", &SpringMesh::offset_precision,
+                     "#E by 4 face-frame offset-spring precisions (row-major 2x2), or empty")
+      .def_readwrite("offset_mean", &SpringMesh::offset_mean,
+                     "#E by 2 face-frame mean offsets of the offset springs, or empty");
 
   py::class_<TrackerOptions>(m, "TrackerOptions", "Tuning of SpringMeshTracker (see tracker.hpp).")
       .def(py::init<>())
@@ -66,7 +74,12 @@ void bind_tracker(py::module_& m) {
       .def_readwrite("drift_tolerance", &TrackerOptions::drift_tolerance)
       .def_readwrite("damping", &TrackerOptions::damping)
       .def_readwrite("patch_sides", &TrackerOptions::patch_sides)
-      .def_readwrite("search_radius", &TrackerOptions::search_radius);
+      .def_readwrite("search_radius", &TrackerOptions::search_radius)
+      .def_readwrite("frame_points", &TrackerOptions::frame_points)
+      .def_readwrite("search_groups", &TrackerOptions::search_groups)
+      .def_readwrite("group_search_radius", &TrackerOptions::group_search_radius)
+      .def_readwrite("spring_outlier", &TrackerOptions::spring_outlier)
+      .def_readwrite("outlier_edges", &TrackerOptions::outlier_edges);
 
   py::class_<TrackerFrame>(m, "TrackerFrame", "One frame's answer of SpringMeshTracker.track.")
       .def_readonly("points", &TrackerFrame::points, "#P by 2 positions (x, y)")
@@ -81,8 +94,11 @@ void bind_tracker(py::module_& m) {
         "Springs along edges with rest lengths from points and stiffness "
         "1/max(relative_sigma*L, min_sigma)^2.");
   m.def("estimate_springs", &estimate_springs, py::arg("tracks"), py::arg("lost"),
-        py::arg("previous"), py::arg("min_sigma") = 0.5,
-        "Re-estimate rest lengths (mean) and stiffnesses (1/variance) from a #T by 2#P pass.");
+        py::arg("previous"), py::arg("min_sigma") = 0.5, py::arg("frame_points") = VectorXi(),
+        "Re-estimate rest lengths (mean) and stiffnesses (1/variance), and the offset springs "
+        "(face-frame mean and inverse covariance), from a #T by 2#P pass.");
+  m.def("face_similarity", &face_similarity, py::arg("from"), py::arg("to"), py::arg("idx"),
+        "The 2x2 similarity [[a, -b], [b, a]] best mapping centred from[idx] onto to[idx].");
 
   py::class_<SpringMeshTracker>(m, "SpringMeshTracker",
                                 "Spring-mesh SSD tracker: construct on the first frame, then track().")

@@ -1,6 +1,8 @@
 // The spring-mesh SSD facial tracker (Voice Puppetry §4.1). See tracker.hpp for the method.
 #include "voicepuppet/tracker.hpp"
 
+#include <Eigen/LU>
+
 
 #include <algorithm>
 #include <array>
@@ -173,6 +175,48 @@ void check_mesh(const SpringMesh& mesh, Index n_points) {
       fail_argument("mesh stiffness[", e, "] must be finite and >= 0, got ", mesh.stiffness[e]);
     }
   }
+  const bool has_p = mesh.offset_precision.size() != 0, has_m = mesh.offset_mean.size() != 0;
+  if (has_p != has_m) {
+    fail_argument("mesh offset_precision and offset_mean must be given together (or both empty), "
+                  "got shapes ", shape_of(mesh.offset_precision), " and ", shape_of(mesh.offset_mean));
+  }
+  if (!has_p) return;
+  if (mesh.offset_precision.rows() != ne || mesh.offset_precision.cols() != 4) {
+    fail_argument("mesh offset_precision must have shape (", ne, ", 4) (a row-major 2x2 "
+                  "precision per edge), got ", shape_of(mesh.offset_precision));
+  }
+  if (mesh.offset_mean.rows() != ne || mesh.offset_mean.cols() != 2) {
+    fail_argument("mesh offset_mean must have shape (", ne, ", 2) (a mean offset per edge), got ",
+                  shape_of(mesh.offset_mean));
+  }
+  require_finite(mesh.offset_precision, "mesh offset_precision");
+  require_finite(mesh.offset_mean, "mesh offset_mean");
+  for (Index e = 0; e < ne; ++e) {
+    const double a = mesh.offset_precision(e, 0), b = mesh.offset_precision(e, 1),
+                 c = mesh.offset_precision(e, 2), d = mesh.offset_precision(e, 3);
+    const double tol = 1e-9 * (std::abs(a) + std::abs(d) + 1e-300);
+    if (std::abs(b - c) > tol || a < 0 || d < 0 || a * d - b * c < -tol * (std::abs(a) + std::abs(d))) {
+      fail_argument("mesh offset_precision row ", e, " = (", a, ", ", b, ", ", c, ", ", d,
+                    ") is not a symmetric positive semidefinite 2x2 matrix; give inverse covariances");
+    }
+  }
+}
+
+bool has_offset_spring(const SpringMesh& mesh, Index e) {
+  return mesh.offset_precision.size() != 0 &&
+         (mesh.offset_precision(e, 0) != 0 || mesh.offset_precision(e, 3) != 0);
+}
+
+void check_frame_points(const VectorXi& idx, Index n_points, const char* name) {
+  if (idx.size() == 1) {
+    fail_argument(name, " must hold at least 2 point indices (or none), got 1");
+  }
+  for (Index k = 0; k < idx.size(); ++k) {
+    if (idx[k] < 0 || idx[k] >= n_points) {
+      fail_argument(name, "[", k, "] = ", idx[k], " indexes outside the ", n_points,
+                    " points; indices must be in [0, ", n_points - 1, "]");
+    }
+  }
 }
 
 }  // namespace
@@ -205,8 +249,35 @@ SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
   return mesh;
 }
 
+Eigen::Matrix2d face_similarity(const MatrixRef& from, const MatrixRef& to, const VectorXi& idx) {
+  Eigen::Matrix2d A = Eigen::Matrix2d::Identity();
+  if (idx.size() < 2) return A;
+  Eigen::Vector2d mf = Eigen::Vector2d::Zero(), mt = Eigen::Vector2d::Zero();
+  for (Index k = 0; k < idx.size(); ++k) {
+    mf += from.row(idx[k]).transpose();
+    mt += to.row(idx[k]).transpose();
+  }
+  mf /= static_cast<double>(idx.size());
+  mt /= static_cast<double>(idx.size());
+  // Complex least squares: z_to ≈ (a + ib) z_from for the centred points.
+  double num_re = 0, num_im = 0, den = 0;
+  for (Index k = 0; k < idx.size(); ++k) {
+    const double fx = from(idx[k], 0) - mf[0], fy = from(idx[k], 1) - mf[1];
+    const double tx = to(idx[k], 0) - mt[0], ty = to(idx[k], 1) - mt[1];
+    num_re += fx * tx + fy * ty;
+    num_im += fx * ty - fy * tx;
+    den += fx * fx + fy * fy;
+  }
+  if (!(den > 0)) return A;
+  const double a = num_re / den, b = num_im / den;
+  if (!(a * a + b * b > 1e-12)) return A;
+  A << a, -b, b, a;
+  return A;
+}
+
 SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
-                            const SpringMesh& previous, double min_sigma) {
+                            const SpringMesh& previous, double min_sigma,
+                            const VectorXi& frame_points) {
   const Index T = tracks.rows();
   if (tracks.cols() % 2 != 0 || tracks.cols() < 6) {
     fail_argument("tracks must have shape (T, 2*P) with P >= 3 (x0, y0, x1, y1, ... per frame), "
@@ -222,14 +293,30 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
   if (!(std::isfinite(min_sigma) && min_sigma > 0)) {
     fail_argument("min_sigma must be a positive length in pixels, got ", min_sigma);
   }
+  check_frame_points(frame_points, P, "frame_points");
   SpringMesh mesh = previous;
+  // Face frame of every frame (only needed for offset springs): A_t^-1 maps frame t's offsets
+  // into frame 0's.
+  std::vector<Eigen::Matrix2d> to_face;
+  if (mesh.offset_precision.size() != 0) {
+    to_face.resize(static_cast<size_t>(T));
+    RowMatrixXd first(P, 2), frame_t(P, 2);
+    for (Index i = 0; i < P; ++i) first.row(i) << tracks(0, 2 * i), tracks(0, 2 * i + 1);
+    for (Index t = 0; t < T; ++t) {
+      for (Index i = 0; i < P; ++i) frame_t.row(i) << tracks(t, 2 * i), tracks(t, 2 * i + 1);
+      to_face[static_cast<size_t>(t)] = face_similarity(first, frame_t, frame_points).inverse();
+    }
+  }
   std::vector<double> d, dev;
+  std::vector<Index> frames;
   for (Index e = 0; e < mesh.edges.rows(); ++e) {
     const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
     d.clear();
+    frames.clear();
     for (Index t = 0; t < T; ++t) {
       if (lost(t, a) || lost(t, b)) continue;
       d.push_back(std::hypot(tracks(t, 2 * b) - tracks(t, 2 * a), tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1)));
+      frames.push_back(t);
     }
     if (d.size() < 2) continue;
     // Frames where a tracker sat on the wrong feature would inflate the variance and soften the
@@ -249,17 +336,47 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
     const double band = 3.0 * std::max(1.4826 * median(dev), min_sigma);
     double mean = 0, m2 = 0;  // Welford's running mean and variance
     Index count = 0;
-    for (const double x : d) {
+    Eigen::Vector2d fmean = Eigen::Vector2d::Zero();  // ... and of the face-frame offsets
+    Eigen::Matrix2d fm2 = Eigen::Matrix2d::Zero();
+    const bool offset = has_offset_spring(mesh, e);
+    for (size_t k = 0; k < d.size(); ++k) {
+      const double x = d[k];
       if (std::abs(x - med) > band) continue;
       ++count;
       const double delta = x - mean;
       mean += delta / static_cast<double>(count);
       m2 += delta * (x - mean);
+      if (offset) {
+        const Index t = frames[k];
+        const Eigen::Vector2d f = to_face[static_cast<size_t>(t)] *
+            Eigen::Vector2d(tracks(t, 2 * b) - tracks(t, 2 * a), tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1));
+        const Eigen::Vector2d fd = f - fmean;
+        fmean += fd / static_cast<double>(count);
+        fm2 += fd * (f - fmean).transpose();
+      }
     }
     if (count < 2 || !(mean > 0)) continue;
     const double var = m2 / static_cast<double>(count - 1);
     mesh.rest_length[e] = mean;
     mesh.stiffness[e] = 1.0 / std::max(var, min_sigma * min_sigma);
+    if (offset) {
+      // Precision = inverse covariance with its eigenvalues floored at min_sigma²; the length
+      // spring is off (the offset spring's Gaussian already holds the length statistics).
+      // Closed-form eigen-decomposition of the symmetric 2x2 covariance [[p, q], [q, r]].
+      const double n1 = static_cast<double>(count - 1);
+      const double cp = fm2(0, 0) / n1, cq = 0.5 * (fm2(0, 1) + fm2(1, 0)) / n1, cr = fm2(1, 1) / n1;
+      const double mid = 0.5 * (cp + cr), half = std::hypot(0.5 * (cp - cr), cq);
+      const double floor2 = min_sigma * min_sigma;
+      const double l1 = std::max(mid + half, floor2), l2 = std::max(mid - half, floor2);
+      const double phi = 0.5 * std::atan2(2 * cq, cp - cr), c = std::cos(phi), sn = std::sin(phi);
+      // precision = v1 v1^T / l1 + v2 v2^T / l2 with v1 = (c, s), v2 = (-s, c)
+      const double pxx = c * c / l1 + sn * sn / l2, pxy = c * sn * (1 / l1 - 1 / l2),
+                   pyy = sn * sn / l1 + c * c / l2;
+      mesh.offset_precision.row(e) << pxx, pxy, pxy, pyy;
+      mesh.offset_mean(e, 0) = fmean[0];
+      mesh.offset_mean(e, 1) = fmean[1];
+      mesh.stiffness[e] = 0.0;
+    }
   }
   return mesh;
 }
@@ -358,7 +475,8 @@ constexpr double kMinContrast = 0.5;  // grey levels RMS below which a patch is 
 constexpr int kLanes = 16;  // accumulator lanes of the patch sums (n_pad is a multiple)
 constexpr double kCoarseFloor = 0.2;
 constexpr double kSearchMargin = 0.05;  // a searched point moves only for a clearly better match
-constexpr double kSearchPenalty = 0.1;  // score lost by a search move of the full radius  // coarse-level correlation below which a point is ignored
+constexpr double kSearchPenalty = 0.1;  // score lost by a search move of the full radius
+constexpr int kGroupSlack = 2;  // px each point of a jointly searched group may deviate
 
 }  // namespace
 
@@ -370,11 +488,18 @@ struct SpringMeshTracker::Impl {
   RowMatrixXd pts;
   RowMatrixXd sides;  // #P by 2 half-patch directions (a zero row: whole patch), or empty
   std::vector<double> prev_weight;  // data weight of each point at the end of the last frame
+  RowMatrixXd init_pts;             // the first frame's points (the face frame's reference)
+  std::vector<char> muted;          // points whose data term this frame's relaxations ignore
+  std::vector<char> checked;        // points held by an offset spring (the consistency check)
+  Eigen::Matrix2d to_face = Eigen::Matrix2d::Identity();  // this frame's A^-1 (offset springs)
   std::vector<Level> pyr;
   // templates[(l * P + i)] for the first frame and for the current (guarded) template.
   std::vector<Template> first, current;
   // Work buffers.
   std::vector<float> patch, big, window;
+  std::vector<double> nccs;
+  std::vector<std::vector<double>> group_maps;
+  std::vector<std::pair<int, float>> used_px;
   RowMatrixXd A;
   // The Gauss-Newton system in block form: 2x2 diagonal blocks per point, one 2x2 coupling
   // block per edge (the spring's -k u u^T), solved by block-Jacobi preconditioned conjugate
@@ -590,45 +715,68 @@ struct SpringMeshTracker::Impl {
   // 8 px between frames, beyond the reach of the gradient steps, and the coarse pyramid levels
   // do not see it: their patches are dominated by skin that barely moves. Returns whether any
   // point moved.
-  bool search() {
+  // NCC of point i's template in `tpls` (finest level) with the image at every whole-pixel
+  // offset (ox, oy), |ox|, |oy| <= S, from its position: out[(oy + S) * (2S + 1) + ox + S],
+  // -2 where the image is flat. Returns false when the template itself is flat.
+  bool ncc_map(Index i, int S, std::vector<double>& out, const std::vector<Template>& tpls,
+               int reach = -1) {
     const Index l = 0;
-    const double step = 1.0;
-    const int S = static_cast<int>(std::ceil(opt.search_radius / step));
-    bool moved = false;
-    if (S < 1) return moved;
+    const Template& tpl = tpls[static_cast<size_t>(l * P + i)];
+    const int side = 2 * S + 1;
+    out.assign(static_cast<size_t>(side * side), -2.0);
+    if (tpl.sigma < kMinContrast) return false;
     const int q = r + S, m = 2 * q + 1, n = 2 * r + 1;
     window.resize(static_cast<size_t>(m * m));
+    sample_patch(pyr[l], level_coord(pts(i, 0), l), level_coord(pts(i, 1), l), q, window.data());
+    // The template's pixels as (offset in the window, value): a half patch uses about half.
+    used_px.clear();
+    for (int j = 0; j < n; ++j) {
+      for (int k = 0; k < n; ++k) {
+        const int idx = j * n + k;
+        if (!tpl.mask.empty() && tpl.mask[static_cast<size_t>(idx)] == 0.0f) continue;
+        used_px.emplace_back(j * m + k, tpl.t[static_cast<size_t>(idx)]);
+      }
+    }
+    const double used = tpl.n_used;
+    const int reach2 = reach < 0 ? 2 * S * S : reach * reach;  // offsets beyond it are not needed
+    for (int oy = -S; oy <= S; ++oy) {
+      for (int ox = -S; ox <= S; ++ox) {
+        if (ox * ox + oy * oy > reach2) continue;
+        // The template is zero-mean on its pixels, so sum T·I is the centred cross term.
+        const float* base = &window[static_cast<size_t>((S + oy) * m + S + ox)];
+        double s1 = 0, s2 = 0, c = 0;
+        for (const auto& [off, tv] : used_px) {
+          const double v = base[off];
+          s1 += v;
+          s2 += v * v;
+          c += tv * v;
+        }
+        const double mean = s1 / used;
+        const double var = s2 / used - mean * mean;
+        if (!(var > kMinContrast * kMinContrast)) continue;
+        out[static_cast<size_t>((oy + S) * side + ox + S)] = c / (used * std::sqrt(var) * tpl.sigma);
+      }
+    }
+    return true;
+  }
+
+  bool search() {
+    const int S = static_cast<int>(std::ceil(opt.search_radius));
+    bool moved = false;
+    if (S < 1) return moved;
+    const int side = 2 * S + 1;
     for (Index i = 0; i < P; ++i) {
       if (sides.size() == 0 || (sides(i, 0) == 0 && sides(i, 1) == 0)) continue;
-      const Template& tpl = current[static_cast<size_t>(l * P + i)];
-      if (tpl.sigma < kMinContrast) continue;
       const Match m0 = match(0, pts(i, 0), pts(i, 1), current[static_cast<size_t>(i)]);
       if (m0.textured && m0.ncc >= opt.ncc_full) continue;  // stage A found it
-      sample_patch(pyr[l], level_coord(pts(i, 0), l), level_coord(pts(i, 1), l), q, window.data());
-      const float* M = tpl.mask.empty() ? nullptr : tpl.mask.data();
-      const double used = tpl.n_used;
+      if (!ncc_map(i, S, nccs, current)) continue;
       double best = -2, here = -2;
       int bx = 0, by = 0;
       for (int oy = -S; oy <= S; ++oy) {
         for (int ox = -S; ox <= S; ++ox) {
           if (ox * ox + oy * oy > S * S) continue;
-          // The template is zero-mean on its pixels, so sum T·I is the centred cross term.
-          double s1 = 0, s2 = 0, c = 0;
-          for (int j = 0; j < n; ++j) {
-            const float* row = &window[static_cast<size_t>((j + S + oy) * m + S + ox)];
-            for (int k = 0; k < n; ++k) {
-              const int idx = j * n + k;
-              const double w = M ? M[idx] : 1.0;
-              const double v = row[k];
-              s1 += w * v;
-              s2 += w * v * v;
-              c += tpl.t[static_cast<size_t>(idx)] * v;
-            }
-          }
-          const double mean = s1 / used;
-          const double var = s2 / used - mean * mean;
-          if (!(var > kMinContrast * kMinContrast)) continue;
-          const double ncc = c / (used * std::sqrt(var) * tpl.sigma);
+          const double ncc = nccs[static_cast<size_t>((oy + S) * side + ox + S)];
+          if (ncc < -1.5) continue;
           // Longer moves must correlate better (along a lip contour, every offset matches
           // about as well): the score loses kSearchPenalty at the edge of the search disc.
           const double score = ncc - kSearchPenalty * (ox * ox + oy * oy) / double(S * S);
@@ -641,12 +789,182 @@ struct SpringMeshTracker::Impl {
         }
       }
       if ((bx != 0 || by != 0) && best >= opt.ncc_full && best > here + kSearchMargin) {
-        pts(i, 0) += bx * step;
-        pts(i, 1) += by * step;
+        pts(i, 0) += bx;
+        pts(i, 1) += by;
         moved = true;
       }
     }
     return moved;
+  }
+
+  // Joint search of each point group (`search_groups`: a lower lip that drops further between
+  // two frames than the gradient steps reach, and whose points each have too faint a contour
+  // to be found alone). Every common whole-pixel offset o within `group_search_radius` is
+  // scored by the mean over the group of each point's best correlation with its first-frame
+  // template (the lip's own texture, which a current template that followed a wrong feature no
+  // longer holds) within kGroupSlack px of o (the points of a lip do not move exactly together),
+  // less the search's distance penalty; the group moves (each point to its own best offset
+  // near o) when the best o is clearly better than staying. Returns whether a group moved.
+  bool group_search() {
+    const int S = static_cast<int>(std::ceil(opt.group_search_radius));
+    if (S < 1 || opt.search_groups.size() == 0) return false;
+    const int D = kGroupSlack, W = S + D, side = 2 * W + 1;
+    const Index n_groups = opt.search_groups.maxCoeff() + 1;
+    bool moved = false;
+    std::vector<Index> members;
+    for (Index g = 0; g < n_groups; ++g) {
+      members.clear();
+      for (Index i = 0; i < P; ++i) {
+        if (opt.search_groups[i] == g) members.push_back(i);
+      }
+      // A group whose points all match where they are has been found: no search.
+      double at = 0;
+      for (const Index i : members) {
+        const Match mi = match(0, pts(i, 0), pts(i, 1), first[static_cast<size_t>(i)]);
+        at += mi.textured ? mi.ncc : -1.0;
+      }
+      if (members.empty() || at >= opt.ncc_full * static_cast<double>(members.size())) continue;
+      group_maps.resize(members.size());
+      std::vector<Index> used;
+      // Offsets within the slack (Chebyshev) of the search disc lie within S + 1.5 D of 0.
+      const int reach = S + (3 * D + 1) / 2;
+      for (size_t k = 0; k < members.size(); ++k) {
+        if (ncc_map(members[k], W, group_maps[k], first, reach)) used.push_back(static_cast<Index>(k));
+      }
+      if (used.size() < 2) continue;
+      // Each point's best correlation, and where, within the slack around an offset.
+      auto best_near = [&](size_t k, int ox, int oy, int& bx, int& by) {
+        double b = -2;
+        for (int dy = -D; dy <= D; ++dy) {
+          for (int dx = -D; dx <= D; ++dx) {
+            const double v = group_maps[k][static_cast<size_t>((oy + dy + W) * side + ox + dx + W)];
+            if (v > b) {
+              b = v;
+              bx = ox + dx;
+              by = oy + dy;
+            }
+          }
+        }
+        return b;
+      };
+      double best = -2, here = -2;
+      int gx = 0, gy = 0;
+      for (int oy = -S; oy <= S; ++oy) {
+        for (int ox = -S; ox <= S; ++ox) {
+          if (ox * ox + oy * oy > S * S) continue;
+          double sum = 0;
+          for (const Index k : used) {
+            int bx, by;
+            sum += std::max(best_near(static_cast<size_t>(k), ox, oy, bx, by), -1.0);
+          }
+          const double score = sum / static_cast<double>(used.size()) -
+                               kSearchPenalty * (ox * ox + oy * oy) / double(S * S);
+          if (ox == 0 && oy == 0) here = score;
+          if (score > best) {
+            best = score;
+            gx = ox;
+            gy = oy;
+          }
+        }
+      }
+      if ((gx == 0 && gy == 0) || !(best > here + kSearchMargin) || best < opt.ncc_floor) continue;
+      for (const Index k : used) {
+        int bx = 0, by = 0;
+        best_near(static_cast<size_t>(k), gx, gy, bx, by);
+        pts(members[static_cast<size_t>(k)], 0) += bx;
+        pts(members[static_cast<size_t>(k)], 1) += by;
+      }
+      moved = true;
+    }
+    return moved;
+  }
+
+  // Edge e's springs at the current positions: h, the 2x2 block of their Hessian/2 (added to
+  // both ends' diagonal blocks, and negated their coupling), and g, the negative half gradient
+  // at end a (-g at end b).
+  void edge_terms(Index e, Eigen::Matrix2d& h, Eigen::Vector2d& g) const {
+    h.setZero();
+    g.setZero();
+    if (opt.spring_weight <= 0) return;
+    const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
+    const Eigen::Vector2d d(pts(b, 0) - pts(a, 0), pts(b, 1) - pts(a, 1));
+    if (has_offset_spring(mesh, e)) {
+      // Offset spring: energy (B d - mu)^T Lambda (B d - mu), B = A^-1, d = p_b - p_a;
+      // exactly quadratic in the positions, Hessian/2 = B^T Lambda B.
+      const Eigen::Matrix2d lam =
+          opt.spring_weight * (Eigen::Matrix2d() << mesh.offset_precision(e, 0), mesh.offset_precision(e, 1),
+                               mesh.offset_precision(e, 2), mesh.offset_precision(e, 3)).finished();
+      const Eigen::Vector2d f = to_face * d - mesh.offset_mean.row(e).transpose();
+      h = to_face.transpose() * lam * to_face;
+      g = to_face.transpose() * (lam * f);
+    }
+    const double k = mesh.stiffness[e] * opt.spring_weight;
+    const double len = d.norm();
+    if (k <= 0 || len < 1e-9) return;
+    const Eigen::Vector2d u = d / len;
+    const double r = len - mesh.rest_length[e];
+    h += k * u * u.transpose();
+    // Newton's curvature term of a stretched spring, k (r / len) (I - u u^T), is positive
+    // semidefinite and speeds up motion across the spring; a compressed one's is not.
+    if (r > 0) h += (k * r / len) * (Eigen::Matrix2d::Identity() - u * u.transpose());
+    g += k * r * u;
+  }
+
+  // The springs `edges` alone at the current positions, per point (the other points held
+  // fixed): the 2x2 Hessian/2 into diag, the negative half gradient into rhs.
+  void spring_terms(const VectorXi& edges) {
+    for (Index i = 0; i < P; ++i) {
+      diag[i] = Eigen::Matrix2d::Identity() * opt.damping;
+      rhs[i].setZero();
+    }
+    Eigen::Matrix2d h;
+    Eigen::Vector2d g;
+    for (Index q = 0; q < edges.size(); ++q) {
+      const Index e = edges[q];
+      const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
+      edge_terms(e, h, g);
+      diag[a] += h;
+      diag[b] += h;
+      rhs[a] += g;
+      rhs[b] -= g;
+    }
+  }
+
+  // The springs' check on the data: for each end of the `outlier_edges`, the squared
+  // Mahalanobis length m² = gᵀ H⁻¹ g of the step those springs alone would take (its neighbours
+  // held fixed). A point whose data put it more than `spring_outlier` standard deviations from
+  // where its springs want it has matched the wrong feature (a lip corner sliding onto the lip
+  // crease, a lower lip caught by the upper one): its data term is muted for the rest of the
+  // frame and the mesh relaxed again, so the springs place it. Worst points first, never two
+  // neighbours in one round (a wrong point also strains its right neighbours). Returns whether
+  // any point was muted.
+  bool mute_inconsistent() {
+    spring_terms(opt.outlier_edges);
+    std::vector<std::pair<double, Index>> bad;
+    const double limit = opt.spring_outlier * opt.spring_outlier;
+    for (Index i = 0; i < P; ++i) {
+      if (!checked[static_cast<size_t>(i)] || muted[static_cast<size_t>(i)]) continue;
+      const Eigen::Matrix2d& h = diag[i];
+      const double det = h(0, 0) * h(1, 1) - h(0, 1) * h(1, 0);
+      if (!(det > 0)) continue;
+      const Eigen::Vector2d step(( h(1, 1) * rhs[i](0) - h(0, 1) * rhs[i](1)) / det,
+                                 (-h(1, 0) * rhs[i](0) + h(0, 0) * rhs[i](1)) / det);
+      const double m2 = step.dot(h * step);
+      if (m2 > limit) bad.emplace_back(m2, i);
+    }
+    std::sort(bad.begin(), bad.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+    std::vector<char> blocked(static_cast<size_t>(P), 0);
+    bool any = false;
+    for (const auto& [m2, i] : bad) {
+      if (blocked[static_cast<size_t>(i)]) continue;
+      muted[static_cast<size_t>(i)] = 1;
+      any = true;
+      for (Index e = 0; e < mesh.edges.rows(); ++e) {
+        if (mesh.edges(e, 0) == i) blocked[static_cast<size_t>(mesh.edges(e, 1))] = 1;
+        if (mesh.edges(e, 1) == i) blocked[static_cast<size_t>(mesh.edges(e, 0))] = 1;
+      }
+    }
+    return any;
   }
 
   // Joint Gauss–Newton relaxation over levels [l_hi .. l_lo] against `tpls`; updates pts.
@@ -671,6 +989,7 @@ struct SpringMeshTracker::Impl {
           if (l > 0 && m.textured && m.inside >= 0.5 && m.ncc > kCoarseFloor) {
             w = std::max(w, prev_weight[static_cast<size_t>(i)]);
           }
+          if (muted[static_cast<size_t>(i)]) w = 0.0;
           const double c = w * inv_s2;
           if (c > 0) {
             const double cs2 = c * scale * scale;
@@ -683,24 +1002,14 @@ struct SpringMeshTracker::Impl {
           }
         }
         for (Index e = 0; e < mesh.edges.rows(); ++e) {
-          coupling[e].setZero();
-          const double k = mesh.stiffness[e] * opt.spring_weight;
-          if (k <= 0) continue;
           const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
-          const double dx = pts(b, 0) - pts(a, 0), dy = pts(b, 1) - pts(a, 1);
-          const double len = std::sqrt(dx * dx + dy * dy);
-          if (len < 1e-9) continue;
-          const Eigen::Vector2d u(dx / len, dy / len);
-          const double r = len - mesh.rest_length[e];
-          Eigen::Matrix2d kuu = k * u * u.transpose();
-          // Newton's curvature term of a stretched spring, k (r / len) (I - u u^T), is positive
-          // semidefinite and speeds up motion across the spring; a compressed one's is not.
-          if (r > 0) kuu += (k * r / len) * (Eigen::Matrix2d::Identity() - u * u.transpose());
-          diag[a] += kuu;
-          diag[b] += kuu;
-          coupling[e] = -kuu;
-          rhs[a] += k * r * u;
-          rhs[b] -= k * r * u;
+          Eigen::Vector2d g;
+          edge_terms(e, coupling[e], g);
+          diag[a] += coupling[e];
+          diag[b] += coupling[e];
+          coupling[e] = -coupling[e];
+          rhs[a] += g;
+          rhs[b] -= g;
         }
         solve();
         double max_step = 0;
@@ -742,6 +1051,13 @@ void check_options(const TrackerOptions& o) {
   if (!(std::isfinite(o.search_radius) && o.search_radius >= 0 && o.search_radius <= 64)) {
     fail_argument("options.search_radius must be in [0, 64] pixels, got ", o.search_radius);
   }
+  if (!(std::isfinite(o.group_search_radius) && o.group_search_radius >= 0 && o.group_search_radius <= 64)) {
+    fail_argument("options.group_search_radius must be in [0, 64] pixels, got ", o.group_search_radius);
+  }
+  if (!(std::isfinite(o.spring_outlier) && o.spring_outlier >= 0)) {
+    fail_argument("options.spring_outlier must be a number of standard deviations >= 0 (0: off), got ",
+                  o.spring_outlier);
+  }
   if (!(std::isfinite(o.spring_weight) && o.spring_weight >= 0)) {
     fail_argument("options.spring_weight must be finite and >= 0, got ", o.spring_weight);
   }
@@ -775,6 +1091,20 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
     }
   }
   check_mesh(mesh, points.rows());
+  check_frame_points(options.frame_points, points.rows(), "options.frame_points");
+  if (options.search_groups.size() != 0) {
+    if (options.search_groups.size() != points.rows() || options.search_groups.minCoeff() < -1) {
+      fail_argument("options.search_groups must hold one group id per point (", points.rows(),
+                    " of them; -1: in no group) or be empty, got ", options.search_groups.size(),
+                    " ids with minimum ", options.search_groups.minCoeff());
+    }
+  }
+  for (Index q = 0; q < options.outlier_edges.size(); ++q) {
+    if (options.outlier_edges[q] < 0 || options.outlier_edges[q] >= mesh.edges.rows()) {
+      fail_argument("options.outlier_edges[", q, "] = ", options.outlier_edges[q],
+                    " is not an edge index; indices must be in [0, ", mesh.edges.rows() - 1, "]");
+    }
+  }
   if (options.patch_sides.size() != 0) {
     if (options.patch_sides.rows() != points.rows() || options.patch_sides.cols() != 2) {
       fail_argument("options.patch_sides must have shape (P, 2) = (", points.rows(),
@@ -794,6 +1124,7 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   s.n_pix = (2 * s.r + 1) * (2 * s.r + 1);
   s.n_pad = (s.n_pix + kLanes - 1) / kLanes * kLanes;
   s.pts = points;
+  s.init_pts = points;
   // Use a level only if it is at least two patches wide and high.
   s.n_levels = 1;
   while (s.n_levels < options.levels &&
@@ -815,6 +1146,13 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   }
   s.current = s.first;
   s.prev_weight.assign(static_cast<size_t>(s.P), 1.0);
+  s.muted.assign(static_cast<size_t>(s.P), 0);
+  s.checked.assign(static_cast<size_t>(s.P), 0);
+  for (Index q = 0; q < options.outlier_edges.size(); ++q) {
+    const Index e = options.outlier_edges[q];
+    s.checked[static_cast<size_t>(mesh.edges(e, 0))] = 1;
+    s.checked[static_cast<size_t>(mesh.edges(e, 1))] = 1;
+  }
 }
 
 SpringMeshTracker::~SpringMeshTracker() = default;
@@ -829,12 +1167,23 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
                   s.width, " x ", s.height, " frame; every frame of a sequence must have one size");
   }
   s.build_pyramid(frame);
+  if (s.mesh.offset_precision.size() != 0) {
+    s.to_face = face_similarity(s.init_pts, s.pts, s.opt.frame_points).inverse();
+  }
   TrackerFrame out;
   // Stage A: coarse to fine against the current templates.
   out.iterations = s.relax(s.n_levels - 1, 0, s.current);
   // Half-patch points that stage A left on a poor match are searched for, and the mesh is
   // relaxed again from where they were found.
+  if (s.opt.group_search_radius > 0 && s.group_search()) {
+    out.iterations += s.relax(0, 0, s.current);
+  }
   if (s.opt.search_radius > 0 && s.search()) {
+    out.iterations += s.relax(0, 0, s.current);
+  }
+  // Points whose data disagree with their offset springs are handed to the springs.
+  std::fill(s.muted.begin(), s.muted.end(), 0);
+  for (int round = 0; round < 2 && s.opt.spring_outlier > 0 && s.mute_inconsistent(); ++round) {
     out.iterations += s.relax(0, 0, s.current);
   }
   const RowMatrixXd stage_a = s.pts;

@@ -4,6 +4,8 @@
 
 #include "voicepuppet/tracker.hpp"
 
+#include <Eigen/LU>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -193,6 +195,163 @@ TEST_CASE("springs_from_points and estimate_springs: closed-form lengths, means 
   CHECK_THROWS_AS(estimate_springs(still, RowMatrixXb::Zero(2, 3), m, 0.5), std::invalid_argument);
 }
 
+TEST_CASE("face_similarity and offset springs: planted rotations, scales and offset statistics") {
+  // Four frame points rotated by 0.1 rad, scaled by 1.2 and moved: recovered exactly.
+  RowMatrixXd from(4, 2), to(4, 2);
+  from << 0, 0, 10, 0, 10, 5, -3, 8;
+  const double c = 1.2 * std::cos(0.1), sn = 1.2 * std::sin(0.1);
+  for (Index i = 0; i < 4; ++i) {
+    to.row(i) << c * from(i, 0) - sn * from(i, 1) + 7, sn * from(i, 0) + c * from(i, 1) - 2;
+  }
+  VectorXi idx(4);
+  idx << 0, 1, 2, 3;
+  const Eigen::Matrix2d A = face_similarity(from, to, idx);
+  CHECK(A(0, 0) == doctest::Approx(c));
+  CHECK(A(1, 0) == doctest::Approx(sn));
+  CHECK(A(0, 1) == doctest::Approx(-sn));
+  CHECK(face_similarity(from, to, VectorXi()).isIdentity());
+  // A pass of T frames: points 0..2 are a rigid triangle under a known similarity A_t; point 3
+  // hangs off point 0 by a face-frame offset f_t drawn from N(mu, Sigma), so edge (0, 3) seen in
+  // the image is A_t f_t. The offset spring must find mu and Sigma^-1 of the drawn f_t
+  // (the face frame undone), and switch the edge's length spring off.
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g(0, 1);
+  const int T = 400;
+  RowMatrixXd base(4, 2);
+  base << 0, 0, 20, 0, 5, 15, 2, 10;
+  RowMatrixXd tracks(T, 8);
+  std::vector<Eigen::Vector2d> drawn;
+  for (int t = 0; t < T; ++t) {
+    const double ang = t == 0 ? 0.0 : 0.05 * g(rng), sc = t == 0 ? 1.0 : 1 + 0.03 * g(rng);
+    Eigen::Matrix2d At;
+    At << sc * std::cos(ang), -sc * std::sin(ang), sc * std::sin(ang), sc * std::cos(ang);
+    const Eigen::Vector2d shift(3 * g(rng), 3 * g(rng));
+    // f = mu + L z with Sigma = L L^T = [[0.25, 0.3], [0.3, 4.0]]
+    const double z1 = g(rng), z2 = g(rng);
+    Eigen::Vector2d f(2 + 0.5 * z1, 10 + 0.6 * z1 + std::sqrt(4.0 - 0.36) * z2);
+    if (t == 0) f << 2, 10;
+    drawn.push_back(f);
+    for (Index i = 0; i < 3; ++i) {
+      const Eigen::Vector2d q = At * base.row(i).transpose() + shift;
+      tracks(t, 2 * i) = q[0];
+      tracks(t, 2 * i + 1) = q[1];
+    }
+    const Eigen::Vector2d q3 = At * (base.row(0).transpose() + f) + shift;
+    tracks(t, 6) = q3[0];
+    tracks(t, 7) = q3[1];
+  }
+  EdgeMatrix e(4, 2);
+  e << 0, 1, 0, 2, 0, 3, 1, 2;
+  SpringMesh m = springs_from_points(base, e);
+  m.offset_precision = RowMatrixXd::Zero(4, 4);
+  m.offset_mean = RowMatrixXd::Zero(4, 2);
+  m.offset_precision.row(2) << 1, 0, 0, 1;
+  VectorXi frame(3);
+  frame << 0, 1, 2;
+  const SpringMesh r = estimate_springs(tracks, RowMatrixXb::Zero(T, 4), m, 0.1, frame);
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const auto& f : drawn) mean += f;
+  mean /= T;
+  Eigen::Matrix2d cov = Eigen::Matrix2d::Zero();
+  for (const auto& f : drawn) cov += (f - mean) * (f - mean).transpose();
+  cov /= T - 1;
+  const Eigen::Matrix2d prec = cov.inverse();
+  CHECK(r.offset_mean(2, 0) == doctest::Approx(mean[0]).epsilon(1e-9));
+  CHECK(r.offset_mean(2, 1) == doctest::Approx(mean[1]).epsilon(1e-9));
+  CHECK(r.offset_precision(2, 0) == doctest::Approx(prec(0, 0)).epsilon(1e-9));
+  CHECK(r.offset_precision(2, 1) == doctest::Approx(prec(0, 1)).epsilon(1e-9));
+  CHECK(r.offset_precision(2, 2) == doctest::Approx(prec(1, 0)).epsilon(1e-9));
+  CHECK(r.offset_precision(2, 3) == doctest::Approx(prec(1, 1)).epsilon(1e-9));
+  CHECK(r.stiffness[2] == 0.0);
+  CHECK(r.stiffness[0] > 0);  // length springs elsewhere as before
+  CHECK(r.offset_precision.row(0).isZero());
+  // The eigenvalue floor: a constant offset gets precision 1/min_sigma^2 in every direction.
+  RowMatrixXd still(3, 8);
+  for (int t = 0; t < 3; ++t) still.row(t) << 0, 0, 20, 0, 5, 15, 2, 10;
+  const SpringMesh f = estimate_springs(still, RowMatrixXb::Zero(3, 4), m, 0.5, frame);
+  CHECK(f.offset_precision(2, 0) == doctest::Approx(4.0));
+  CHECK(f.offset_precision(2, 3) == doctest::Approx(4.0));
+  CHECK(f.offset_precision(2, 1) == doctest::Approx(0.0));
+  // Bad offset springs are refused with a reason.
+  SpringMesh bad = m;
+  bad.offset_precision.row(2) << 1, 2, 2, 1;  // indefinite
+  CHECK_THROWS_WITH_AS(estimate_springs(still, RowMatrixXb::Zero(3, 4), bad, 0.5),
+                       doctest::Contains("positive semidefinite"), std::invalid_argument);
+  bad = m;
+  bad.offset_mean.resize(0, 0);
+  CHECK_THROWS_WITH_AS(estimate_springs(still, RowMatrixXb::Zero(3, 4), bad, 0.5),
+                       doctest::Contains("together"), std::invalid_argument);
+  VectorXi one(1);
+  one << 0;
+  CHECK_THROWS_WITH_AS(estimate_springs(still, RowMatrixXb::Zero(3, 4), m, 0.5, one),
+                       doctest::Contains("at least 2"), std::invalid_argument);
+}
+
+// A w by h frame of value(x, y), rounded and clipped to 8 bits.
+template <class F>
+Frame render_with(Index w, Index h, F value) {
+  Frame f{std::vector<std::uint8_t>(static_cast<size_t>(w * h)), w, h};
+  for (Index y = 0; y < h; ++y) {
+    for (Index x = 0; x < w; ++x) {
+      f.pix[static_cast<size_t>(y * w + x)] =
+          static_cast<std::uint8_t>(std::lround(std::clamp(value(double(x), double(y)), 0.0, 255.0)));
+    }
+  }
+  return f;
+}
+
+// Point 1 sits on horizontal stripes (texture in y only: the aperture problem of a lip contour),
+// points 0 and 2 on a full texture above; the whole image moves by (dx, dy).
+Frame render_stripes(const Texture& tex, double dx, double dy) {
+  return render_with(120, 110, [&](double x, double y) {
+    const double u = x - dx, v = y - dy;
+    return v < 50 ? tex(u, v) : 128 + 40 * std::sin(0.45 * v) + 20 * std::sin(0.9 * v + 1);
+  });
+}
+
+TEST_CASE("tracker: an offset spring stops a point sliding along its contour") {
+  const Texture tex(11);
+  // Point 1 hangs below point 0 on one spring, across the stripes: a length spring says
+  // nothing about a slide along them (first order), an offset spring does.
+  RowMatrixXd p(3, 2);
+  p << 40, 25, 40, 72, 80, 25;
+  EdgeMatrix e(2, 2);
+  e << 0, 1, 0, 2;
+  TrackerOptions o;
+  o.levels = 1;
+  o.frame_points.resize(2);
+  o.frame_points << 0, 2;
+  const SpringMesh length_only = springs_from_points(p, e, 0.05);
+  // An offset spring on the edge to the striped point: stiff (0.3 px) along x, soft (3 px) along y.
+  SpringMesh offsets = length_only;
+  offsets.offset_precision = RowMatrixXd::Zero(2, 4);
+  offsets.offset_mean = RowMatrixXd::Zero(2, 2);
+  for (const Index k : {Index(0)}) {
+    offsets.offset_precision.row(k) << 1 / 0.09, 0, 0, 1 / 9.0;
+    offsets.offset_mean.row(k) = p.row(e(k, 1)) - p.row(e(k, 0));
+    offsets.stiffness[k] = 0;
+  }
+  const Frame f0 = render_stripes(tex, 0, 0);
+  SpringMeshTracker a(f0.view(), p, length_only, o), b(f0.view(), p, offsets, o);
+  double dx = 0, dy = 0;
+  for (int t = 1; t <= 12; ++t) {
+    dx = 0.6 * t;
+    dy = 0.3 * t;
+    const Frame f = render_stripes(tex, dx, dy);
+    a.track(f.view());
+    b.track(f.view());
+  }
+  const double err_length = std::hypot(a.points()(1, 0) - (40 + dx), a.points()(1, 1) - (72 + dy));
+  const double err_offset = std::hypot(b.points()(1, 0) - (40 + dx), b.points()(1, 1) - (72 + dy));
+  MESSAGE("striped point: error " << err_length << " px with length springs, " << err_offset
+                                  << " px with offset springs");
+  CHECK(err_offset < 0.2);
+  CHECK(err_length > 1.0);  // the length spring lets it lag behind along the stripes (1.4 px)
+  for (const Index i : {Index(0), Index(2)}) {
+    CHECK(std::hypot(b.points()(i, 0) - (p(i, 0) + dx), b.points()(i, 1) - (p(i, 1) + dy)) < 0.1);
+  }
+}
+
 // A mouth seen edge-on: a textured lower lip, `band` px tall, hangs below the line y = y0 + s
 // and moves down with s over a static chin; above the line is a different texture in frame 0
 // (closed lips) and a flat dark cavity afterwards (an open mouth).
@@ -219,17 +378,33 @@ Frame render_mouth(const Texture& lip, const Texture& closed, const Texture& chi
   return f;
 }
 
+// Three points along the top of the lip band of `render_mouth` (y = y0), springs between
+// neighbours, and tracker options with half patches below each point (the lip side).
+struct LipRow {
+  RowMatrixXd p0;
+  SpringMesh mesh;
+  TrackerOptions half;
+};
+
+LipRow lip_row(double y0) {
+  LipRow row;
+  row.p0.resize(3, 2);
+  row.p0 << 60, y0, 100, y0, 140, y0;
+  EdgeMatrix edges(2, 2);
+  edges << 0, 1, 1, 2;
+  row.mesh = springs_from_points(row.p0, edges);
+  row.half.patch_sides = RowMatrixXd(3, 2);
+  row.half.patch_sides << 0, 1, 0, 1, 0, 1;
+  return row;
+}
+
 TEST_CASE("tracker: half patches follow a lip beside an opening mouth; search catches a jump") {
   const Texture lip(21), closed(22), chin(23);
   const double y0 = 70;
-  RowMatrixXd p0(3, 2);
-  p0 << 60, y0, 100, y0, 140, y0;
-  EdgeMatrix edges(2, 2);
-  edges << 0, 1, 1, 2;
-  const SpringMesh mesh = springs_from_points(p0, edges);
-  TrackerOptions half;
-  half.patch_sides = RowMatrixXd(3, 2);
-  half.patch_sides << 0, 1, 0, 1, 0, 1;  // the lip is below each point
+  const LipRow row = lip_row(y0);
+  const RowMatrixXd& p0 = row.p0;
+  const SpringMesh& mesh = row.mesh;
+  const TrackerOptions& half = row.half;
   TrackerOptions searched = half;
   searched.search_radius = 12;
   const Frame f0 = render_mouth(lip, closed, chin, y0, 0, false);
@@ -263,6 +438,82 @@ TEST_CASE("tracker: half patches follow a lip beside an opening mouth; search ca
   // chin); the exhaustive search finds it.
   CHECK(err_half > 2.0);
   CHECK(err_search < 0.1);
+}
+
+TEST_CASE("tracker: a group search finds a lower lip that dropped beyond the point search") {
+  const Texture lip(21), closed(22), chin(23);
+  const double y0 = 60;
+  const LipRow row = lip_row(y0);
+  const RowMatrixXd& p0 = row.p0;
+  const SpringMesh& mesh = row.mesh;
+  TrackerOptions alone = row.half;
+  alone.search_radius = 6;
+  TrackerOptions grouped = alone;
+  grouped.search_groups.resize(3);
+  grouped.search_groups << 0, 0, 0;
+  grouped.group_search_radius = 18;
+  const Frame f0 = render_mouth(lip, closed, chin, y0, 0, false);
+  SpringMeshTracker a(f0.view(), p0, mesh, alone), g(f0.view(), p0, mesh, grouped);
+  // A 15 px drop in one frame: beyond each point's 6 px search, within the group's 18 px.
+  const Frame f = render_mouth(lip, closed, chin, y0, 15, true);
+  const TrackerFrame ra = a.track(f.view()), rg = g.track(f.view());
+  double err_alone = 0, err_group = 0;
+  for (Index i = 0; i < 3; ++i) {
+    err_alone = std::max(err_alone, std::hypot(ra.points(i, 0) - p0(i, 0), ra.points(i, 1) - y0 - 15));
+    err_group = std::max(err_group, std::hypot(rg.points(i, 0) - p0(i, 0), rg.points(i, 1) - y0 - 15));
+  }
+  MESSAGE("15 px lip drop: worst error point search ", err_alone, " px, group search ", err_group, " px");
+  CHECK(err_alone > 5.0);
+  CHECK(err_group < 0.1);
+  CHECK(!rg.lost.any());
+  // Bad group ids are refused.
+  TrackerOptions bad = grouped;
+  bad.search_groups.resize(2);
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p0, mesh, bad), doctest::Contains("search_groups"),
+                       std::invalid_argument);
+}
+
+// The texture, except that the content under point 1 (a box around (73, 40)) has slid 6 px to
+// the right: a feature its tracker may follow though the face has not moved.
+Frame render_distractor(const Texture& tex, bool slid) {
+  return render_with(130, 100, [&](double x, double y) {
+    const bool box = slid && std::abs(x - 73) <= 12 && std::abs(y - 40) <= 9;
+    return tex(x - (box ? 6.0 : 0.0), y);
+  });
+}
+
+TEST_CASE("tracker: a point whose data contradict its springs by many sigmas is handed to them") {
+  const Texture tex(5);
+  RowMatrixXd p(4, 2);
+  p << 40, 40, 70, 40, 55, 72, 85, 72;
+  const EdgeMatrix e = delaunay_edges(p);
+  SpringMesh mesh = springs_from_points(p, e);
+  mesh.offset_precision = RowMatrixXd::Zero(e.rows(), 4);
+  mesh.offset_mean = RowMatrixXd::Zero(e.rows(), 2);
+  for (Index k = 0; k < e.rows(); ++k) {
+    mesh.offset_precision.row(k) << 4, 0, 0, 4;  // 0.5 px in every direction
+    mesh.offset_mean.row(k) = p.row(e(k, 1)) - p.row(e(k, 0));
+    mesh.stiffness[k] = 0;
+  }
+  TrackerOptions plain;
+  TrackerOptions checked = plain;
+  checked.spring_outlier = 4;
+  checked.outlier_edges.resize(e.rows());
+  for (Index k = 0; k < e.rows(); ++k) checked.outlier_edges[k] = k;
+  const Frame f0 = render_distractor(tex, false), f1 = render_distractor(tex, true);
+  SpringMeshTracker a(f0.view(), p, mesh, plain), b(f0.view(), p, mesh, checked);
+  const TrackerFrame ra = a.track(f1.view()), rb = b.track(f1.view());
+  const double err_plain = (ra.points.row(1) - p.row(1)).norm(),
+               err_checked = (rb.points.row(1) - p.row(1)).norm();
+  MESSAGE("distracted point: error " << err_plain << " px without the check, " << err_checked
+                                     << " px with it");
+  CHECK(err_plain > 3.0);   // its data (a perfect match 6 px away) outweigh 0.5 px springs
+  CHECK(err_checked < 0.3);  // muted: the springs hold it where its neighbours say
+  for (const Index i : {Index(0), Index(2), Index(3)}) CHECK((rb.points.row(i) - p.row(i)).norm() < 0.3);
+  TrackerOptions bad = checked;
+  bad.outlier_edges[0] = e.rows();
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("outlier_edges"),
+                       std::invalid_argument);
 }
 
 TEST_CASE("tracker: a sub-pixel shift of a textured image is recovered to 0.06 px") {

@@ -35,10 +35,22 @@ DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
 # to ~0.25 IOD; first-frame springs of 5 % of a 3 px lip gap would hold the lips shut).
 LIP_SEARCH_IOD = 0.065
 LIP_SPRING_FLOOR_IOD = 0.025
+# The lower lip is searched for as one (a jaw drop moves it by more than a point's search
+# radius within a few frames, and its points' contours are faint) within 0.15 IOD; from the
+# second pass a lip point further than 6 standard deviations of its within-lip springs from
+# where they put it is handed to the springs for the frame (3, 4, 5, 6 measured: 3 mutes lips
+# that really moved, 5-6 best; the re-estimated variances are smaller than the true ones).
+LOWER_LIP = (55, 56, 57, 58, 59, 65, 66, 67)
+LIP_GROUP_SEARCH_IOD = 0.15
+LIP_SPRING_OUTLIER = 6.0
+# The face frame of a 68-point layout: points that move rigidly with the head (nose, eye
+# corners); the lip springs' offsets are measured in it.
+FACE_FRAME_POINTS = (27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
 
 _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
-                 "damping", "patch_sides", "search_radius")
+                 "damping", "patch_sides", "search_radius", "frame_points", "spring_outlier", "outlier_edges",
+                 "search_groups", "group_search_radius")
 
 
 @dataclass
@@ -106,6 +118,49 @@ def lip_patch_sides(points: np.ndarray) -> np.ndarray:
     sides[[61, 62, 63]] = -down
     sides[[55, 56, 57, 58, 59, 65, 66, 67]] = down
     return sides
+
+
+def _same_lip(edges: np.ndarray) -> np.ndarray:
+    """(E,) bool: edges of a 68-point mesh with both ends on the upper lip and corners (48-54,
+    60-64) or both on the lower lip (55-59, 65-67): they keep their shape when the mouth opens."""
+    lower = np.zeros(68, dtype=bool)
+    lower[list(LOWER_LIP)] = True
+    lips = np.all(edges >= 48, axis=1)
+    return lips & (lower[edges[:, 0]] == lower[edges[:, 1]])
+
+
+def _lip_springs(init: np.ndarray, edges: np.ndarray, mesh, relative_sigma: float, min_sigma: float,
+                 floor: float):
+    """The initial springs of a 68-point face with offset springs on the edges that touch a lip.
+
+    A lip spring's offset is free to change by ``floor`` px (std) along the face's vertical axis,
+    where the mouth opens, but only by a length spring's std (``relative_sigma`` of its length,
+    at least ``min_sigma``) along the horizontal one, so lip points do not slide along the lip
+    contours (the aperture problem: a horizontal lip edge says nothing about x). Those edges'
+    length springs are off: the offset spring holds the length too.
+    """
+    touches = np.any(edges >= 48, axis=1)
+    on_lips = np.all(edges >= 48, axis=1)
+    across = on_lips & ~_same_lip(edges)
+    u = init[45] - init[36]
+    u = u / np.linalg.norm(u)
+    v = np.array([-u[1], u[0]])
+    d = init[edges[:, 1]] - init[edges[:, 0]]
+    length = np.linalg.norm(d, axis=1)
+    sig_u = np.maximum(relative_sigma * length, min_sigma)
+    # Only an edge across the mouth opening (a lower-lip point to an upper-lip point or a
+    # corner) changes by the opening; edges within one lip keep a length spring's std.
+    sig_v = np.maximum(relative_sigma * length, min_sigma)
+    sig_v = np.where(across, np.maximum(sig_v, floor), sig_v)
+    prec = (np.einsum("i,j->ij", u, u)[None] / sig_u[:, None, None] ** 2
+            + np.einsum("i,j->ij", v, v)[None] / sig_v[:, None, None] ** 2)
+    prec[~on_lips] = 0.0
+    k = np.asarray(mesh.stiffness).copy()
+    k[touches] = np.minimum(k[touches], 1.0 / floor**2)
+    k[on_lips] = 0.0
+    mean = np.where(on_lips[:, None], d, 0.0)
+    return _core.SpringMesh(edges, np.asarray(mesh.rest_length), k,
+                            np.ascontiguousarray(prec.reshape(-1, 4)), np.ascontiguousarray(mean))
 
 
 def _check_points(points, name: str) -> np.ndarray:
@@ -190,6 +245,11 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         iod = float(np.linalg.norm(init[45] - init[36]))
         options.setdefault("patch_sides", lip_patch_sides(init))
         options.setdefault("search_radius", LIP_SEARCH_IOD * iod)
+        groups = np.full(68, -1, dtype=np.int64)
+        groups[list(LOWER_LIP)] = 0
+        options.setdefault("search_groups", groups)
+        options.setdefault("group_search_radius", LIP_GROUP_SEARCH_IOD * iod)
+        options.setdefault("spring_outlier", LIP_SPRING_OUTLIER)
         lip_floor = LIP_SPRING_FLOOR_IOD * iod
     if passes < 1:
         raise ValueError(f"passes must be >= 1 (tracking passes with spring re-estimation), got {passes}")
@@ -198,26 +258,27 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
     edges = np.ascontiguousarray(edges, dtype=np.int64)
     if edges.ndim != 2 or edges.shape[1] != 2 or len(edges) == 0:
         raise ValueError(f"edges must have shape (E, 2) with E >= 1, got {edges.shape}")
-    opts = _options(options)
     mesh = _core.springs_from_points(init, edges, relative_sigma,
                                      0.0 if initial_min_sigma is None else initial_min_sigma)
     if lips:
-        # Springs that touch a lip point start no stiffer than a std of lip_floor px: the mouth
-        # opens by many times the few-pixel gap of closed lips.
-        on_lips = np.any(edges >= 48, axis=1)
-        k = np.asarray(mesh.stiffness).copy()
-        k[on_lips] = np.minimum(k[on_lips], 1.0 / lip_floor**2)
-        mesh = _core.SpringMesh(edges, np.asarray(mesh.rest_length), k)
+        mesh = _lip_springs(init, edges, mesh, relative_sigma, min_sigma, lip_floor)
+        options.setdefault("frame_points", np.asarray(FACE_FRAME_POINTS, dtype=np.int64))
+        options.setdefault("outlier_edges", np.flatnonzero(_same_lip(edges)))
+    opts = _options(options)
+    # The first pass's lip springs are guesses: their check on the data (spring_outlier) waits
+    # for the springs re-estimated from a pass.
+    first_opts = _options({**options, "spring_outlier": 0.0}) if lips else opts
+    frame_points = np.asarray(options.get("frame_points", np.zeros(0)), dtype=np.int64)
     history = []
     prev = None
     for k in range(passes):
-        pts, conf, lost = _one_pass(frames, init, mesh, opts, n_hint, progress,
+        pts, conf, lost = _one_pass(frames, init, mesh, first_opts if k == 0 else opts, n_hint, progress,
                                     f"tracking pass {k + 1}/{passes}")
         row = {"pass": k + 1, "lost_fraction": float(lost.mean()),
                "mean_point_change": None if prev is None else float(np.linalg.norm(pts - prev, axis=2).mean()),
                "max_rel_length_change": None}
         if k + 1 < passes:
-            new = _core.estimate_springs(pts.reshape(len(pts), -1), lost, mesh, min_sigma)
+            new = _core.estimate_springs(pts.reshape(len(pts), -1), lost, mesh, min_sigma, frame_points)
             old_len = np.asarray(mesh.rest_length)
             row["max_rel_length_change"] = float(np.max(np.abs(np.asarray(new.rest_length) - old_len) / old_len))
             mesh = new
@@ -247,8 +308,15 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         of re-estimated spring std), ``initial_min_sigma`` (px floor of the initial spring std;
         default none), ``lips`` (lip tracking for a 68-point iBUG layout:
         :func:`lip_patch_sides` half patches, a search radius of 0.065 inter-ocular distances,
-        and initial springs touching the lips no stiffer than a std of 0.025 inter-ocular
-        distances; default: on when there are 68 points; explicit options win)
+        initial springs from the lips to the face no stiffer than a std of 0.025 inter-ocular
+        distances, offset springs between lip points (a Gaussian on the face-frame vector
+        between them: stiff along the lip contours, soft along the face's vertical axis across
+        the mouth opening; ``frame_points`` the nose and eye corners), the lower lip searched
+        for as one group within 0.15 inter-ocular distances (``search_groups``,
+        ``group_search_radius``) and, from the second pass, a lip point further than 6
+        standard deviations of its within-lip springs from where they put it handed to them
+        for the frame (``spring_outlier``, ``outlier_edges``); default: on when there are 68
+        points; explicit options win)
 
     Returns
     -------

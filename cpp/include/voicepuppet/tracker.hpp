@@ -20,7 +20,11 @@
 ///
 /// Lips: a point beside a region whose appearance changes (a lip beside the opening mouth) can
 /// be tracked on one half of its patch (`TrackerOptions::patch_sides`), and such points are
-/// searched for exhaustively when the gradient steps lose them (`TrackerOptions::search_radius`).
+/// searched for exhaustively when the gradient steps lose them (`TrackerOptions::search_radius`),
+/// alone or as a group (`search_groups`: a lower lip). Offset springs (`SpringMesh`) hold the
+/// vector between two points in the face frame, so points on a contour do not slide along it,
+/// and a point whose data contradict such springs by many standard deviations is handed to them
+/// for the frame (`spring_outlier`).
 ///
 /// Images come in as plain 8-bit grey buffers (`GreyImage`); `tracker_opencv.hpp` adapts a
 /// `cv::Mat` for C++ callers who use OpenCV. Coordinates are pixels, (x, y), the centre of the
@@ -50,10 +54,23 @@ using RowMatrixXb = Eigen::Matrix<bool, Eigen::Dynamic, Eigen::Dynamic, Eigen::R
 using VectorXb = Eigen::Matrix<bool, Eigen::Dynamic, 1>;
 
 /// The springs between trackers.
+///
+/// Besides its length spring, an edge can carry an *offset spring*: a Gaussian on the vector
+/// p_j − p_i seen in the face frame, energy (f − μ_e)ᵀ Λ_e (f − μ_e) with f = A⁻¹ (p_j − p_i),
+/// A the similarity (rotation and scale) that maps the first frame's `frame_points` to the
+/// previous frame's (identity without frame points). Unlike a length spring it can be soft in
+/// one direction and stiff in the other: a lip opens along the face's vertical axis by many
+/// pixels but barely slides along its contour, which a length spring cannot tell apart.
 struct SpringMesh {
   EdgeMatrix edges;      ///< #E by 2 point indices
   VectorXd rest_length;  ///< #E rest lengths L_e in pixels (> 0)
   VectorXd stiffness;    ///< #E stiffnesses k_e in 1/px² (>= 0), energy k_e·(|p_j − p_i| − L_e)²
+  /// #E by 4 offset-spring precisions Λ_e (row-major 2×2, symmetric positive semidefinite,
+  /// 1/px²; a zero row: no offset spring on that edge), or empty (none at all)
+  RowMatrixXd offset_precision;
+  /// #E by 2 mean offsets μ_e (face-frame px) of the offset springs, or empty with
+  /// `offset_precision`
+  RowMatrixXd offset_mean;
 };
 
 /// Edges of the Delaunay triangulation of 2D points (Bowyer–Watson, O(P²), fine for the few
@@ -80,14 +97,27 @@ SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
 /// the frames where neither endpoint is lost and the distance lies within 3 robust standard
 /// deviations (1.4826 · MAD, at least min_sigma) of its median, so frames where a tracker sat on
 /// the wrong feature do not soften the spring that should pull it back. Edges with fewer than
-/// 2 such frames keep their previous values.
+/// 2 such frames keep their previous values. An edge with an offset spring gets, over the same
+/// frames, μ_e = the mean face-frame offset and Λ_e = the inverse of its covariance (eigenvalues
+/// floored at min_sigma²); its length spring is then switched off (k_e = 0), since the offset
+/// spring already holds the length's statistics.
 /// @param[in] tracks     #T by 2·#P positions, row t = (x0, y0, x1, y1, ...) of frame t
 /// @param[in] lost       #T by #P lost flags (true: exclude from the statistics)
 /// @param[in] previous   the mesh used for the pass (its edges are kept)
 /// @param[in] min_sigma  floor on the distance standard deviation in pixels (> 0)
+/// @param[in] frame_points  indices of the points that define the face frame of each frame
+///                     (similarity to frame 0, see `SpringMesh`); empty: the image frame
 /// @throws std::invalid_argument on shape mismatches, non-finite tracks or a bad floor.
 SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
-                            const SpringMesh& previous, double min_sigma = 0.5);
+                            const SpringMesh& previous, double min_sigma = 0.5,
+                            const VectorXi& frame_points = VectorXi());
+
+/// The similarity A (2×2: rotation and scale, [[a, −b], [b, a]]) that best maps the centred
+/// `from` rows `idx` onto the centred `to` rows in least squares (the identity for an empty
+/// `idx` or when `from` has no spread).
+/// @param[in] from, to  #P by 2 point sets
+/// @param[in] idx       indices into both (>= 2 of them, or empty)
+Eigen::Matrix2d face_similarity(const MatrixRef& from, const MatrixRef& to, const VectorXi& idx);
 
 /// Tuning of `SpringMeshTracker`. Defaults suit faces at 100–700 px across.
 struct TrackerOptions {
@@ -115,6 +145,25 @@ struct TrackerOptions {
   /// moves penalised); it moves to the best offset if that correlates at least `ncc_full`, and
   /// the mesh is relaxed again (0: no search)
   double search_radius = 0.0;
+  /// indices of the points whose similarity to the first frame defines the face frame of the
+  /// offset springs (`SpringMesh`): the previous frame's positions, so the frame is fixed
+  /// within a frame's relaxation; empty: the image frame
+  VectorXi frame_points;
+  /// #P group ids (-1: in no group), or empty: points searched for jointly after stage A, by a
+  /// common whole-pixel offset within `group_search_radius` (each point free to deviate 2 px
+  /// from it), scored by the group's mean correlation with the first-frame templates; a lower
+  /// lip moves as one
+  VectorXi search_groups;
+  /// px: radius of the joint search of `search_groups` (0: none)
+  double group_search_radius = 0.0;
+  /// standard deviations: after stage A, an end of an `outlier_edges` spring whose position is
+  /// further than this (Mahalanobis length of the step those springs alone would take) from
+  /// where they put it has its data term muted for the rest of the frame, and the mesh is
+  /// relaxed again (worst first, never two neighbours in one round, two rounds; 0: off)
+  double spring_outlier = 0.0;
+  /// indices into the mesh's edges of the springs the outlier check uses: those that hold
+  /// whatever the face does (within one lip), not those that stretch with an expression
+  VectorXi outlier_edges;
 };
 
 /// One frame's answer.
