@@ -217,3 +217,25 @@ def test_failed_writes_leave_nothing(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="disk full"):
         E.write_pvd(anim, tmp_path / "s.pvd")
     assert os.listdir(tmp_path) == []
+
+
+def test_outputs_get_the_permissions_of_plainly_created_files(tmp_path, monkeypatch):
+    """Atomic writes go through mkstemp/mkdtemp (owner-only); the published files and folders
+    must carry the mode open()/mkdir() would give under the process's umask (here 022)."""
+    import stat
+
+    from voicepuppet import animation
+
+    monkeypatch.setattr(animation, "_UMASK", 0o022)
+    anim = procedural_animation(4, 10.0)
+    save_animation(anim, tmp_path / "a.npz")
+    save_animation(anim, tmp_path / "a.csv")
+    E.export(anim, tmp_path / "w.csv", "arkit")
+    E.write_pvd(anim, tmp_path / "s.pvd")
+
+    def mode(name):
+        return stat.S_IMODE(os.stat(tmp_path / name).st_mode)
+
+    for name in ("a.npz", "a.csv", "w.csv", "s.pvd"):
+        assert mode(name) == 0o644, name
+    assert mode("s_frames") == 0o755

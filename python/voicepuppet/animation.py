@@ -131,6 +131,24 @@ def check_output_path(path, suffixes: tuple[str, ...] | None = None, what: str =
     return p
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+#: The process's file-creation mask, read once (os.umask can only be read by setting it).
+_UMASK = _umask()
+
+
+def publish(tmp, path) -> None:
+    """Renames the finished temporary file or folder ``tmp`` onto ``path``, first giving it the
+    permissions a plainly created one would have (``tempfile.mkstemp`` / ``mkdtemp`` make them
+    owner-only)."""
+    os.chmod(tmp, (0o777 if os.path.isdir(tmp) else 0o666) & ~_UMASK)
+    os.replace(tmp, path)
+
+
 @contextlib.contextmanager
 def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Iterator[Path]:
     """Yields a temporary path next to ``path``; on success it is renamed onto ``path``.
@@ -145,7 +163,7 @@ def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "outp
     tmp_path = Path(tmp)
     try:
         yield tmp_path
-        os.replace(tmp_path, p)
+        publish(tmp_path, p)
     finally:
         if tmp_path.exists():
             tmp_path.unlink()

@@ -39,6 +39,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from voicepuppet.animation import publish
+
 __all__ = ["AUDIO_SUFFIXES", "VIDEO_SUFFIXES", "MANIFEST_NAME", "SUMMARY_NAME", "FileResult", "BatchSummary",
            "discover", "Manifest", "run_batch", "animate_folder", "track_folder", "output_names",
            "sha256_file"]
@@ -93,7 +95,7 @@ def _write_file(path: Path, data: bytes) -> None:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        publish(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

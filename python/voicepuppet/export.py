@@ -18,7 +18,7 @@ from typing import Optional
 import numpy as np
 
 from voicepuppet import face_layout
-from voicepuppet.animation import Animation, atomic_path, check_output_path, save_animation
+from voicepuppet.animation import Animation, atomic_path, check_output_path, publish, save_animation
 from voicepuppet.render import (ACTION_UNITS, FaceMesh, action_unit_basis, build_face_mesh, fit_activations,
                                 mesh_animation, portrait_image)
 
@@ -233,7 +233,7 @@ def write_pvd(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
         xml = ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
                "  <Collection>\n" + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n")
         with atomic_path(p, (".pvd",), "VTK series") as tmp:
-            os.replace(tmpdir, folder)
+            publish(tmpdir, folder)
             try:
                 tmp.write_text(xml, encoding="utf-8")
             except BaseException:

@@ -40,7 +40,7 @@ from typing import Iterable, Iterator, Optional, Sequence
 import numpy as np
 
 from voicepuppet import face_layout
-from voicepuppet.animation import Animation, atomic_path, check_output_path, check_points
+from voicepuppet.animation import Animation, atomic_path, check_output_path, check_points, publish
 
 __all__ = ["FaceMesh", "build_face_mesh", "portrait_image", "ACTION_UNITS", "action_unit_basis",
            "fit_activations", "retarget", "mesh_animation", "FaceRenderer", "draw_landmarks_2d",
@@ -673,7 +673,7 @@ def write_video(frames: Iterable[np.ndarray], path, fps: float, *, audio=None, n
                 Image.fromarray(img).save(tmp / f"frame_{t:06d}.png")
             if p.exists():
                 p.rmdir()
-            os.replace(tmp, p)
+            publish(tmp, p)
         finally:
             if tmp.exists():
                 shutil.rmtree(tmp)

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import face_layout
+from ..animation import publish
 from .articulation import (ARTICULATORS, PARAM_NAMES, Articulation, apply_pose, articulate,
                            articulator_tracks, deform, lip_gap, phone_class)
 from .speech import (SAMPLE_RATE, VOICES, Phone, Utterance, arctic_utterance, concatenate,
@@ -176,7 +177,7 @@ def _write_wav(path: str, samples: np.ndarray, rate: int) -> None:
     os.close(fd)
     try:
         soundfile.write(tmp, samples, rate, subtype="PCM_16")
-        os.replace(tmp, path)
+        publish(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
@@ -188,7 +189,7 @@ def _write_npz(path: str, **arrays) -> None:
     try:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
-        os.replace(tmp, path)
+        publish(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
@@ -361,5 +362,5 @@ def make_corpus(out_dir, train_seconds: float = 60.0, n_test: int = 3, seed: int
     fd, tmp = tempfile.mkstemp(suffix=".json", dir=out_dir)
     with os.fdopen(fd, "w") as fh:
         json.dump(m, fh, indent=1)
-    os.replace(tmp, manifest)
+    publish(tmp, manifest)
     return Corpus(out_dir, train, test_clips, float(fps), size, int(seed), photo.name)

