@@ -315,10 +315,11 @@ def test_lips_follow_the_mouth_of_the_synthetic_performer(performer):
           f"({corr0:.3f}), opening std {std:.2f} px ({std0:.2f}; truth {std_true:.2f}); "
           f"other points {rest:.2f} px ({rest0:.2f})")
     assert corr0 < 0.1 and lip0 > 4.5  # the defect, measured
-    # Measured 0.958 and 1.74 px here (offset springs, the lower-lip group search and the spring
-    # check on the data; before them 0.61 and 3.10 px: docs/tracking.md).
-    assert corr > 0.9
-    assert lip < 2.0
+    # Measured 0.960 and 1.61 px here (offset springs, the lower-lip group search, the spring
+    # check on the data and, from pass 2, springs across the opening no stiffer than the lip
+    # floor; 1.74 px without that softening, 3.10 px before all of them: docs/tracking.md).
+    assert corr > 0.93
+    assert lip < 1.7
     assert std > 0.75 * std_true
     assert rest < 0.45  # the rest of the face as accurate as before
     assert rest < rest0 + 0.05
@@ -335,3 +336,49 @@ def test_lip_patch_sides_point_away_from_the_mouth(performer):
         tracking.lip_patch_sides(truth[0][:40])
     with pytest.raises(ValueError, match="68 points"):
         tracking.track_frames(np.zeros((2, 64, 64), np.uint8), [[10, 10], [30, 12], [20, 30]], lips=True)
+
+
+def test_re_estimated_springs_across_the_mouth_opening_are_softened(performer):
+    # Springs re-estimated from a pass that held the lower lip too high in wide openings pull
+    # it back to that bias; from the second pass the springs spanning the opening keep at least
+    # the lip floor's std. Checked on a mesh made too stiff everywhere (precision 100 / px^2).
+    from voicepuppet import _core
+
+    _, truth, _ = performer
+    init = truth[0]
+    edges = tracking.delaunay_edges(init)
+    n = len(edges)
+    rng = np.random.default_rng(0)
+    rot = rng.normal(size=(n, 2, 2))
+    prec = np.einsum("eij,ekj->eik", rot, rot) + 100.0 * np.eye(2)  # SPD, eigenvalues >= 100
+    mean = rng.normal(size=(n, 2))
+    stiff = np.full(n, 100.0)
+    mesh = _core.SpringMesh(edges, np.full(n, 10.0), stiff, np.ascontiguousarray(prec.reshape(-1, 4)), mean)
+    floor = 3.0
+    soft = tracking._soften_opening(mesh, edges, floor)
+    lower = np.zeros(68, dtype=bool)
+    lower[list(tracking.LOWER_LIP)] = True
+    on_lips = np.all(edges >= 48, axis=1)
+    across = on_lips & ~tracking._same_lip(edges)
+    to_lower = lower[edges].any(axis=1) & ~on_lips
+    assert across.sum() >= 6 and to_lower.sum() >= 3  # the mesh spans the opening
+    p2 = np.asarray(soft.offset_precision).reshape(-1, 2, 2)
+    for e in range(n):
+        if across[e]:
+            # Both eigenvalues capped at 1/floor^2 (all were >= 100), so the precision is isotropic.
+            np.testing.assert_allclose(p2[e], np.eye(2) / floor**2, atol=1e-12)
+        else:
+            np.testing.assert_array_equal(p2[e], prec[e])
+    k2 = np.asarray(soft.stiffness)
+    np.testing.assert_allclose(k2[to_lower], 1.0 / floor**2)
+    np.testing.assert_array_equal(k2[~to_lower], stiff[~to_lower])
+    np.testing.assert_array_equal(np.asarray(soft.offset_mean), mean)
+    np.testing.assert_array_equal(np.asarray(soft.rest_length), np.full(n, 10.0))
+    # An edge already softer than the floor keeps its precision (eigenvectors and eigenvalues).
+    e = int(np.flatnonzero(across)[0])
+    c, s_ = np.cos(0.3), np.sin(0.3)
+    v = np.array([[c, -s_], [s_, c]])
+    prec[e] = v @ np.diag([0.01, 50.0]) @ v.T
+    mesh2 = _core.SpringMesh(edges, np.full(n, 10.0), stiff, np.ascontiguousarray(prec.reshape(-1, 4)), mean)
+    p3 = np.asarray(tracking._soften_opening(mesh2, edges, floor).offset_precision).reshape(-1, 2, 2)
+    np.testing.assert_allclose(p3[e], v @ np.diag([0.01, 1.0 / floor**2]) @ v.T, atol=1e-12)

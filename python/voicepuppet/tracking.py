@@ -163,6 +163,30 @@ def _lip_springs(init: np.ndarray, edges: np.ndarray, mesh, relative_sigma: floa
                             np.ascontiguousarray(prec.reshape(-1, 4)), np.ascontiguousarray(mean))
 
 
+def _soften_opening(mesh, edges: np.ndarray, floor: float):
+    """``mesh`` with the springs that span the mouth opening no stiffer than ``floor`` px (std).
+
+    Re-estimated springs record the previous pass's tracks, and those hold the lower lip too high
+    in wide openings; springs across the opening (lower lip to upper lip or corners, offset
+    springs; lower lip to the rest of the face, length springs) learned from them pull the lip
+    back to that bias. The offsets' covariance keeps its eigenvectors with eigenvalues floored
+    at floor^2, the length springs' stiffness is capped at 1/floor^2.
+    """
+    lower = np.zeros(68, dtype=bool)
+    lower[list(LOWER_LIP)] = True
+    on_lips = np.all(edges >= 48, axis=1)
+    across = on_lips & ~_same_lip(edges)
+    to_lower = np.any(lower[edges], axis=1) & ~on_lips
+    prec = np.asarray(mesh.offset_precision).reshape(-1, 2, 2).copy()
+    for e in np.flatnonzero(across):
+        w, v = np.linalg.eigh(prec[e])
+        prec[e] = (v * np.minimum(w, 1.0 / floor**2)) @ v.T
+    k = np.asarray(mesh.stiffness).copy()
+    k[to_lower] = np.minimum(k[to_lower], 1.0 / floor**2)
+    return _core.SpringMesh(edges, np.asarray(mesh.rest_length), k,
+                            np.ascontiguousarray(prec.reshape(-1, 4)), np.asarray(mesh.offset_mean))
+
+
 def _check_points(points, name: str) -> np.ndarray:
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
@@ -281,7 +305,7 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
             new = _core.estimate_springs(pts.reshape(len(pts), -1), lost, mesh, min_sigma, frame_points)
             old_len = np.asarray(mesh.rest_length)
             row["max_rel_length_change"] = float(np.max(np.abs(np.asarray(new.rest_length) - old_len) / old_len))
-            mesh = new
+            mesh = _soften_opening(new, edges, lip_floor) if lips else new
         history.append(row)
         prev = pts
     return TrackResult(points=pts, confidence=conf, lost=lost, fps=float(fps), edges=edges,
