@@ -86,8 +86,8 @@ void log_transfer(const ArcList& a, Index n, const double* src, double* out, Tra
     std::fill(w.exact.begin(), w.exact.end(), 0);
     return;
   }
-  const ArrayXd d = x - w.shift;
-  w.e = (d < kFlush).select(0.0, d.exp());
+  w.e = x - w.shift;
+  w.e = (w.e < kFlush).select(0.0, w.e.exp());
   for (Index o = 0; o < n; ++o) {
     double acc = 0;
     for (Index k = a.ptr[o]; k < a.ptr[o + 1]; ++k) acc += a.p[k] * w.e[a.idx[k]];
@@ -123,9 +123,9 @@ void forward_log_pass(const MatrixRef& log_b, const Transitions& tr, const Vecto
 // frame's lattice entries (|log α| grows with t) cancels, so rows sum to one to rounding.
 template <class Out>
 void set_posterior(const Eigen::Ref<const RowVectorXd>& la, const RowVectorXd& lbeta, Out&& gamma) {
-  const ArrayXd d = la.transpose().array() + lbeta.transpose().array();
-  const ArrayXd g = (d - d.maxCoeff()).exp();
-  gamma = (g / g.sum()).transpose();
+  gamma = la + lbeta;
+  gamma = (gamma.array() - gamma.maxCoeff()).exp();
+  gamma /= gamma.sum();
 }
 
 // Forward-backward of one sequence (rows [s, e) of log_b) on log lattices with shifted linear
