@@ -61,7 +61,9 @@ void bind_hmm(py::module_& m) {
       py::arg("log_b"), py::arg("startprob"), py::arg("transmat"), py::arg("lengths"),
       py::arg("implementation") = "scaled",
       "Forward-backward on log emissions log_b [T,N]. Returns (log_likelihood, posteriors [T,N], "
-      "expected_transitions [N,N], expected_starts [N], sequence_log_likelihoods [S]).");
+      "expected_transitions [N,N], expected_starts [N], sequence_log_likelihoods [S]). "
+      "implementation='scaled' (the name kept for callers) is the fast pass on log lattices with "
+      "shifted linear sums, exact in every regime; 'log' is the log-sum-exp reference.");
   m.def("forward_lattice_log", &forward_lattice_log, py::arg("log_b"), py::arg("startprob"),
         py::arg("transmat"), py::call_guard<py::gil_scoped_release>(),
         "log α [T,N] of one sequence.");

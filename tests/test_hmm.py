@@ -161,6 +161,77 @@ def test_no_underflow_on_long_peaked_sequences(rng):
     assert ll_scaled == pytest.approx(ll_log, rel=1e-12)
 
 
+def left_to_right_jump(n=5, d=2, early=10, late=100, spacing=100.0, seed=0):
+    """Issue 2: a left-to-right model, `early` frames at the first state's mean, then `late`
+    frames at the last state's, thousands of nats too early for the states in between."""
+    m = GaussianHMM(n, "diag")
+    m.startprob_ = np.eye(n)[0]
+    A = 0.9 * np.eye(n) + 0.1 * np.eye(n, k=1)
+    A[-1, -1] = 1.0
+    m.transmat_ = A
+    m.means_ = spacing * np.arange(n)[:, None] * np.ones((1, d))
+    m.covars_ = np.ones((n, d))
+    r = np.random.default_rng(seed)
+    X = np.vstack([r.normal(m.means_[0], 1.0, (early, d)), r.normal(m.means_[-1], 1.0, (late, d))])
+    return m, X
+
+
+def hmmlearn_log_lattices(log_b, startprob, transmat):
+    """hmmlearn's own log-space passes (its compiled forward_log / backward_log / log ξ sum)."""
+    from hmmlearn import _hmmc
+    ll, la = _hmmc.forward_log(startprob, transmat, log_b)
+    lbeta = _hmmc.backward_log(startprob, transmat, log_b)
+    log_xi = _hmmc.compute_log_xi_sum(la, transmat, lbeta, log_b)
+    return ll, np.exp(la + lbeta - ll), np.exp(log_xi)
+
+
+def test_a_state_far_below_the_others_is_not_lost(rng):
+    # Issue 2: the scaled forward pass lost the later states for good (-2.7e6 instead of -2.7e5).
+    m, X = left_to_right_jump()
+    h = to_hmmlearn(m)
+    assert rel(m.score(X), h.score(X)) < 1e-10
+    lp, _ = m.decode(X)
+    assert lp <= m.score(X) <= lp + 4 * np.log(len(X))  # Viterbi bounds log p(x), independently
+    assert np.max(np.abs(m.predict_proba(X) - h.predict_proba(X))) < 1e-10
+    for lengths in (None, [40, 1, 69], [10, 100]):
+        ll_ref = h.score(X, lengths)
+        assert rel(m.score(X, lengths), ll_ref) < 1e-10
+        fast = _core.forward_backward(m.log_density(X), m.startprob_, m.transmat_,
+                                      np.array(lengths or [len(X)]))
+        log = _core.forward_backward(m.log_density(X), m.startprob_, m.transmat_,
+                                     np.array(lengths or [len(X)]), implementation="log")
+        assert rel(fast[0], log[0]) < 1e-12
+        for a, b in zip(fast[1:], log[1:]):
+            np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-300)
+
+
+@pytest.mark.parametrize("spacing", [3.0, 30.0, 100.0, 1000.0])
+def test_posteriors_and_counts_equal_hmmlearn_log_space_in_every_regime(spacing):
+    m, X = left_to_right_jump(n=6, early=15, late=60, spacing=spacing, seed=1)
+    log_b = m.log_density(X)
+    ll, post, xi, starts, _ = _core.forward_backward(log_b, m.startprob_, m.transmat_, np.array([len(X)]))
+    hll, hpost, hxi = hmmlearn_log_lattices(log_b, m.startprob_, m.transmat_)
+    assert rel(ll, hll) < 1e-10
+    np.testing.assert_allclose(post, hpost, rtol=1e-8, atol=1e-12)
+    # Every expected count, even one of 1e-200, to 1e-8 of itself: a count lost to zero would
+    # prune its arc for good in EM.
+    np.testing.assert_allclose(xi, hxi, rtol=1e-8, atol=1e-300)
+
+
+def test_em_step_on_the_jump_matches_hmmlearn():
+    m, X = left_to_right_jump(n=5, early=20, late=80, spacing=60.0, seed=2)
+    X = np.vstack([X, X[::-1]])
+    lengths = [100, 100]
+    h = to_hmmlearn(m, n_iter=1, tol=-np.inf)
+    h.fit(X, lengths)
+    ours = GaussianHMM(5, "diag", n_iter=1, tol=-np.inf, min_covar=0.0, init_params="")
+    for attr in ("startprob_", "transmat_", "means_", "covars_"):
+        setattr(ours, attr, getattr(m, attr).copy())
+    ours.fit(X, lengths)
+    for attr in ("startprob_", "transmat_", "means_", "_covars_"):
+        assert rel(getattr(ours, attr.lstrip("_")), getattr(h, attr)) < 1e-8, attr
+
+
 @pytest.mark.parametrize("bad, message", [
     (lambda m, X: m.score(X[:, :2]), "dimensions"),
     (lambda m, X: m.score(np.where(np.arange(X.size).reshape(X.shape) == 7, np.nan, X)), "NaN"),

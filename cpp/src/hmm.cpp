@@ -7,6 +7,9 @@
 namespace voicepuppet {
 namespace {
 
+using ArrayXd = Eigen::ArrayXd;
+using RowVectorXd = Eigen::RowVectorXd;
+
 constexpr double kNegInf = -std::numeric_limits<double>::infinity();
 constexpr double kStochasticTol = 1e-6;
 
@@ -35,94 +38,143 @@ void check_log_b(const MatrixRef& log_b, Index n_states) {
                "widen the emission densities");
 }
 
-// Scaled forward-backward of one sequence (rows [s, e) of log_b). Returns false when a frame's
-// scaled quantities underflow, in which case the caller falls back to the log-space version.
-bool forward_backward_scaled_one(const MatrixRef& log_b, const Transitions& tr, const VectorRef& startprob,
-                                 Index s, Index e, Index seq, double& loglik, RowMatrixXd& gamma,
-                                 RowMatrixXd& xi, VectorXd& starts) {
+// Below this shift a term exp(src - max) is taken as zero; e^-700 ≈ 9.9e-305 is still a normal
+// double, so every kept term is exact to rounding.
+constexpr double kFlush = -700.0;
+// A kept sum at least kKeptFloor times the output's total arc probability dominates everything
+// flushed: the flushed terms add at most e^-700 · Σp, a relative 9.9e-305 / 1e-280 < 1e-24 of it.
+// Below it, the output is recomputed by log-sum-exp over its arcs (exact whatever the spread).
+constexpr double kKeptFloor = 1e-280;
+
+// One arc list (by destination for the forward pass, by source for the backward pass).
+struct ArcList {
+  const Index* ptr;
+  const Index* idx;
+  const double* p;
+  const double* lp;    // log p
+  const double* psum;  // Σ p over each output's arcs
+};
+
+ArcList arcs_in(const Transitions& tr) {
+  return {tr.in_ptr.data(), tr.in_src.data(), tr.in_p.data(), tr.in_lp.data(), tr.in_sum.data()};
+}
+ArcList arcs_out(const Transitions& tr) {
+  return {tr.out_ptr.data(), tr.out_dst.data(), tr.out_p.data(), tr.out_lp.data(), tr.out_sum.data()};
+}
+
+// Scratch of log_transfer, kept so the backward pass can reuse the shifted terms for ξ.
+struct Transfer {
+  double shift = kNegInf;  // max of src
+  ArrayXd e;               // exp(src - shift), flushed to 0 below kFlush
+  ArrayXd acc;             // kept sums Σ p · e per output
+  std::vector<char> exact;  // 1 where the output was recomputed by log-sum-exp
+  std::vector<double> buf;
+  explicit Transfer(Index n) : e(n), acc(n), exact(static_cast<size_t>(n)), buf(static_cast<size_t>(n)) {}
+};
+
+// out[o] = log Σ_{arcs k of o} p_k · exp(src[idx_k]), exact in every regime: linear sums of terms
+// shifted by max(src), with each output whose kept sum cannot be trusted (see kKeptFloor) redone
+// by log-sum-exp over its arcs. Costs n exp + n log + one multiply-add per arc in the common case.
+void log_transfer(const ArcList& a, Index n, const double* src, double* out, Transfer& w) {
+  const Eigen::Map<const ArrayXd> x(src, n);
+  Eigen::Map<ArrayXd> y(out, n);
+  w.shift = x.maxCoeff();
+  if (w.shift == kNegInf) {
+    y.setConstant(kNegInf);
+    w.e.setZero();
+    w.acc.setZero();
+    std::fill(w.exact.begin(), w.exact.end(), 0);
+    return;
+  }
+  w.e = x - w.shift;
+  w.e = (w.e < kFlush).select(0.0, w.e.exp());
+  for (Index o = 0; o < n; ++o) {
+    double acc = 0;
+    for (Index k = a.ptr[o]; k < a.ptr[o + 1]; ++k) acc += a.p[k] * w.e[a.idx[k]];
+    w.acc[o] = acc;
+  }
+  y = w.acc.log() + w.shift;
+  for (Index o = 0; o < n; ++o) {
+    const bool redo = !(w.acc[o] >= kKeptFloor * a.psum[o]);
+    w.exact[static_cast<size_t>(o)] = redo;
+    if (!redo) continue;
+    Index c = 0;
+    for (Index k = a.ptr[o]; k < a.ptr[o + 1]; ++k) w.buf[static_cast<size_t>(c++)] = src[a.idx[k]] + a.lp[k];
+    out[o] = logsumexp(w.buf.data(), c);
+  }
+}
+
+// Forward lattice log α of rows [s, e) of log_b into la (len by n); throws when a frame has no
+// allowed state.
+void forward_log_pass(const MatrixRef& log_b, const Transitions& tr, const VectorRef& startprob, Index s,
+                      Index e, Index seq, RowMatrixXd& la, Transfer& w) {
+  const Index n = tr.n_states;
+  const ArcList a = arcs_in(tr);
+  la.row(0) = startprob.transpose().array().log() + log_b.row(s).array();
+  if (la.row(0).maxCoeff() == kNegInf) fail_impossible(seq, 0);
+  for (Index t = 1; t < e - s; ++t) {
+    log_transfer(a, n, la.row(t - 1).data(), la.row(t).data(), w);
+    la.row(t) += log_b.row(s + t);
+    if (la.row(t).maxCoeff() == kNegInf) fail_impossible(seq, t);
+  }
+}
+
+// γ_t ∝ exp(log α_t + log β_t), normalised over the frame's states: the rounding common to a
+// frame's lattice entries (|log α| grows with t) cancels, so rows sum to one to rounding.
+template <class Out>
+void set_posterior(const Eigen::Ref<const RowVectorXd>& la, const RowVectorXd& lbeta, Out&& gamma) {
+  gamma = la + lbeta;
+  gamma = (gamma.array() - gamma.maxCoeff()).exp();
+  gamma /= gamma.sum();
+}
+
+// Forward-backward of one sequence (rows [s, e) of log_b) on log lattices with shifted linear
+// sums (log_transfer): exact like forward_backward_log_one at a fraction of its exps.
+// γ_t(i) = exp(log α + log β − ll) (normalised per frame); ξ_t(i, j) = γ_t(i) · p_ij · exp(w_j − log β_t(i)) with
+// w = log b_{t+1} + log β_{t+1}, taken from the transfer's shifted terms where they are exact.
+void forward_backward_one(const MatrixRef& log_b, const Transitions& tr, const VectorRef& startprob, Index s,
+                          Index e, Index seq, double& loglik, RowMatrixXd& gamma, RowMatrixXd& xi,
+                          VectorXd& starts) {
   const Index n = tr.n_states;
   const Index len = e - s;
-  RowMatrixXd alpha(len, n);
-  // Emission likelihoods shifted per frame by the frame's maximum: bb(t, j) = exp(log_b - M_t).
-  RowMatrixXd bb(len, n);
-  for (Index t = 0; t < len; ++t) {
-    const double m = log_b.row(s + t).maxCoeff();
-    if (m == kNegInf) fail_impossible(seq, t);
-    bb.row(t) = (log_b.row(s + t).array() - m).exp();
-  }
-  double ll = 0;
-  // t = 0
-  {
-    double m = kNegInf;
-    for (Index j = 0; j < n; ++j) {
-      if (startprob[j] > 0) m = std::max(m, log_b(s, j));
-    }
-    if (m == kNegInf) fail_impossible(seq, 0);
-    double z = 0;
-    for (Index j = 0; j < n; ++j) {
-      alpha(0, j) = startprob[j] > 0 ? startprob[j] * std::exp(log_b(s, j) - m) : 0.0;
-      z += alpha(0, j);
-    }
-    alpha.row(0) /= z;
-    ll += m + std::log(z);
-  }
-  VectorXd pred(n);
-  for (Index t = 1; t < len; ++t) {
-    for (Index j = 0; j < n; ++j) {
-      double acc = 0;
-      for (Index k = tr.in_ptr[j]; k < tr.in_ptr[j + 1]; ++k) acc += alpha(t - 1, tr.in_src[k]) * tr.in_p[k];
-      pred[j] = acc;
-    }
-    double m = kNegInf;
-    for (Index j = 0; j < n; ++j) {
-      if (pred[j] > 0) m = std::max(m, log_b(s + t, j));
-    }
-    if (m == kNegInf) fail_impossible(seq, t);
-    double z = 0;
-    for (Index j = 0; j < n; ++j) {
-      const double v = pred[j] > 0 ? pred[j] * std::exp(log_b(s + t, j) - m) : 0.0;
-      alpha(t, j) = v;
-      z += v;
-    }
-    if (!(z > 1e-290)) return false;
-    alpha.row(t) /= z;
-    ll += m + std::log(z);
-  }
-  // Backward, each frame normalised to sum one; ξ accumulated on the way.
-  VectorXd beta = VectorXd::Constant(n, 1.0 / n);
-  VectorXd w(n), beta_prev(n);
-  gamma.row(s + len - 1) = alpha.row(len - 1);
+  RowMatrixXd la(len, n);
+  Transfer w(n);
+  forward_log_pass(log_b, tr, startprob, s, e, seq, la, w);
+  const double ll = logsumexp(la.row(len - 1).data(), n);
+  if (ll == kNegInf) fail_impossible(seq, len - 1);
+  const ArcList a = arcs_out(tr);
+  RowVectorXd lbeta = RowVectorXd::Zero(n), lbeta_prev(n), wv(n);
+  set_posterior(la.row(len - 1), lbeta, gamma.row(s + len - 1));
   for (Index t = len - 2; t >= 0; --t) {
-    w = bb.row(t + 1).transpose().cwiseProduct(beta);
-    double norm = 0;
+    wv = log_b.row(s + t + 1) + lbeta;
+    log_transfer(a, n, wv.data(), lbeta_prev.data(), w);
+    set_posterior(la.row(t), lbeta_prev, gamma.row(s + t));
     for (Index i = 0; i < n; ++i) {
-      double acc = 0;
-      for (Index k = tr.out_ptr[i]; k < tr.out_ptr[i + 1]; ++k) acc += tr.out_p[k] * w[tr.out_dst[k]];
-      beta_prev[i] = acc;
-      norm += alpha(t, i) * acc;
-    }
-    if (!(norm > 1e-290)) return false;
-    for (Index i = 0; i < n; ++i) {
-      const double ai = alpha(t, i) / norm;
-      if (ai == 0) continue;
-      for (Index k = tr.out_ptr[i]; k < tr.out_ptr[i + 1]; ++k) {
-        xi(i, tr.out_dst[k]) += ai * tr.out_p[k] * w[tr.out_dst[k]];
+      const double g = gamma(s + t, i);
+      if (g == 0) continue;
+      if (w.exact[static_cast<size_t>(i)]) {
+        for (Index k = a.ptr[i]; k < a.ptr[i + 1]; ++k) {
+          xi(i, a.idx[k]) += g * std::exp(a.lp[k] + wv[a.idx[k]] - lbeta_prev[i]);  // exponent ≤ 0
+        }
+      } else {
+        // exp(w_j − log β_t(i)) = e_j / acc_i for the kept j; flushed j (e_j = 0, w_j finite)
+        // are added exactly so no arc's count is lost.
+        const double gs = g / w.acc[i];
+        for (Index k = a.ptr[i]; k < a.ptr[i + 1]; ++k) {
+          const Index j = a.idx[k];
+          const double ej = w.e[j];
+          if (ej > 0) {
+            xi(i, j) += gs * a.p[k] * ej;
+          } else if (wv[j] > kNegInf) {
+            xi(i, j) += g * std::exp(a.lp[k] + wv[j] - lbeta_prev[i]);
+          }
+        }
       }
     }
-    const double bs = beta_prev.sum();
-    if (!(bs > 1e-290)) return false;
-    beta = beta_prev / bs;
-    double gz = 0;
-    for (Index i = 0; i < n; ++i) {
-      gamma(s + t, i) = alpha(t, i) * beta[i];
-      gz += gamma(s + t, i);
-    }
-    if (!(gz > 1e-290)) return false;
-    gamma.row(s + t) /= gz;
+    lbeta.swap(lbeta_prev);
   }
   starts += gamma.row(s).transpose();
   loglik = ll;
-  return true;
 }
 
 void forward_backward_log_one(const MatrixRef& log_b, const Transitions& tr, const VectorRef& startprob,
@@ -248,6 +300,18 @@ Transitions make_transitions(const VectorRef& startprob, const MatrixRef& transm
       }
     }
   }
+  tr.in_lp.resize(n_arcs);
+  tr.out_lp.resize(n_arcs);
+  for (size_t k = 0; k < n_arcs; ++k) {
+    tr.in_lp[k] = std::log(tr.in_p[k]);
+    tr.out_lp[k] = std::log(tr.out_p[k]);
+  }
+  tr.in_sum.assign(static_cast<size_t>(n), 0.0);
+  tr.out_sum.assign(static_cast<size_t>(n), 0.0);
+  for (Index j = 0; j < n; ++j) {
+    for (Index k = tr.in_ptr[j]; k < tr.in_ptr[j + 1]; ++k) tr.in_sum[static_cast<size_t>(j)] += tr.in_p[k];
+    for (Index k = tr.out_ptr[j]; k < tr.out_ptr[j + 1]; ++k) tr.out_sum[static_cast<size_t>(j)] += tr.out_p[k];
+  }
   return tr;
 }
 
@@ -278,15 +342,7 @@ ForwardBackwardResult forward_backward(const MatrixRef& log_b, const VectorRef& 
       [](const MatrixRef& lb, const Transitions& tr, const VectorRef& pi, Index s, Index e, Index q,
          ForwardBackwardResult& r) {
         double ll = 0;
-        RowMatrixXd xi_q = RowMatrixXd::Zero(tr.n_states, tr.n_states);
-        VectorXd starts_q = VectorXd::Zero(tr.n_states);
-        if (!forward_backward_scaled_one(lb, tr, pi, s, e, q, ll, r.posteriors, xi_q, starts_q)) {
-          xi_q.setZero();
-          starts_q.setZero();
-          forward_backward_log_one(lb, tr, pi, s, e, q, ll, r.posteriors, xi_q, starts_q);
-        }
-        r.expected_transitions += xi_q;
-        r.expected_starts += starts_q;
+        forward_backward_one(lb, tr, pi, s, e, q, ll, r.posteriors, r.expected_transitions, r.expected_starts);
         r.sequence_log_likelihoods[q] = ll;
       });
 }
@@ -348,47 +404,20 @@ double log_likelihood(const MatrixRef& log_b, const VectorRef& startprob, const 
   check_log_b(log_b, tr.n_states);
   const auto bounds = sequence_bounds(lengths, log_b.rows());
   const Index n = tr.n_states;
+  const ArcList a = arcs_in(tr);
+  Transfer w(n);
+  RowVectorXd la(n), next(n);
   double total = 0;
-  VectorXd alpha(n), pred(n), la(n), lpred(n);
-  std::vector<double> buf(static_cast<size_t>(n));
   for (size_t q = 0; q + 1 < bounds.size(); ++q) {
     const Index s = bounds[q], e = bounds[q + 1];
-    double m = kNegInf;
-    for (Index j = 0; j < n; ++j) {
-      if (startprob[j] > 0) m = std::max(m, log_b(s, j));
-    }
-    if (m == kNegInf) fail_impossible(static_cast<Index>(q), 0);
-    for (Index j = 0; j < n; ++j) alpha[j] = startprob[j] > 0 ? startprob[j] * std::exp(log_b(s, j) - m) : 0.0;
-    double z = alpha.sum();
-    alpha /= z;
-    total += m + std::log(z);
+    la = startprob.transpose().array().log() + log_b.row(s).array();
+    if (la.maxCoeff() == kNegInf) fail_impossible(static_cast<Index>(q), 0);
     for (Index t = s + 1; t < e; ++t) {
-      for (Index j = 0; j < n; ++j) {
-        double acc = 0;
-        for (Index k = tr.in_ptr[j]; k < tr.in_ptr[j + 1]; ++k) acc += alpha[tr.in_src[k]] * tr.in_p[k];
-        pred[j] = acc;
-      }
-      m = kNegInf;
-      for (Index j = 0; j < n; ++j) {
-        if (pred[j] > 0) m = std::max(m, log_b(t, j));
-      }
-      if (m == kNegInf) fail_impossible(static_cast<Index>(q), t - s);
-      z = 0;
-      for (Index j = 0; j < n; ++j) {
-        alpha[j] = pred[j] > 0 ? pred[j] * std::exp(log_b(t, j) - m) : 0.0;
-        z += alpha[j];
-      }
-      if (!(z > 1e-290)) {  // underflow of the shifted products: redo this frame in logs
-        for (Index j = 0; j < n; ++j) lpred[j] = pred[j] > 0 ? std::log(pred[j]) + log_b(t, j) : kNegInf;
-        const double lz = logsumexp(lpred.data(), n);
-        if (lz == kNegInf) fail_impossible(static_cast<Index>(q), t - s);
-        alpha = (lpred.array() - lz).exp();
-        total += lz;
-        continue;
-      }
-      alpha /= z;
-      total += m + std::log(z);
+      log_transfer(a, n, la.data(), next.data(), w);
+      la = next + log_b.row(t);
+      if (la.maxCoeff() == kNegInf) fail_impossible(static_cast<Index>(q), t - s);
     }
+    total += logsumexp(la.data(), n);
   }
   return total;
 }
@@ -399,8 +428,7 @@ ViterbiResult viterbi(const MatrixRef& log_b, const VectorRef& startprob, const 
   check_log_b(log_b, tr.n_states);
   const auto bounds = sequence_bounds(lengths, log_b.rows());
   const Index n = tr.n_states;
-  std::vector<double> in_lp(tr.in_p.size());
-  for (size_t k = 0; k < in_lp.size(); ++k) in_lp[k] = std::log(tr.in_p[k]);
+  const std::vector<double>& in_lp = tr.in_lp;
   ViterbiResult r;
   r.path.resize(log_b.rows());
   VectorXd delta(n), next(n);

@@ -1,7 +1,7 @@
 #pragma once
 /// @file hmm.hpp
 /// Hidden Markov model inference on precomputed log emission densities: forward-backward
-/// (scaled, and a pure log-space reference), Viterbi and the log-likelihood, over one or many
+/// (log lattices with shifted linear sums, and a pure log-sum-exp reference), Viterbi and the log-likelihood, over one or many
 /// sequences. Transitions are held so that a sparse machine costs only its allowed arcs.
 ///
 /// Shapes: T frames (all sequences stacked), N states. `lengths` splits the T frames into
@@ -22,6 +22,10 @@ struct Transitions {
   /// Arcs grouped by source i: destinations `out_dst[out_ptr[i] .. out_ptr[i+1])`, probs `out_p`.
   std::vector<Index> out_ptr, out_dst;
   std::vector<double> out_p;
+  /// log of `in_p` and `out_p`, arc by arc.
+  std::vector<double> in_lp, out_lp;
+  /// Total arc probability into each destination (column sums) and out of each source (row sums).
+  std::vector<double> in_sum, out_sum;
   Index n_arcs() const { return static_cast<Index>(in_src.size()); }
 };
 
@@ -45,9 +49,11 @@ struct ForwardBackwardResult {
   VectorXd expected_starts;       ///< #N posterior of the first frame, summed over sequences
 };
 
-/// Forward-backward with per-frame normalisation. The forward recursion runs in linear space
-/// on arc lists, with each frame's emissions shifted by the running log maximum so nothing
-/// underflows; the log-likelihood is the sum of the log normalisers. O(T·arcs).
+/// Forward-backward on log lattices log α, log β. Each frame's sum over arcs is done in linear
+/// space on the previous log lattice shifted by its maximum (one exp and one log per state, one
+/// multiply-add per arc); a state whose kept sum could be dominated by the terms flushed to zero
+/// (bound: 1e-24 relative) is recomputed by log-sum-exp over its arcs, so a state far below the
+/// others is never lost and the results equal forward_backward_log's in every regime. O(T·arcs).
 /// @param[in] log_b      #T by #N log emission densities log p(x_t | state n)
 /// @param[in] startprob  #N start probabilities
 /// @param[in] transmat   #N by #N transition probabilities
@@ -69,7 +75,7 @@ RowMatrixXd forward_lattice_log(const MatrixRef& log_b, const VectorRef& startpr
 /// Log backward lattice log β_t(n) = log p(x_{t+1}..x_T | s_t = n) of one sequence. #T by #N.
 RowMatrixXd backward_lattice_log(const MatrixRef& log_b, const MatrixRef& transmat);
 
-/// Log-likelihood only (forward pass), summed over sequences.
+/// Log-likelihood only (the forward pass of forward_backward), summed over sequences.
 double log_likelihood(const MatrixRef& log_b, const VectorRef& startprob,
                       const MatrixRef& transmat, const IndexVectorRef& lengths);
 
