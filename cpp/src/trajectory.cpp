@@ -31,8 +31,9 @@ using Eigen::MatrixXd;
 #if !defined(__GNUC__)
 #error "trajectory.cpp needs the GCC/Clang vector extension (vector_size); build with GCC or Clang"
 #endif
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wpsabi"  // the vector type never crosses a non-inlined call
+// The vector type never crosses a non-inlined call; GCC reports -Wpsabi at the end of the unit,
+// so the warning is off for the whole file.
+#pragma GCC diagnostic ignored "-Wpsabi"
 typedef double Vec8 __attribute__((vector_size(64)));
 typedef double Vec8u __attribute__((vector_size(64), aligned(8), __may_alias__));
 inline Vec8 load8(const double* p) { return *reinterpret_cast<const Vec8u*>(p); }
@@ -295,7 +296,6 @@ inline void stream_fence() {
   _mm_sfence();
 #endif
 }
-#pragma GCC diagnostic pop
 
 // The factor store of a solve (one packed factor per frame, T·D(D+1)/2 doubles) is its one large
 // allocation; fresh pages cost a page fault each on first touch, which on a virtual machine is
