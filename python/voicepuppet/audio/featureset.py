@@ -336,12 +336,18 @@ def _extract(source, fps, features, n_out, progress, options, reference: bool) -
     return Features(values, tuple(names), fps, fset, audio.duration, voiced)
 
 
+def analysis_window_s(opt: dict, fps: float) -> float:
+    """Length (s) of the spectral and LPC analysis windows: ``window_s`` if set, else 25 ms or
+    one frame period, whichever is longer."""
+    return float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
+
+
 def _reference_columns(x, rate, fps, T, want, opt) -> dict:
     """The streamable features by the numpy definitions (``reference_extract``)."""
     from . import lpc as lpc_mod
     from . import spectral
 
-    window_s = float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
+    window_s = analysis_window_s(opt, fps)
     cols: dict[str, tuple[list[str], np.ndarray]] = {}
     spec_want = want & {"mfcc", "mfcc_deltas", "rasta_plp", "bands", "log_energy"}
     if spec_want:

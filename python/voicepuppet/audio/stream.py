@@ -38,7 +38,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from .featureset import FeatureSet, as_feature_set
+from .featureset import FeatureSet, analysis_window_s, as_feature_set
 from .framing import check_fps, n_frames
 from .loading import MIN_RATE
 
@@ -125,10 +125,6 @@ class StreamResampler:
         return self._core.flush()
 
 
-def _window_s(opt: dict, fps: float) -> float:
-    return float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
-
-
 def core_options(fset: FeatureSet, fps: float, rate: int, formant_lag: int | None):
     """The ``_core.AudioFeatureOptions`` of a feature set: the analysis tables of the offline
     definitions (``spectral.analysis_window``, the filterbanks, ``lpc.lpc_window``,
@@ -142,7 +138,7 @@ def core_options(fset: FeatureSet, fps: float, rate: int, formant_lag: int | Non
 
     opt = fset.settings()
     want = set(fset.features)
-    window_s = _window_s(opt, fps)
+    window_s = analysis_window_s(opt, fps)
     o = _core.AudioFeatureOptions()
     o.rate = float(rate)
     o.fps = float(fps)
