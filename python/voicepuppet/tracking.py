@@ -120,13 +120,20 @@ def lip_patch_sides(points: np.ndarray) -> np.ndarray:
     return sides
 
 
+_IS_LOWER_LIP = np.isin(np.arange(68), LOWER_LIP)
+
+
 def _same_lip(edges: np.ndarray) -> np.ndarray:
     """(E,) bool: edges of a 68-point mesh with both ends on the upper lip and corners (48-54,
     60-64) or both on the lower lip (55-59, 65-67): they keep their shape when the mouth opens."""
-    lower = np.zeros(68, dtype=bool)
-    lower[list(LOWER_LIP)] = True
-    lips = np.all(edges >= 48, axis=1)
-    return lips & (lower[edges[:, 0]] == lower[edges[:, 1]])
+    return np.all(edges >= 48, axis=1) & (_IS_LOWER_LIP[edges[:, 0]] == _IS_LOWER_LIP[edges[:, 1]])
+
+
+def _across_opening(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(E,) bool masks: edges with both ends on the lips, and those of them that span the mouth
+    opening (a lower-lip point to an upper-lip point or a corner)."""
+    on_lips = np.all(edges >= 48, axis=1)
+    return on_lips, on_lips & ~_same_lip(edges)
 
 
 def _lip_springs(init: np.ndarray, edges: np.ndarray, mesh, relative_sigma: float, min_sigma: float,
@@ -140,8 +147,7 @@ def _lip_springs(init: np.ndarray, edges: np.ndarray, mesh, relative_sigma: floa
     length springs are off: the offset spring holds the length too.
     """
     touches = np.any(edges >= 48, axis=1)
-    on_lips = np.all(edges >= 48, axis=1)
-    across = on_lips & ~_same_lip(edges)
+    on_lips, across = _across_opening(edges)
     u = init[45] - init[36]
     u = u / np.linalg.norm(u)
     v = np.array([-u[1], u[0]])
@@ -172,11 +178,8 @@ def _soften_opening(mesh, edges: np.ndarray, floor: float):
     back to that bias. The offsets' covariance keeps its eigenvectors with eigenvalues floored
     at floor^2, the length springs' stiffness is capped at 1/floor^2.
     """
-    lower = np.zeros(68, dtype=bool)
-    lower[list(LOWER_LIP)] = True
-    on_lips = np.all(edges >= 48, axis=1)
-    across = on_lips & ~_same_lip(edges)
-    to_lower = np.any(lower[edges], axis=1) & ~on_lips
+    on_lips, across = _across_opening(edges)
+    to_lower = np.any(_IS_LOWER_LIP[edges], axis=1) & ~on_lips
     prec = np.asarray(mesh.offset_precision).reshape(-1, 2, 2).copy()
     for e in np.flatnonzero(across):
         w, v = np.linalg.eigh(prec[e])
@@ -269,8 +272,7 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         iod = float(np.linalg.norm(init[45] - init[36]))
         options.setdefault("patch_sides", lip_patch_sides(init))
         options.setdefault("search_radius", LIP_SEARCH_IOD * iod)
-        groups = np.full(68, -1, dtype=np.int64)
-        groups[list(LOWER_LIP)] = 0
+        groups = np.where(_IS_LOWER_LIP, 0, -1).astype(np.int64)
         options.setdefault("search_groups", groups)
         options.setdefault("group_search_radius", LIP_GROUP_SEARCH_IOD * iod)
         options.setdefault("spring_outlier", LIP_SPRING_OUTLIER)
