@@ -240,14 +240,15 @@ def _puppet_predictions(train, test, face_space, *, n_states, seed, tmpdir):
 
     puppet = Puppet.train([s.points for s in train], [wav(s) for s in train], fps=train[0].fps,
                           n_states=n_states, seed=seed, progress=False)
-    out = []
-    for s in test:
-        pts = puppet.animate(wav(s), fps=s.fps).animation.points
-        if len(pts) < len(s.points):
-            pts = np.concatenate([pts, np.repeat(pts[-1:], len(s.points) - len(pts), axis=0)])
-        Y, _ = face_space.encode(pts[:len(s.points)])
-        out.append(Y)
-    return out
+    return [_as_face(puppet.animate(wav(s), fps=s.fps).animation.points, len(s.points), face_space)
+            for s in test]
+
+
+def _as_face(points, n, face_space) -> np.ndarray:
+    """Landmarks cut or padded (last frame) to n frames, in ``face_space`` coordinates."""
+    if len(points) < n:
+        points = np.concatenate([points, np.repeat(points[-1:], n - len(points), axis=0)])
+    return face_space.encode(points[:n])[0]
 
 
 def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,

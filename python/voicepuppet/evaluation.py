@@ -242,13 +242,6 @@ def _sequence_features(seq, fps: float, feature_set) -> np.ndarray:
     return vaudio.extract(a, fps=fps, features=feature_set, n_out=len(seq.points)).values
 
 
-def _as_face(points, n, face_space) -> np.ndarray:
-    """Landmarks cut or padded (last frame) to n frames, in ``face_space`` coordinates."""
-    if len(points) < n:
-        points = np.concatenate([points, np.repeat(points[-1:], n - len(points), axis=0)])
-    return face_space.encode(points[:n])[0]
-
-
 def compare_training(sequences, variants: dict, *, baseline: str | None = None, k: int = 10,
                      seed: int = 0, n_components=0.98, features=None, progress: bool = False) -> dict:
     """Paired k-fold comparison of puppet training options on the same folds.
@@ -289,7 +282,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     from tqdm.auto import tqdm
 
     from voicepuppet.crossval import kfold, mean_ci
-    from voicepuppet.evaluate import _fold_metrics
+    from voicepuppet.evaluate import _as_face, _fold_metrics
     from voicepuppet.face import FaceSpace
     from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet
 
