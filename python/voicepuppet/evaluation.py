@@ -125,16 +125,21 @@ def compare(pred_face, true_points, face_space) -> dict:
     return out
 
 
-def evaluate_split(puppet, train, tests, *, posterior: bool = True, cache: dict | None = None) -> dict:
+def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = True,
+                   cache: dict | None = None) -> dict:
     """Measure a puppet and the baselines on its training data and held-out data.
 
     Parameters
     ----------
     puppet : voicepuppet.puppet.Puppet
     train : list of (points [T, P, 2], audio)
-        The training sequences (as given to ``Puppet.train``).
+        The training sequences, with the landmarks every prediction is measured against.
     tests : list of (points, audio)
         Held-out sequences.
+    fit_points : list of [T, P, 2] arrays, optional
+        The landmarks the puppet was trained on, one per training sequence, when they are not
+        ``train``'s (a puppet trained on tracked landmarks, measured against the ground truth):
+        the ridge baseline is fitted on these too, so both learn from the same data.
     cache : dict, optional
         Audio features by (split, index); pass the same dict when evaluating several puppets
         with one feature set on the same data.
@@ -162,8 +167,14 @@ def evaluate_split(puppet, train, tests, *, posterior: bool = True, cache: dict 
     def ridge_input(raw):
         return puppet._core.standardize(raw)[:, :n_raw]
 
+    if fit_points is None:
+        fit_points = [p for p, _ in train]
+    if len(fit_points) != len(train) or any(len(f) != len(p) for f, (p, _) in zip(fit_points, train)):
+        raise ValueError(f"fit_points: expected one landmark array per training sequence with its frame "
+                         f"count {[len(p) for p, _ in train]}, got {[len(f) for f in fit_points]}; pass "
+                         f"the landmarks the puppet was trained on, cut to the same frames")
     z_train = [ridge_input(features("train", i, a, len(p))) for i, (p, a) in enumerate(train)]
-    ridge = RidgeBaseline().fit(z_train, [fs.encode(p)[0] for p, _ in train])
+    ridge = RidgeBaseline().fit(z_train, [fs.encode(f)[0] for f in fit_points])
     mean_face = np.zeros(fs.n_dims)  # face coordinates are centred on the mean shape
 
     rows: dict = {}
