@@ -1,13 +1,17 @@
 """``voicepuppet demo``: the whole system on embedded data, end to end.
 
-1. The synthetic performer (:mod:`voicepuppet.synth`) speaks a training video (default 60 s,
+1. The synthetic performer (:mod:`voicepuppet.synth`) speaks a training video (default 180 s,
    several voices) and held-out utterances (new sentences and voices, and a real recording).
-2. The spring-mesh tracker follows the training video from the first frame's points.
-3. A puppet is trained on the tracked landmarks and the video's sound (entropic estimation),
-   and a conventionally trained one (Baum-Welch) beside it for comparison.
+2. The spring-mesh tracker follows the training video from the first frame's points and is
+   measured against the ground truth.
+3. A puppet is trained on the video's sound and the performer's ground-truth landmarks (default)
+   or the tracked ones (``--train-on tracked``), by entropic estimation; a conventionally trained
+   one (Baum-Welch) beside it for comparison.
 4. Both animate the held-out audio; :func:`voicepuppet.evaluation.evaluate_split` measures them
-   against the ground truth with the baselines (mean face, ridge regression).
-5. The first held-out utterance is rendered side by side with its ground truth, sound muxed in.
+   against the ground truth with the baselines (mean face; ridge regression fitted on the same
+   training landmarks as the puppet).
+5. The held-out utterances are rendered in a row, side by side with their ground truth, sound
+   muxed in.
 
 Everything lands in ``--out`` (default ``voicepuppet-demo/``): ``puppet.vpp``, ``animation.npz``,
 ``demo.mp4``, ``metrics.json`` and ``results.md``.
