@@ -33,8 +33,8 @@ import numpy as np
 
 from . import phonemes
 
-__all__ = ["Sequence", "synth_sequences", "tracked_landmarks", "load_sequences", "cross_validate",
-           "format_table", "write_results", "METRICS", "TRAIN_ON"]
+__all__ = ["Sequence", "learnt_points", "synth_sequences", "tracked_landmarks", "load_sequences",
+           "cross_validate", "format_table", "write_results", "METRICS", "TRAIN_ON"]
 
 #: where the models' training landmarks come from (``--train-on``)
 TRAIN_ON = ("truth", "tracked")
