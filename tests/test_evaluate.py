@@ -224,3 +224,144 @@ def test_evaluate_compare_training_verb(tmp_path, capsys):
     assert main(["evaluate", "--data", str(data), "--folds", "2", "--compare-training",
                  "--variant", "a:n_iter=3", "-q"]) == 2
     assert "at least two" in capsys.readouterr().err
+
+
+def test_cross_validation_learns_from_train_points():
+    """The phoneme peers and the fold's face space learn from ``train_points`` (a copy of the
+    truth changes nothing; landmarks whose motion is time-reversed, out of step with the labels,
+    make the DPDS lose what it had), and are measured against the true ``points``."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(SEED)
+    seqs = planted_sequences(rng, K=1)
+
+    def run(ss):
+        return ev.cross_validate(ss, k=3, seed=1, peers=True, puppet=False, n_components=1,
+                                 progress=False)["models"]["dpds"]
+
+    plain = run(seqs)
+    same = run([replace(s, train_points=s.points.copy()) for s in seqs])
+    np.testing.assert_allclose(same["err"]["folds"], plain["err"]["folds"], rtol=1e-9)
+    rev = run([replace(s, train_points=s.points[::-1].copy()) for s in seqs])
+    print(plain["err"]["mean"], rev["err"]["mean"])
+    assert plain["err"]["mean"] < 2e-3 and rev["err"]["mean"] > 0.1
+    with pytest.raises(ValueError, match="sequence s0: train_points must have the shape"):
+        run([replace(s, train_points=s.points[:, :60]) for s in seqs])
+
+
+def _performer_clip(tmp_path, stem, texts, seed):
+    """A short performer clip (espeak-ng speech, articulated landmarks) with a stand-in video
+    file: the tracker is planted, only the file's identity matters."""
+    from voicepuppet.synth import speech
+    from voicepuppet.synth.articulation import articulate
+
+    utts = [speech.speak(t) for t in texts]
+    u = speech.concatenate(utts, [0.4] * len(utts)) if len(utts) > 1 else utts[0]
+    fps = 30000 / 1001
+    art = articulate(u.phones, u.samples, u.rate, neutral_landmarks(), fps=fps, seed=seed)
+    video = tmp_path / f"{stem}.mp4"
+    video.write_bytes(b"stand-in video " + stem.encode())
+    return types.SimpleNamespace(video=str(video), points=art.points, fps=fps, rate=u.rate,
+                                 samples=u.samples, phones=u.phones, source=u.source, text=u.text)
+
+
+def test_synth_sequences_train_on_tracked_with_a_planted_tracker(tmp_path, monkeypatch):
+    """``train_on="tracked"``: each clip's video is tracked once from its first true frame, the
+    track cut into the same sequences as the truth (``train_points``), ``points`` untouched; the
+    cache beside the corpus is hit on a second run and missed when the video's modification time
+    or size changes; a track that does not fit the clip is refused."""
+    import os
+
+    from voicepuppet import synth, tracking
+
+    train = _performer_clip(tmp_path, "train", ["Please remember to feed the fish.",
+                                                "Who knows where the ferry goes?"], 1)
+    test = _performer_clip(tmp_path, "test_00", ["You can hear the waves."], 2)
+    corpus = types.SimpleNamespace(train=train, test=[test])
+    monkeypatch.setattr(synth, "make_corpus", lambda *a, **k: corpus)
+    calls = []
+    shift = {"train": 0.5, "test_00": -0.25}
+
+    def planted(path, init, progress=True):
+        stem = os.path.splitext(os.path.basename(path))[0]
+        clip = train if stem == "train" else test
+        calls.append((stem, np.array(init)))
+        pts = clip.points + shift[stem] * np.sin(np.arange(len(clip.points)))[:, None, None]
+        return types.SimpleNamespace(points=pts[:-1] if stem == "test_00" else pts)  # one frame dropped
+
+    monkeypatch.setattr(tracking, "track_video", planted)
+    seqs = ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    assert [c[0] for c in calls] == ["train", "test_00"]
+    np.testing.assert_array_equal(calls[0][1], train.points[0])
+    np.testing.assert_array_equal(calls[1][1], test.points[0])
+    truth = ev.synth_sequences(str(tmp_path), progress=False)
+    assert len(calls) == 2  # the second run read the cache
+    assert [s.name for s in seqs] == [s.name for s in truth] == ["train_00", "train_01", "test_00"]
+    assert all(s.train_points is None for s in truth)
+    assert sorted(os.listdir(tmp_path / "tracked")) == ["test_00.npz", "train.npz"]
+    T = len(train.points)
+    want = train.points + 0.5 * np.sin(np.arange(T))[:, None, None]
+    np.testing.assert_allclose(np.concatenate([s.train_points for s in seqs[:2]]), want)
+    for s, t in zip(seqs, truth):
+        np.testing.assert_array_equal(s.points, t.points)
+        assert s.train_points.shape == s.points.shape
+    # the dropped last frame is padded with the one before it
+    np.testing.assert_array_equal(seqs[2].train_points[-1], seqs[2].train_points[-2])
+    np.testing.assert_allclose(seqs[2].train_points[:-1], (test.points - 0.25 * np.sin(
+        np.arange(len(test.points)))[:, None, None])[:-1])
+
+    ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    assert len(calls) == 2  # cache hit
+    st = os.stat(train.video)
+    os.utime(train.video, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    assert [c[0] for c in calls[2:]] == ["train"]  # modification time changed: re-tracked
+    with open(test.video, "ab") as fh:
+        fh.write(b"!")
+    os.utime(test.video, ns=(st.st_atime_ns, os.stat(test.video).st_mtime_ns))
+    ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    assert [c[0] for c in calls[3:]] == ["test_00"]  # size changed: re-tracked
+    (tmp_path / "tracked" / "train.npz").write_bytes(b"not an npz")
+    again = ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    assert [c[0] for c in calls[4:]] == ["train"]  # unreadable cache: tracked again, overwritten
+    np.testing.assert_array_equal(again[0].train_points, seqs[0].train_points)
+
+    with pytest.raises(ValueError, match="train_on must be one of"):
+        ev.synth_sequences(str(tmp_path), train_on="trakced", progress=False)
+    monkeypatch.setattr(tracking, "track_video",
+                        lambda path, init, progress=True: types.SimpleNamespace(points=np.zeros((5, 68, 2))))
+    with pytest.raises(ValueError, match=r"gave landmarks of shape \(5, 68, 2\)"):
+        ev.tracked_landmarks(train, cache_dir=tmp_path / "other", progress=False)
+    with pytest.raises(ValueError, match="does not exist"):
+        ev.tracked_landmarks(types.SimpleNamespace(video=str(tmp_path / "gone.mp4"), points=train.points))
+
+
+def test_evaluate_verb_train_on_tracked(tmp_path, capsys, monkeypatch):
+    """``--train-on tracked`` and ``--corpus-seed`` reach the performer's sequences and the command
+    line that reproduces the run; with user data they are refused, naming the option."""
+    rng = np.random.default_rng(SEED + 5)
+    seqs = planted_sequences(rng, n_seq=4, T=40)
+    got = {}
+
+    def fake(out_dir=None, train_seconds=60.0, n_test=3, seed=0, progress=True, train_on="truth"):
+        got.update(seed=seed, train_on=train_on)
+        return seqs
+
+    monkeypatch.setattr(ev, "synth_sequences", fake)
+    js = tmp_path / "r.json"
+    assert main(["evaluate", "--train-on", "tracked", "--seed", "1", "--corpus-seed", "0", "--folds", "2",
+                 "--peers", "--no-puppet", "--components", "3", "--json", str(js), "-q"]) == 0
+    assert got == {"seed": 0, "train_on": "tracked"}
+    command = json.loads(js.read_text())["command"]
+    assert "--corpus-seed 0 --train-on tracked" in command and "--seed 1" in command
+    capsys.readouterr()
+    data = tmp_path / "data"
+    data.mkdir()
+    write_user_data(data, seqs)
+    assert main(["evaluate", "--data", str(data), "--train-on", "tracked", "--peers", "--no-puppet", "-q"]) == 2
+    assert "--train-on is for the synthetic performer" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--train-on", "video", "-q"])
+    assert "invalid choice: 'video'" in capsys.readouterr().err
+    assert main(["evaluate", "--corpus-seed", "-1", "--peers", "--no-puppet", "-q"]) == 2
+    assert "--corpus-seed must be a non-negative integer" in capsys.readouterr().err

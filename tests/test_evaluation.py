@@ -121,3 +121,57 @@ def test_compare_training_refuses_bad_input():
         evaluation.compare_training(seqs, {"a": {}, "b": {}}, baseline="c", k=2, features=feats)
     with pytest.raises(ValueError, match="one row per"):
         evaluation.compare_training(seqs, {"a": {}, "b": {}}, k=2, features=feats[:2])
+
+
+def test_compare_training_learns_from_train_points_and_measures_against_the_truth(monkeypatch):
+    """Sequences with separate training landmarks (as tracked ones): equal to ``points`` they
+    change nothing; time-reversed (the audio no longer says where the face is) the puppets learn
+    nothing useful, while the measure is still against the true ``points``; landmarks of
+    another shape are refused with the sequence named."""
+    from dataclasses import replace
+
+    seqs, feats = _planted_sequences(n_seq=4, T=240)
+    variants = {"a": {"n_states": 6, "n_iter": 12, "n_components": 3},
+                "b": {"n_states": 6, "n_iter": 12, "n_components": 3, "prior": "ml"}}
+
+    def run(ss):
+        return evaluation.compare_training(ss, variants, k=2, seed=0, n_components=3, features=feats)
+
+    plain = run(seqs)
+    assert plain["config"]["separate_training_landmarks"] is False
+    same = run([replace(s, train_points=s.points.copy()) for s in seqs])
+    assert same["config"]["separate_training_landmarks"] is True
+    for name in variants:
+        for m in ("err", "entropy_rate", "states_err", "arcs"):
+            # (equal up to rounding: a copy may sit differently aligned for the vector kernels)
+            np.testing.assert_allclose(same["variants"][name][m]["folds"], plain["variants"][name][m]["folds"],
+                                       rtol=1e-9)
+    from voicepuppet import evaluate as ev
+    from voicepuppet.crossval import kfold
+    from voicepuppet.face import FaceSpace
+
+    seen = []  # what every fold is measured against, in the face space it fitted
+    fold_metrics = ev._fold_metrics
+    monkeypatch.setattr(ev, "_fold_metrics", lambda p, t, fs, ll: seen.append((t, fs)) or fold_metrics(p, t, fs, ll))
+    # reversed in time, and a fixed deformation so that the face space fitted on them differs
+    offset = np.random.default_rng(3).normal(scale=0.5, size=seqs[0].points.shape[1:])
+    rev = run([replace(s, train_points=s.points[::-1] + offset) for s in seqs])
+    folds = kfold(len(seqs), 2, 0)
+    assert len(seen) == 2 * len(folds) * len(variants)  # voice and states, per variant and fold
+    for j, (truths, fs) in enumerate(seen):
+        te = folds[j // (2 * len(variants))][1]
+        for y, i in zip(truths, te, strict=True):
+            np.testing.assert_array_equal(y, fs.encode(seqs[i].points)[0])
+        # ... in the face space fitted on the training sequences' train_points, not on their truth
+        tr = folds[j // (2 * len(variants))][0]
+        np.testing.assert_allclose(fs.mean_shape, FaceSpace.fit([seqs[i].points[::-1] + offset for i in tr],
+                                                                n_components=3).mean_shape, atol=1e-12)
+        assert not np.allclose(fs.mean_shape, FaceSpace.fit([seqs[i].points for i in tr],
+                                                            n_components=3).mean_shape, atol=1e-3)
+    print({n: (plain["variants"][n]["err"]["mean"], rev["variants"][n]["err"]["mean"]) for n in variants})
+    for name in variants:
+        assert plain["variants"][name]["err"]["mean"] < 0.3 < rev["variants"][name]["err"]["mean"]
+    assert "separate training landmarks" in evaluation.format_comparison(rev)
+    bad = [replace(s, train_points=s.points[:-1]) if i == 2 else s for i, s in enumerate(seqs)]
+    with pytest.raises(ValueError, match="sequence s2: train_points must have the shape"):
+        run(bad)

@@ -16,6 +16,10 @@ clip is cut into utterances at the pauses between sentences, and each held-out c
 sequence; espeak-ng's phone events (and CMU ARCTIC's hand labels) are the ground-truth phones.
 Or ``--data DIR``: one sequence per ``NAME.npz`` (``points`` [T, P, 2], ``fps``) with
 ``NAME.wav`` (audio, for the puppet) and ``NAME.TextGrid`` or ``NAME.lab`` (HTS) phone labels.
+
+With ``--train-on tracked`` (performer only) the models learn from what the spring-mesh tracker
+finds in each clip's video (:func:`tracked_landmarks`, cached beside the corpus), cut into the
+same sequences; every measure stays against the ground truth.
 """
 
 from __future__ import annotations
@@ -29,8 +33,11 @@ import numpy as np
 
 from . import phonemes
 
-__all__ = ["Sequence", "synth_sequences", "load_sequences", "cross_validate", "format_table",
-           "write_results", "METRICS"]
+__all__ = ["Sequence", "learnt_points", "synth_sequences", "tracked_landmarks", "load_sequences",
+           "cross_validate", "format_table", "write_results", "METRICS", "TRAIN_ON"]
+
+#: where the models' training landmarks come from (``--train-on``)
+TRAIN_ON = ("truth", "tracked")
 
 #: measure -> (column title, better: "lower" or "higher")
 METRICS = {
@@ -58,6 +65,10 @@ class Sequence:
     samples : ndarray, shape (n,), optional
         Mono audio of exactly these frames.
     rate : int
+    train_points : ndarray, shape (T, P, 2), optional
+        The landmarks a model learns from when this sequence is in a training fold (e.g. what a
+        tracker found), if not ``points``; ``points`` stays what every prediction is measured
+        against, and the fold's face space is fitted on these.
     """
     name: str
     points: np.ndarray
@@ -67,6 +78,26 @@ class Sequence:
     rate: int = 16000
     text: str = ""
     meta: dict = field(default_factory=dict)
+    train_points: np.ndarray | None = None
+
+
+def learnt_points(seq: Sequence) -> np.ndarray:
+    """The landmarks models learn from in a training fold: ``seq.train_points`` if set, else
+    ``seq.points``.
+
+    Raises
+    ------
+    ValueError
+        ``train_points`` of another shape than ``points``.
+    """
+    if seq.train_points is None:
+        return seq.points
+    tp = np.asarray(seq.train_points)
+    if tp.shape != np.shape(seq.points):
+        raise ValueError(f"sequence {seq.name}: train_points must have the shape of its points "
+                         f"{np.shape(seq.points)} (the same frames and landmarks), got {tp.shape}; cut "
+                         f"them at the same frames")
+    return tp
 
 
 def _alphabet_of(source: str) -> str:
@@ -85,7 +116,7 @@ def _cut_points(segs, fps: float, n_frames: int, min_pause: float, min_frames: i
     return cuts + [n_frames]
 
 
-def split_clip(clip, min_pause: float = 0.2, name: str = "clip") -> list[Sequence]:
+def split_clip(clip, min_pause: float = 0.2, name: str = "clip", train_points=None) -> list[Sequence]:
     """Cut a performer clip into utterances at the middle of pauses of ``min_pause`` s or more.
 
     Parameters
@@ -96,6 +127,9 @@ def split_clip(clip, min_pause: float = 0.2, name: str = "clip") -> list[Sequenc
         frames: shorter pieces stay joined to their neighbour).
     name : str
         Prefix of the sequence names.
+    train_points : ndarray, shape (T, P, 2), optional
+        Other landmarks of the same frames (e.g. tracked), cut at the same frames into each
+        sequence's ``train_points``.
 
     Returns
     -------
@@ -103,6 +137,9 @@ def split_clip(clip, min_pause: float = 0.2, name: str = "clip") -> list[Sequenc
     """
     alphabet = _alphabet_of(clip.source)
     T = len(clip.points)
+    if train_points is not None and np.shape(train_points) != np.shape(clip.points):
+        raise ValueError(f"train_points must have the clip's landmark shape {np.shape(clip.points)}, got "
+                         f"{np.shape(train_points)}")
     segs = phonemes.normalize(clip.phones, alphabet)
     labels = phonemes.frame_labels(segs, T, clip.fps)
     cuts = _cut_points(segs, clip.fps, T, min_pause)
@@ -111,12 +148,103 @@ def split_clip(clip, min_pause: float = 0.2, name: str = "clip") -> list[Sequenc
         sa, sb = int(round(a / clip.fps * clip.rate)), int(round(b / clip.fps * clip.rate))
         out.append(Sequence(f"{name}_{i:02d}" if len(cuts) > 2 else name, clip.points[a:b],
                             float(clip.fps), labels[a:b], np.asarray(clip.samples[sa:sb], np.float32),
-                            int(clip.rate), clip.text if len(cuts) == 2 else "", {"source": clip.source}))
+                            int(clip.rate), clip.text if len(cuts) == 2 else "", {"source": clip.source},
+                            None if train_points is None else np.asarray(train_points[a:b], np.float64)))
     return out
 
 
+#: bump when the cached tracks' layout or meaning changes
+_TRACK_CACHE_VERSION = 1
+
+
+def _file_digest(path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _track_key(video: str, init: np.ndarray) -> str:
+    """What a cached track depends on: the video file (size, modification time), the initial
+    points, and the tracker's code (``tracking.py`` and the compiled core, by content)."""
+    import hashlib
+
+    from . import _core, tracking
+
+    st = os.stat(video)
+    src = dict(version=_TRACK_CACHE_VERSION, size=st.st_size, mtime_ns=st.st_mtime_ns,
+               init=hashlib.sha256(np.ascontiguousarray(init, np.float64).tobytes()).hexdigest(),
+               tracking=_file_digest(tracking.__file__), core=_file_digest(_core.__file__))
+    return hashlib.sha256(json.dumps(src, sort_keys=True).encode()).hexdigest()
+
+
+def tracked_landmarks(clip, cache_dir=None, *, progress: bool = True) -> np.ndarray:
+    """What :func:`voicepuppet.tracking.track_video` finds in a performer clip's video, tracked
+    from the clip's first ground-truth frame (as ``voicepuppet demo`` does), on the clip's frames.
+
+    The track is cached as ``cache_dir/STEM.npz`` (default: a ``tracked`` folder beside the
+    video) under a key of the video file's size and modification time, the initial points and
+    the tracker's code; any change re-tracks.
+
+    Parameters
+    ----------
+    clip : voicepuppet.synth.Clip
+        ``video`` (path) and ``points`` (T, P, 2), the ground truth.
+    cache_dir : str, optional
+
+    Returns
+    -------
+    ndarray, shape (T, P, 2)
+        One row per ground-truth frame: a track one or two frames shorter (a decoder that drops
+        the last frames) is padded with its last frame.
+
+    Raises
+    ------
+    ValueError
+        A missing video, or a track whose frame count is further than 2 frames from the clip's.
+    """
+    from .animation import atomic_path, write_npz
+
+    video = os.fspath(clip.video)
+    if not os.path.isfile(video):
+        raise ValueError(f"clip video {video!r} does not exist; rebuild the corpus (delete its corpus.json)")
+    truth = np.asarray(clip.points, np.float64)
+    init = truth[0]
+    stem = os.path.splitext(os.path.basename(video))[0]
+    folder = os.path.join(os.path.dirname(video), "tracked") if cache_dir is None else os.fspath(cache_dir)
+    path = os.path.join(folder, stem + ".npz")
+    key = _track_key(video, init)
+    points = None
+    if os.path.exists(path):
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                if str(z["key"]) == key:
+                    points = np.asarray(z["points"], np.float64)
+        except (OSError, ValueError, KeyError):
+            points = None  # unreadable: track again and overwrite
+    if points is None:
+        from . import tracking
+
+        points = np.asarray(tracking.track_video(video, init=init, progress=progress).points, np.float64)
+        os.makedirs(folder, exist_ok=True)
+        with atomic_path(path, (".npz",), "tracked landmarks") as tmp:
+            with open(tmp, "wb") as fh:
+                write_npz(fh, {"points": points, "key": np.str_(key)})
+    T = len(truth)
+    if points.ndim != 3 or points.shape[1:] != truth.shape[1:] or abs(len(points) - T) > 2:
+        raise ValueError(f"tracking {video!r} gave landmarks of shape {points.shape}, expected {truth.shape} "
+                         f"(its ground truth's frames, within 2): the video and its landmarks disagree; "
+                         f"rebuild the corpus")
+    if len(points) < T:
+        points = np.concatenate([points, np.repeat(points[-1:], T - len(points), axis=0)])
+    return points[:T]
+
+
 def synth_sequences(out_dir=None, train_seconds: float = 60.0, n_test: int = 3, seed: int = 0,
-                    progress: bool = True) -> list[Sequence]:
+                    progress: bool = True, train_on: str = "truth") -> list[Sequence]:
     """The synthetic performer as sequences: its training clip cut into utterances, then the
     held-out clips (espeak-ng sentences and CMU ARCTIC a0009).
 
@@ -126,6 +254,10 @@ def synth_sequences(out_dir=None, train_seconds: float = 60.0, n_test: int = 3, 
         Corpus folder (default ``~/.cache/voicepuppet/evaluate-corpus``); cached.
     train_seconds, n_test, seed
         As in :func:`voicepuppet.synth.make_corpus`.
+    train_on : {"truth", "tracked"}
+        ``"tracked"``: every sequence's ``train_points`` are its clip's tracked landmarks
+        (:func:`tracked_landmarks`, cached in ``out_dir/tracked``), cut at the same frames as
+        the ground truth; ``"truth"``: none (models learn from the ground truth).
 
     Returns
     -------
@@ -134,13 +266,19 @@ def synth_sequences(out_dir=None, train_seconds: float = 60.0, n_test: int = 3, 
     from . import synth
     from .audio import samples
 
+    if train_on not in TRAIN_ON:
+        raise ValueError(f"train_on must be one of {TRAIN_ON}, got {train_on!r}")
+
     if out_dir is None:
         out_dir = os.path.join(samples.cache_dir(), "evaluate-corpus")
     corpus = synth.make_corpus(out_dir, train_seconds=train_seconds, n_test=n_test, seed=seed,
                                progress=progress)
-    seqs = split_clip(corpus.train, name="train")
+    def fit_of(clip):
+        return tracked_landmarks(clip, progress=progress) if train_on == "tracked" else None
+
+    seqs = split_clip(corpus.train, name="train", train_points=fit_of(corpus.train))
     for i, clip in enumerate(corpus.test):
-        seqs += split_clip(clip, min_pause=1e9, name=f"test_{i:02d}")
+        seqs += split_clip(clip, min_pause=1e9, name=f"test_{i:02d}", train_points=fit_of(clip))
     return seqs
 
 
@@ -238,7 +376,7 @@ def _puppet_predictions(train, test, face_space, *, n_states, seed, tmpdir):
             soundfile.write(path, s.samples, s.rate, subtype="PCM_16")
         return path
 
-    puppet = Puppet.train([s.points for s in train], [wav(s) for s in train], fps=train[0].fps,
+    puppet = Puppet.train([learnt_points(s) for s in train], [wav(s) for s in train], fps=train[0].fps,
                           n_states=n_states, seed=seed, progress=False)
     return [_as_face(puppet.animate(wav(s), fps=s.fps).animation.points, len(s.points), face_space)
             for s in test]
@@ -255,6 +393,9 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
                    puppet: bool = True, n_components=0.98, n_states: int = 40,
                    progress: bool = True) -> dict:
     """k-fold cross-validation by sequence of the voice puppet and the phoneme peers.
+
+    Models and each fold's face space learn from the training sequences' :func:`learnt_points`
+    (``train_points`` where set); predictions are measured against the test sequences' ``points``.
 
     Parameters
     ----------
@@ -286,6 +427,8 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
     from .face import FaceSpace
 
     seqs = list(sequences)
+    for s in seqs:
+        learnt_points(s)  # refuses train_points of the wrong shape before any training
     if not peers and not puppet:
         raise ValueError("nothing to evaluate: enable the puppet or the peers (--peers)")
     folds = kfold(len(seqs), k, seed)
@@ -297,8 +440,8 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         for fi, (tr_idx, te_idx) in enumerate(folds):
             train = [seqs[i] for i in tr_idx]
             test = [seqs[i] for i in te_idx]
-            fs = FaceSpace.fit([s.points for s in train], n_components=n_components)
-            Ytr = [fs.encode(s.points)[0] for s in train]
+            fs = FaceSpace.fit([learnt_points(s) for s in train], n_components=n_components)
+            Ytr = [fs.encode(learnt_points(s))[0] for s in train]
             Yte = [fs.encode(s.points)[0] for s in test]
             for name in names:
                 bar.set_postfix(fold=fi + 1, model=name)
@@ -316,6 +459,7 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
     result = {"models": {}, "config": {
         "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
         "fps": float(seqs[0].fps), "n_components": n_components, "n_states": int(n_states),
+        "separate_training_landmarks": any(s.train_points is not None for s in seqs),
         "folds": [[seqs[i].name for i in te] for _, te in folds]}}
     for name, rows in per_fold.items():
         entry = {}
@@ -351,7 +495,10 @@ def format_table(result: dict) -> str:
                  f"95% confidence interval (Student's t). Face coordinates: FaceSpace per fold "
                  f"(n_components={c['n_components']}). Log-likelihoods are per frame of the test data under "
                  f"each model (brand-phoneme's is of [y, Δy], 2K dims, not comparable; the puppet's "
-                 f"face model is not conditioned on phones: —).")
+                 f"face model is not conditioned on phones: —)."
+                 + (" Models and face spaces learnt from the sequences' separate training landmarks "
+                    "(e.g. tracked); measured against the ground truth." if c.get("separate_training_landmarks")
+                    else ""))
     return "\n".join(lines) + "\n"
 
 
@@ -382,7 +529,9 @@ def _command(args) -> str:
     parts = ["voicepuppet", "evaluate"]
     opts = [("--data", args.data), ("--corpus-dir", args.corpus_dir)]
     if not args.data:
-        opts += [("--train-seconds", f"{args.train_seconds:g}"), ("--n-test", str(args.n_test))]
+        opts += [("--train-seconds", f"{args.train_seconds:g}"), ("--n-test", str(args.n_test)),
+                 ("--corpus-seed", None if args.corpus_seed is None else str(args.corpus_seed)),
+                 ("--train-on", None if args.train_on == "truth" else args.train_on)]
     else:
         opts += [("--alphabet", args.alphabet)]
     opts += [("--folds", str(args.folds)), ("--seed", str(args.seed)), ("--states", str(args.states)),
@@ -444,10 +593,17 @@ def _run_comparison(args, seqs, n_comp) -> int:
 def _run(args) -> int:
 
     if args.data:
+        for flag, val, default in (("--train-on", args.train_on, "truth"), ("--corpus-seed", args.corpus_seed, None)):
+            if val != default:
+                raise ValueError(f"{flag} is for the synthetic performer; with --data the sequences are "
+                                 f"yours (put the landmarks to learn from, e.g. tracked ones, in NAME.npz)")
         seqs = load_sequences(args.data, alphabet=args.alphabet)
     else:
+        if args.corpus_seed is not None and args.corpus_seed < 0:
+            raise ValueError(f"--corpus-seed must be a non-negative integer, got {args.corpus_seed}")
         seqs = synth_sequences(args.corpus_dir, train_seconds=args.train_seconds, n_test=args.n_test,
-                               seed=args.seed, progress=not args.quiet)
+                               seed=args.seed if args.corpus_seed is None else args.corpus_seed,
+                               progress=not args.quiet, train_on=args.train_on)
     try:
         n_comp = float(args.components) if "." in args.components else int(args.components)
     except ValueError:
@@ -483,6 +639,13 @@ def add_parser(sub) -> None:
     p.add_argument("--n-test", type=int, default=3, help="performer held-out espeak-ng sentences")
     p.add_argument("--folds", type=int, default=10, help="k of k-fold cross-validation (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seeds the corpus, the folds and the models")
+    p.add_argument("--corpus-seed", type=int, metavar="N",
+                   help="seed of the performer corpus alone (default: --seed), e.g. a second partition "
+                        "of the same corpus: --seed 1 --corpus-seed 0")
+    p.add_argument("--train-on", choices=TRAIN_ON, default="truth",
+                   help="performer landmarks the models learn from: 'truth' (default) or 'tracked' (what "
+                        "the spring-mesh tracker finds in each clip's video from its first true frame, "
+                        "cached beside the corpus); measures stay against the ground truth")
     p.add_argument("--peers", action="store_true", help="also evaluate the four phoneme-driven models")
     p.add_argument("--no-puppet", action="store_true", help="skip the voice puppet")
     p.add_argument("--states", type=int, default=40, help="voice puppet states (default 40)")

@@ -267,6 +267,10 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     (nats per frame, frame-weighted) and ``states_err``, the Err of the reconstruction from the
     facial HMM's Viterbi states of the true motion; plus ``states`` and ``arcs`` kept.
 
+    Puppets and each fold's face space learn from the training sequences'
+    :func:`voicepuppet.evaluate.learnt_points` (``train_points`` where set, e.g. tracked
+    landmarks); every measure is against the test sequences' ``points`` (the ground truth).
+
     Parameters
     ----------
     sequences : list of voicepuppet.evaluate.Sequence
@@ -293,7 +297,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     from tqdm.auto import tqdm
 
     from voicepuppet.crossval import kfold, mean_ci
-    from voicepuppet.evaluate import _as_face, _fold_metrics
+    from voicepuppet.evaluate import _as_face, _fold_metrics, learnt_points
     from voicepuppet.face import FaceSpace
     from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet
 
@@ -311,6 +315,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
                              f"{sorted(set(TRAIN_DEFAULTS) - {'seed'})}")
     if not seqs:
         raise ValueError("no sequences to compare on")
+    fit = [learnt_points(s) for s in seqs]  # refuses train_points of the wrong shape up front
     fps = float(seqs[0].fps)
     if features is not None:
         features = list(features)
@@ -333,12 +338,12 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     per_fold: dict = {n: [] for n in names}
     bar = tqdm(total=len(folds) * len(names), desc="paired comparison", unit="model", disable=not progress)
     for fi, (tr, te) in enumerate(folds):
-        fs = FaceSpace.fit([seqs[i].points for i in tr], n_components=n_components)
+        fs = FaceSpace.fit([fit[i] for i in tr], n_components=n_components)
         Yte = [fs.encode(seqs[i].points)[0] for i in te]
         for name in names:
             bar.set_postfix(fold=fi + 1, variant=name)
             opts = dict(variants[name], seed=seed)
-            puppet = Puppet.train([seqs[i].points for i in tr], features_list=[features_of(i, fsets[name]) for i in tr],
+            puppet = Puppet.train([fit[i] for i in tr], features_list=[features_of(i, fsets[name]) for i in tr],
                                   fps=fps, **opts)
             voice, states, rates = [], [], []
             for i, y in zip(te, Yte):
@@ -365,6 +370,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     out = {"variants": {}, "differences": {}, "config": {
         "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
         "fps": fps, "n_components": n_components, "baseline": baseline,
+        "separate_training_landmarks": any(s.train_points is not None for s in seqs),
         "options": {n: dict(variants[n]) for n in names},
         "folds": [[seqs[i].name for i in te] for _, te in folds]}}
     for name in names:
@@ -395,5 +401,7 @@ def format_comparison(result: dict) -> str:
     lines += ["", f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} frames "
               f"at {c['fps']:.4g} fps, seed {c['seed']}); variants: mean over folds ± half-width of the 95% "
               f"interval; differences: mean [95% interval] of the per-fold differences (Student's t, "
-              f"{c['k'] - 1} degrees of freedom). Lower is better for every measure."]
+              f"{c['k'] - 1} degrees of freedom). Lower is better for every measure."
+              + (" Puppets and face spaces learnt from the sequences' separate training landmarks (e.g. "
+                 "tracked); measured against the ground truth." if c.get("separate_training_landmarks") else "")]
     return "\n".join(lines) + "\n"
