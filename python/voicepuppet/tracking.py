@@ -46,6 +46,10 @@ LIP_SPRING_OUTLIER = 6.0
 # The face frame of a 68-point layout: points that move rigidly with the head (nose, eye
 # corners); the lip springs' offsets are measured in it.
 FACE_FRAME_POINTS = (27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
+# The mouth corners (outer 48, 54; inner 60, 64): where the two lip contours meet. In a wide
+# opening their patches match about equally well anywhere along the lip edge beside them, so
+# their springs to the lower lip stay stiff across the opening and check their data.
+MOUTH_CORNERS = (48, 54, 60, 64)
 
 _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
@@ -91,9 +95,9 @@ def delaunay_edges(points: np.ndarray) -> np.ndarray:
 def lip_patch_sides(points: np.ndarray) -> np.ndarray:
     """Half-patch directions for the lip points of a 68-point (iBUG 300-W) layout.
 
-    Each lip point but the four mouth corners is tracked on the half of its patch away from the
-    mouth opening (upper lip points: the half above them, lower lip points: below, in the face
-    frame given by the outer eye corners), whose texture moves with the lip while the other half
+    The inner upper lip (61-63) is tracked on the half of its patches above it and the lower lip
+    (55-59, 65-67) on the half below it (in the face frame given by the outer eye corners): the
+    side away from the mouth opening, whose texture moves with the lip while the other half
     turns from closed lips into the mouth cavity and back.
 
     Parameters
@@ -102,8 +106,8 @@ def lip_patch_sides(points: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    (68, 2) float64: unit directions for points 49-53, 55-59, 61-63 and 65-67, zero rows
-    (whole patches) for the others; pass as the ``patch_sides`` tracker option.
+    (68, 2) float64: unit directions for points 55-59, 61-63 and 65-67, zero rows (whole
+    patches) for the others; pass as the ``patch_sides`` tracker option.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.shape != (68, 2):
@@ -134,6 +138,18 @@ def _across_opening(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     opening (a lower-lip point to an upper-lip point or a corner)."""
     on_lips = np.all(edges >= 48, axis=1)
     return on_lips, on_lips & ~_same_lip(edges)
+
+
+def _corner_to_lower(edges: np.ndarray) -> np.ndarray:
+    """(E,) bool: edges of a 68-point mesh from a mouth corner (48, 54, 60, 64) across the
+    opening to the lower lip: the springs that say where along the lip edge a corner is."""
+    return _across_opening(edges)[1] & np.any(np.isin(edges, MOUTH_CORNERS), axis=1)
+
+
+def _checked_lip_edges(edges: np.ndarray) -> np.ndarray:
+    """Indices of the springs of a 68-point mesh that check the lip points' data
+    (``outlier_edges``): those within one lip, and those from a mouth corner to the lower lip."""
+    return np.flatnonzero(_same_lip(edges) | _corner_to_lower(edges))
 
 
 def _lip_springs(init: np.ndarray, edges: np.ndarray, mesh, relative_sigma: float, min_sigma: float,
@@ -170,20 +186,26 @@ def _lip_springs(init: np.ndarray, edges: np.ndarray, mesh, relative_sigma: floa
 
 
 def _soften_opening(mesh, edges: np.ndarray, floor: float):
-    """``mesh`` with the springs that span the mouth opening no stiffer than ``floor`` px (std).
+    """``mesh`` with the springs that span the mouth opening no stiffer than ``floor`` px (std)
+    along the opening.
 
     Re-estimated springs record the previous pass's tracks, and those hold the lower lip too high
     in wide openings; springs across the opening (lower lip to upper lip or corners, offset
     springs; lower lip to the rest of the face, length springs) learned from them pull the lip
     back to that bias. The offsets' covariance keeps its eigenvectors with eigenvalues floored
-    at floor^2, the length springs' stiffness is capped at 1/floor^2.
+    at floor^2, the length springs' stiffness is capped at 1/floor^2. A spring from a mouth
+    corner to the lower lip has only its softest direction (the opening) floored: across it, it
+    holds the corner where the lower lip says (a corner slides along the lip edge beside it,
+    where its own patch matches about equally well).
     """
     on_lips, across = _across_opening(edges)
+    corner = _corner_to_lower(edges)
     to_lower = np.any(_IS_LOWER_LIP[edges], axis=1) & ~on_lips
     prec = np.asarray(mesh.offset_precision).reshape(-1, 2, 2).copy()
     for e in np.flatnonzero(across):
-        w, v = np.linalg.eigh(prec[e])
-        prec[e] = (v * np.minimum(w, 1.0 / floor**2)) @ v.T
+        w, v = np.linalg.eigh(prec[e])  # ascending precisions: w[0] is the softest direction
+        w = np.minimum(w, 1.0 / floor**2) if not corner[e] else np.r_[min(w[0], 1.0 / floor**2), w[1]]
+        prec[e] = (v * w) @ v.T
     k = np.asarray(mesh.stiffness).copy()
     k[to_lower] = np.minimum(k[to_lower], 1.0 / floor**2)
     return _core.SpringMesh(edges, np.asarray(mesh.rest_length), k,
@@ -289,7 +311,7 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
     if lips:
         mesh = _lip_springs(init, edges, mesh, relative_sigma, min_sigma, lip_floor)
         options.setdefault("frame_points", np.asarray(FACE_FRAME_POINTS, dtype=np.int64))
-        options.setdefault("outlier_edges", np.flatnonzero(_same_lip(edges)))
+        options.setdefault("outlier_edges", _checked_lip_edges(edges))
     opts = _options(options)
     # The first pass's lip springs are guesses: their check on the data (spring_outlier) waits
     # for the springs re-estimated from a pass.
@@ -340,9 +362,9 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         the mouth opening; ``frame_points`` the nose and eye corners), the lower lip searched
         for as one group within 0.15 inter-ocular distances (``search_groups``,
         ``group_search_radius``) and, from the second pass, a lip point further than 6
-        standard deviations of its within-lip springs from where they put it handed to them
-        for the frame (``spring_outlier``, ``outlier_edges``); default: on when there are 68
-        points; explicit options win)
+        standard deviations of its within-lip springs (and a mouth corner's springs to the
+        lower lip) from where they put it handed to them for the frame (``spring_outlier``,
+        ``outlier_edges``); default: on when there are 68 points; explicit options win)
 
     Returns
     -------
