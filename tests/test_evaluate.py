@@ -187,6 +187,10 @@ def test_voice_puppet_on_the_same_folds():
     assert m["err"]["mean"] < 0.95  # 0.81 at this seed; the mean face scores 1
     assert sum(m["frames"]) == sum(len(s.points) for s in seqs)
     assert "| voice-puppet |" in ev.format_table(res)
+    # its baselines on the same folds, from the features computed from each sequence's audio
+    assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face"]
+    np.testing.assert_allclose(res["models"]["mean-face"]["err"]["folds"], 1.0, atol=1e-12)
+    assert {"err", "lve", "rmse_iod"} <= set(res["differences"]["voice-puppet"]["ridge"])
 
 
 def test_evaluate_compare_training_verb(tmp_path, capsys):
@@ -365,3 +369,111 @@ def test_evaluate_verb_train_on_tracked(tmp_path, capsys, monkeypatch):
     assert "invalid choice: 'video'" in capsys.readouterr().err
     assert main(["evaluate", "--corpus-seed", "-1", "--peers", "--no-puppet", "-q"]) == 2
     assert "--corpus-seed must be a non-negative integer" in capsys.readouterr().err
+
+
+def _direct_baselines(seqs, feats, k, seed, n_components):
+    """The baselines' fold measures computed here, independently of the harness: each fold's face
+    space fitted on the training sequences' learnt landmarks, the features standardised with the
+    training frames' own mean and std (what the puppet does to the raw columns of its input),
+    a RidgeBaseline fitted directly, and the training mean face."""
+    from voicepuppet.crossval import kfold
+    from voicepuppet.evaluation import RidgeBaseline
+    from voicepuppet.face import FaceSpace
+
+    out = {"ridge": [], "mean-face": []}
+    for tr, te in kfold(len(seqs), k, seed):
+        fit = [ev.learnt_points(seqs[i]) for i in tr]
+        fs = FaceSpace.fit(fit, n_components=n_components)
+        Ytr = [fs.encode(p)[0] for p in fit]
+        Yte = [fs.encode(seqs[i].points)[0] for i in te]
+        X = np.vstack([feats[i] for i in tr])
+        mu, sd = X.mean(axis=0), X.std(axis=0)
+        ridge = RidgeBaseline().fit([(feats[i] - mu) / sd for i in tr], Ytr)
+        out["ridge"].append(ev._fold_metrics([ridge.predict((feats[i] - mu) / sd) for i in te], Yte, fs, None))
+        mean = np.vstack(Ytr).mean(axis=0)
+        out["mean-face"].append(ev._fold_metrics([np.tile(mean, (len(y), 1)) for y in Yte], Yte, fs, None))
+    return out
+
+
+def test_cross_validation_baselines_equal_a_direct_fit_on_each_fold(tmp_path):
+    """With the puppet come the ridge and the mean face, each equal fold by fold to a direct fit
+    on the fold (the ridge also when the sequences have separate training landmarks: it learns
+    from those, like the puppet, and is measured against the truth); the mean face scores Err 1
+    exactly (eq. 7 about the true mean: any constant prediction does); the paired differences are
+    the puppet's per-fold values minus the baseline's, with their t-interval; both tables and the
+    JSON carry them."""
+    from dataclasses import replace
+
+    from voicepuppet.crossval import mean_ci
+    from voicepuppet.evaluation import RIDGE_ALPHAS
+
+    from test_evaluation import _planted_sequences
+
+    seqs, feats = _planted_sequences(n_seq=6, T=240)
+    noise = np.random.default_rng(SEED + 6)
+    # what a tracker might give: noisy, and a fixed deformation, so that the face space moves too
+    offset = noise.normal(scale=1.0, size=seqs[0].points.shape[1:])
+    tracked = [replace(s, train_points=s.points + offset + noise.normal(scale=3.0, size=s.points.shape))
+               for s in seqs]
+
+    def run(ss):
+        return ev.cross_validate(ss, k=3, seed=0, peers=False, puppet=True, n_components=3, n_states=6,
+                                 features=feats, progress=False)
+
+    results = {}
+    for label, ss in (("truth", seqs), ("tracked", tracked)):
+        res = results[label] = run(ss)
+        assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face"]
+        direct = _direct_baselines(ss, feats, 3, 0, 3)
+        for name, rows in direct.items():
+            for m in ("l1", "rms", "linf", "err"):
+                np.testing.assert_allclose(res["models"][name][m]["folds"], [r[m] for r in rows], rtol=1e-7,
+                                           err_msg=f"{label} {name} {m}")
+        np.testing.assert_allclose(res["models"]["mean-face"]["err"]["folds"], 1.0, atol=1e-12)
+        assert len(res["models"]["ridge"]["alpha"]) == 3 and set(res["models"]["ridge"]["alpha"]) <= set(RIDGE_ALPHAS)
+        voice = res["models"]["voice-puppet"]
+        for name in ("ridge", "mean-face"):
+            d = res["differences"]["voice-puppet"][name]
+            assert set(d) == {"l1", "rms", "linf", "err"}
+            for m, v in d.items():
+                want = np.subtract(voice[m]["folds"], res["models"][name][m]["folds"])
+                np.testing.assert_allclose(v["folds"], want, atol=1e-12)
+                assert (v["mean"], v["low"], v["high"]) == pytest.approx(mean_ci(want), abs=1e-12)
+    plain, noisy = results["truth"]["models"], results["tracked"]["models"]
+    print({label: {n: r["models"][n]["err"]["mean"] for n in r["models"]} for label, r in results.items()})
+    # the audio says which planted state the face is in: the ridge is far better than the mean face
+    assert plain["ridge"]["err"]["mean"] < 0.5
+    # learnt from the other landmarks the ridge scores otherwise against the same truth, so the
+    # direct fit on the train_points above is not also the one on the truth
+    for m in ("l1", "rms", "err"):
+        assert abs(noisy["ridge"][m]["mean"] / plain["ridge"][m]["mean"] - 1) > 0.02, m
+    assert results["tracked"]["config"]["separate_training_landmarks"] is True
+
+    table = ev.format_table(results["truth"])
+    assert "| ridge |" in table and "| mean-face |" in table and "| paired difference (fold by fold) |" in table
+    d = results["truth"]["differences"]["voice-puppet"]["ridge"]["err"]
+    row = next(line for line in table.splitlines() if line.startswith("| voice-puppet − ridge |"))
+    assert row.rstrip(" |").split(" | ")[4] == f"{d['mean']:+.3g} [{d['low']:+.3g}, {d['high']:+.3g}]"  # L1, RMS, L∞, Err
+    assert "| voice-puppet − mean-face |" in table
+    md, js = tmp_path / "r.md", tmp_path / "r.json"
+    ev.write_results(results["truth"], md, js, "voicepuppet evaluate")
+    back = json.loads(js.read_text())
+    assert back["differences"]["voice-puppet"]["mean-face"]["err"]["folds"] == pytest.approx(
+        results["truth"]["differences"]["voice-puppet"]["mean-face"]["err"]["folds"])
+    assert "| voice-puppet − mean-face |" in md.read_text()
+    # without the puppet: no baselines, no differences, no second table
+    alone = ev.cross_validate(seqs, k=3, seed=0, peers=True, puppet=False, n_components=3, progress=False)
+    assert "ridge" not in alone["models"] and alone["differences"] == {}
+    assert "paired difference" not in ev.format_table(alone)
+
+
+def test_cross_validation_baselines_refuse_bad_features():
+    from test_evaluation import _planted_sequences
+
+    seqs, feats = _planted_sequences(n_seq=3, T=120)
+    with pytest.raises(ValueError, match=r"features must be one \(T, A\) array per sequence \(3 sequences\)"):
+        ev.cross_validate(seqs, k=2, peers=False, features=feats[:2], progress=False)
+    with pytest.raises(ValueError, match="one row per frame"):
+        ev.cross_validate(seqs, k=2, peers=False, features=[f[:-1] for f in feats], progress=False)
+    with pytest.raises(ValueError, match="sequence s0 has no audio; the voice puppet needs it"):
+        ev.cross_validate(seqs, k=2, peers=False, progress=False)

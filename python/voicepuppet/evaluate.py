@@ -8,6 +8,10 @@ Puppetry eq. 7), landmark RMSE over the inter-ocular distance and lip vertex err
 decoded landmarks (mean pose), each the mean over folds with its 95% confidence interval.
 
 * The voice puppet (``voicepuppet.puppet``) hears the test audio only; it needs no phones.
+  With it come its two baselines, learnt from the same fold: ``ridge`` (per-frame ridge
+  regression from the standardised audio features over ±5 frames) and ``mean-face`` (the
+  training mean face, every frame), and the paired per-fold differences of the puppet's
+  measures from theirs (:func:`voicepuppet.crossval.mean_ci`), a second table.
 * With ``--peers`` the four phoneme-driven models (:mod:`voicepuppet.dpds`) are given each test
   sequence's frame labels (ground-truth phones, 10 ms majority vote).
 
@@ -34,7 +38,7 @@ import numpy as np
 from . import phonemes
 
 __all__ = ["Sequence", "learnt_points", "synth_sequences", "tracked_landmarks", "load_sequences",
-           "cross_validate", "format_table", "write_results", "METRICS", "TRAIN_ON"]
+           "cross_validate", "format_table", "write_results", "METRICS", "TRAIN_ON", "BASELINES"]
 
 #: where the models' training landmarks come from (``--train-on``)
 TRAIN_ON = ("truth", "tracked")
@@ -356,30 +360,39 @@ def _fold_metrics(preds, truths, face_space, loglik: float | None) -> dict:
     return out
 
 
-def _puppet_predictions(train, test, face_space, *, n_states, seed, tmpdir):
-    """Train the voice puppet on the training sequences' landmarks and audio; animate the test
-    audio; return face coordinates in ``face_space``, cut or padded (last frame) to each length."""
-    import soundfile
-
+def _puppet_predictions(train, test, face_space, feats_train, feats_test, *, n_states, seed):
+    """Train the voice puppet on the training sequences' learnt landmarks and their raw audio
+    features (one row per frame); animate the test sequences' features. Returns the face
+    coordinates in ``face_space`` (cut or padded, last frame, to each length) and the puppet."""
     try:
         from .puppet import Puppet
     except ImportError as exc:
         raise ValueError(f"the voice puppet is not available in this installation ({exc}); evaluate "
                          f"the phoneme models alone with --peers --no-puppet") from None
 
-    def wav(s):
-        if s.samples is None:
-            raise ValueError(f"sequence {s.name} has no audio; the voice puppet needs it (give "
-                             f"NAME.wav, or evaluate without the puppet: --no-puppet)")
-        path = os.path.join(tmpdir, f"{s.name}.wav")
-        if not os.path.exists(path):
-            soundfile.write(path, s.samples, s.rate, subtype="PCM_16")
-        return path
-
-    puppet = Puppet.train([learnt_points(s) for s in train], [wav(s) for s in train], fps=train[0].fps,
+    puppet = Puppet.train([learnt_points(s) for s in train], features_list=feats_train, fps=train[0].fps,
                           n_states=n_states, seed=seed, progress=False)
-    return [_as_face(puppet.animate(wav(s), fps=s.fps).animation.points, len(s.points), face_space)
-            for s in test]
+    preds = [_as_face(puppet.animate(features=f, fps=s.fps).animation.points, len(s.points), face_space)
+             for s, f in zip(test, feats_test)]
+    return preds, puppet
+
+
+def _baseline_predictions(puppet, Ytr, feats_train, feats_test, lengths):
+    """The two baselines of the voice puppet, learnt from a fold's training sequences.
+
+    ``ridge``: :class:`voicepuppet.evaluation.RidgeBaseline` (±5 frames, regularisation chosen by
+    its blocked cross-validation) from the features as the puppet standardises them
+    (:func:`voicepuppet.evaluation.ridge_input`) to the training face coordinates ``Ytr``;
+    ``mean-face``: the mean of ``Ytr``, every frame. Returns ({name: [face coordinates per test
+    sequence]}, the ridge's regularisation).
+    """
+    from .evaluation import RidgeBaseline, ridge_input
+
+    ridge = RidgeBaseline().fit([ridge_input(puppet, f) for f in feats_train], Ytr)
+    mean = np.vstack(Ytr).mean(axis=0)
+    preds = {"ridge": [ridge.predict(ridge_input(puppet, f)) for f in feats_test],
+             "mean-face": [np.tile(mean, (int(n), 1)) for n in lengths]}
+    return preds, float(ridge.alpha)
 
 
 def _as_face(points, n, face_space) -> np.ndarray:
@@ -389,13 +402,22 @@ def _as_face(points, n, face_space) -> np.ndarray:
     return face_space.encode(points[:n])[0]
 
 
+#: the voice puppet's baselines, evaluated with it (:func:`_baseline_predictions`)
+BASELINES = ("ridge", "mean-face")
+
+
 def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
                    puppet: bool = True, n_components=0.98, n_states: int = 40,
-                   progress: bool = True) -> dict:
-    """k-fold cross-validation by sequence of the voice puppet and the phoneme peers.
+                   features=None, progress: bool = True) -> dict:
+    """k-fold cross-validation by sequence of the voice puppet, its baselines and the phoneme peers.
 
     Models and each fold's face space learn from the training sequences' :func:`learnt_points`
     (``train_points`` where set); predictions are measured against the test sequences' ``points``.
+    With the puppet come its two baselines, learnt from the same fold: ``ridge`` (per-frame ridge
+    regression over ±5 frames of the audio features as the fold's puppet standardises them, to the
+    face coordinates of the training landmarks) and ``mean-face`` (the training mean face, every
+    frame), and the paired per-fold differences ``voice-puppet − ridge`` and ``voice-puppet −
+    mean-face``.
 
     Parameters
     ----------
@@ -407,19 +429,24 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
     peers : bool
         Evaluate the four phoneme models.
     puppet : bool
-        Evaluate the voice puppet (needs audio).
+        Evaluate the voice puppet and its baselines (needs audio or ``features``).
     n_components : int or float
         Face-space size per fold (``FaceSpace.fit``): an int, or the fraction of variance kept.
     n_states : int
         Voice puppet states.
+    features : list of array (T, A), optional
+        Raw audio features per sequence, one row per frame, instead of computing them from each
+        sequence's audio (the puppet's default feature set, once per sequence for all folds).
 
     Returns
     -------
     dict
-        ``{"models": {name: {measure: {"mean", "low", "high", "folds": [...]}}}, "config": ...}``.
+        ``{"models": {name: {measure: {"mean", "low", "high", "folds": [...]}}}, "differences":
+        {"voice-puppet": {baseline: {measure: {...}}}}, "config": ...}``; a difference's
+        ``folds`` are the puppet's per-fold values minus the baseline's, its interval
+        :func:`voicepuppet.crossval.mean_ci` of them. The ridge's entry also lists the
+        regularisation chosen per fold (``alpha``).
     """
-    import tempfile
-
     from tqdm.auto import tqdm
 
     from . import dpds
@@ -431,34 +458,70 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         learnt_points(s)  # refuses train_points of the wrong shape before any training
     if not peers and not puppet:
         raise ValueError("nothing to evaluate: enable the puppet or the peers (--peers)")
+    fps = float(seqs[0].fps) if seqs else 0.0
+    if features is not None:
+        features = [np.asarray(f, dtype=np.float64) for f in features]
+        if len(features) != len(seqs) or any(f.ndim != 2 or len(f) != len(s.points)
+                                             for f, s in zip(features, seqs)):
+            raise ValueError(f"features must be one (T, A) array per sequence ({len(seqs)} sequences), with "
+                             f"one row per frame of its landmarks; got {[np.shape(f) for f in features]}")
+    elif puppet:
+        for s in seqs:
+            if s.samples is None:
+                raise ValueError(f"sequence {s.name} has no audio; the voice puppet needs it (give "
+                                 f"NAME.wav, or evaluate without the puppet: --no-puppet)")
+    feats: dict = {}
+
+    def features_of(i):
+        """Raw audio features of sequence i, computed once for all folds."""
+        if features is not None:
+            return features[i]
+        if i not in feats:
+            from .evaluation import _sequence_features
+            from .puppet import TRAIN_DEFAULTS
+
+            feats[i] = _sequence_features(seqs[i], fps, TRAIN_DEFAULTS["feature_set"])
+        return feats[i]
+
     folds = kfold(len(seqs), k, seed)
-    names = (["voice-puppet"] if puppet else []) + (list(dpds.MODELS) if peers else [])
+    names = (["voice-puppet", *BASELINES] if puppet else []) + (list(dpds.MODELS) if peers else [])
     per_fold: dict = {n: [] for n in names}
+    alphas = []
     bar = tqdm(total=len(folds) * len(names), desc="cross-validation", unit="model",
                disable=not progress)
-    with tempfile.TemporaryDirectory(prefix="vp-evaluate-") as tmpdir:
-        for fi, (tr_idx, te_idx) in enumerate(folds):
-            train = [seqs[i] for i in tr_idx]
-            test = [seqs[i] for i in te_idx]
-            fs = FaceSpace.fit([learnt_points(s) for s in train], n_components=n_components)
-            Ytr = [fs.encode(learnt_points(s))[0] for s in train]
-            Yte = [fs.encode(s.points)[0] for s in test]
-            for name in names:
-                bar.set_postfix(fold=fi + 1, model=name)
-                if name == "voice-puppet":
-                    preds = _puppet_predictions(train, test, fs, n_states=n_states, seed=seed,
-                                                tmpdir=tmpdir)
-                    ll = None
-                else:
-                    model = dpds.MODELS[name]().fit(Ytr, [s.labels for s in train])
-                    preds = [model.generate(s.labels) for s in test]
-                    ll = model.log_likelihood(Yte, [s.labels for s in test])
-                per_fold[name].append(_fold_metrics(preds, Yte, fs, ll))
+    for fi, (tr_idx, te_idx) in enumerate(folds):
+        train = [seqs[i] for i in tr_idx]
+        test = [seqs[i] for i in te_idx]
+        fs = FaceSpace.fit([learnt_points(s) for s in train], n_components=n_components)
+        Ytr = [fs.encode(learnt_points(s))[0] for s in train]
+        Yte = [fs.encode(s.points)[0] for s in test]
+        if puppet:
+            bar.set_postfix(fold=fi + 1, model="voice-puppet")
+            f_tr, f_te = [features_of(i) for i in tr_idx], [features_of(i) for i in te_idx]
+            preds, pup = _puppet_predictions(train, test, fs, f_tr, f_te, n_states=n_states, seed=seed)
+            per_fold["voice-puppet"].append(_fold_metrics(preds, Yte, fs, None))
+            bar.update()
+            base, alpha = _baseline_predictions(pup, Ytr, f_tr, f_te, [len(y) for y in Yte])
+            alphas.append(alpha)
+            for name in BASELINES:
+                per_fold[name].append(_fold_metrics(base[name], Yte, fs, None))
                 bar.update()
+        for name in (dpds.MODELS if peers else ()):
+            bar.set_postfix(fold=fi + 1, model=name)
+            model = dpds.MODELS[name]().fit(Ytr, [s.labels for s in train])
+            preds = [model.generate(s.labels) for s in test]
+            ll = model.log_likelihood(Yte, [s.labels for s in test])
+            per_fold[name].append(_fold_metrics(preds, Yte, fs, ll))
+            bar.update()
     bar.close()
-    result = {"models": {}, "config": {
+
+    def summary(vals):
+        mean, lo, hi = mean_ci(vals)
+        return {"mean": mean, "low": lo, "high": hi, "folds": [float(v) for v in vals]}
+
+    result = {"models": {}, "differences": {}, "config": {
         "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
-        "fps": float(seqs[0].fps), "n_components": n_components, "n_states": int(n_states),
+        "fps": fps, "n_components": n_components, "n_states": int(n_states),
         "separate_training_landmarks": any(s.train_points is not None for s in seqs),
         "folds": [[seqs[i].name for i in te] for _, te in folds]}}
     for name, rows in per_fold.items():
@@ -466,15 +529,23 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         for m in METRICS:
             vals = [r[m] for r in rows if m in r]
             if len(vals) == len(rows):
-                mean, lo, hi = mean_ci(vals)
-                entry[m] = {"mean": mean, "low": lo, "high": hi, "folds": vals}
+                entry[m] = summary(vals)
         entry["frames"] = [r["frames"] for r in rows]
         result["models"][name] = entry
+    if puppet:
+        result["models"]["ridge"]["alpha"] = alphas
+        voice = per_fold["voice-puppet"]
+        result["differences"]["voice-puppet"] = {
+            name: {m: summary([a[m] - b[m] for a, b in zip(voice, per_fold[name])])
+                   for m in METRICS if m in voice[0] and m in per_fold[name][0]}
+            for name in BASELINES}
     return result
 
 
 def format_table(result: dict) -> str:
-    """Markdown table: one row per model, ``mean ± half-width`` of the 95% interval per measure."""
+    """Markdown table: one row per model, ``mean ± half-width`` of the 95% interval per measure;
+    then, where the result has them, the paired per-fold differences (``voice-puppet − ridge``,
+    ``voice-puppet − mean-face``), ``mean [low, high]`` of the 95% interval."""
     cols = [m for m in METRICS if any(m in e for e in result["models"].values())]
     head = "| model | " + " | ".join(METRICS[m][0] for m in cols) + " |"
     sep = "|---|" + "---:|" * len(cols)
@@ -489,6 +560,16 @@ def format_table(result: dict) -> str:
                 cells.append("—")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     c = result["config"]
+    diffs = result.get("differences") or {}
+    dcols = [m for m in METRICS if any(m in d for by in diffs.values() for d in by.values())]
+    if dcols:
+        lines += ["", "| paired difference (fold by fold) | " + " | ".join(METRICS[m][0] for m in dcols) + " |",
+                  "|---|" + "---:|" * len(dcols)]
+        for a, by in diffs.items():
+            for b, d in by.items():
+                lines.append(f"| {a} − {b} | " + " | ".join(
+                    f"{d[m]['mean']:+.3g} [{d[m]['low']:+.3g}, {d[m]['high']:+.3g}]" if m in d else "—"
+                    for m in dcols) + " |")
     lines.append("")
     lines.append(f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} "
                  f"frames at {c['fps']:.4g} fps, seed {c['seed']}); mean over folds ± half-width of the "
@@ -496,6 +577,13 @@ def format_table(result: dict) -> str:
                  f"(n_components={c['n_components']}). Log-likelihoods are per frame of the test data under "
                  f"each model (brand-phoneme's is of [y, Δy], 2K dims, not comparable; the puppet's "
                  f"face model is not conditioned on phones: —)."
+                 + (" ridge: per-frame ridge regression over ±5 frames of the audio features as the fold's "
+                    "voice puppet standardises them (regularisation by blocked cross-validation on the "
+                    "training frames); mean-face: the fold's training mean face, every frame (Err 1 by "
+                    "construction)." if "ridge" in result["models"] else "")
+                 + (f" Paired differences: mean [95% interval] of the per-fold differences (Student's t, "
+                    f"{c['k'] - 1} degrees of freedom); below 0: the voice puppet's error is lower." if dcols
+                    else "")
                  + (" Models and face spaces learnt from the sequences' separate training landmarks "
                     "(e.g. tracked); measured against the ground truth." if c.get("separate_training_landmarks")
                     else ""))
@@ -625,11 +713,13 @@ def _run(args) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("evaluate", help="cross-validate the voice puppet and its phoneme peers",
-                       description="k-fold cross-validation by sequence of the voice puppet and (with "
-                                   "--peers) the four phoneme-driven models on the same folds: L1, RMS, "
-                                   "Linf, test log-likelihood, Err (eq. 7), lip vertex error and landmark "
-                                   "RMSE/IOD with 95% confidence intervals. Default data: the synthetic "
-                                   "performer.")
+                       description="k-fold cross-validation by sequence of the voice puppet, its baselines "
+                                   "(ridge regression over +-5 frames of audio features, the mean face) "
+                                   "and (with --peers) the four phoneme-driven models on the same folds: "
+                                   "L1, RMS, Linf, test log-likelihood, Err (eq. 7), lip vertex error and "
+                                   "landmark RMSE/IOD with 95% confidence intervals, and the puppet's "
+                                   "paired per-fold differences from each baseline. Default data: the "
+                                   "synthetic performer.")
     p.add_argument("--data", metavar="DIR", help="user data: NAME.npz + NAME.wav + NAME.TextGrid|.lab "
                    "per sequence (default: the synthetic performer)")
     p.add_argument("--alphabet", choices=["arpabet", "espeak"], default="arpabet",
@@ -647,7 +737,7 @@ def add_parser(sub) -> None:
                         "the spring-mesh tracker finds in each clip's video from its first true frame, "
                         "cached beside the corpus); measures stay against the ground truth")
     p.add_argument("--peers", action="store_true", help="also evaluate the four phoneme-driven models")
-    p.add_argument("--no-puppet", action="store_true", help="skip the voice puppet")
+    p.add_argument("--no-puppet", action="store_true", help="skip the voice puppet (and its baselines)")
     p.add_argument("--states", type=int, default=40, help="voice puppet states (default 40)")
     p.add_argument("--components", default="0.98",
                    help="face-space size: an integer, or a variance fraction such as 0.98 (default)")

@@ -76,6 +76,20 @@ class RidgeBaseline:
         return (context_stack(A, self.k) - self.x_mean) @ self.W + self.y_mean
 
 
+def ridge_input(puppet, raw) -> np.ndarray:
+    """What the ridge baseline hears: raw audio features [T, A] standardised as ``puppet``
+    standardises them (its training mean and std), without the deltas the puppet appends (a
+    linear map over ±5 frames of context can form them): (T, A).
+
+    Parameters
+    ----------
+    puppet : voicepuppet.puppet.Puppet
+    raw : array (T, A)
+        Raw features made with the puppet's feature set (e.g. ``puppet.audio_features``).
+    """
+    return puppet._core.standardize(np.ascontiguousarray(raw, dtype=np.float64))[:, :puppet._core.n_features]
+
+
 def facial_states(puppet, points) -> np.ndarray:
     """Viterbi states of the facial HMM for true motion ``points`` [T, P, 2]: (T, parts)."""
     Y, _ = puppet.face_space.encode(points)
@@ -160,20 +174,13 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
             feats[key] = puppet.audio_features(audio, n_out=n)
         return feats[key]
 
-    # The ridge sees the standardised features over ±5 frames (their deltas would add nothing a
-    # linear map over the context cannot express).
-    n_raw = puppet._core.n_features
-
-    def ridge_input(raw):
-        return puppet._core.standardize(raw)[:, :n_raw]
-
     if fit_points is None:
         fit_points = [p for p, _ in train]
     if len(fit_points) != len(train) or any(len(f) != len(p) for f, (p, _) in zip(fit_points, train)):
         raise ValueError(f"fit_points: expected one landmark array per training sequence with its frame "
                          f"count {[len(p) for p, _ in train]}, got {[len(f) for f in fit_points]}; pass "
                          f"the landmarks the puppet was trained on, cut to the same frames")
-    z_train = [ridge_input(features("train", i, a, len(p))) for i, (p, a) in enumerate(train)]
+    z_train = [ridge_input(puppet, features("train", i, a, len(p))) for i, (p, a) in enumerate(train)]
     ridge = RidgeBaseline().fit(z_train, [fs.encode(f)[0] for f in fit_points])
     mean_face = np.zeros(fs.n_dims)  # face coordinates are centred on the mean shape
 
@@ -184,13 +191,12 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
         for i, (points, audio) in enumerate(data):
             T = len(points)
             raw = features(split, i, audio, T)
-            z = puppet._core.standardize(raw)
             states = facial_states(puppet, points)
             preds = {
                 "states": puppet.animate(states=states).face,
                 "voice": puppet.animate(features=raw).face,
                 "mean-face": np.broadcast_to(mean_face, (T, fs.n_dims)),
-                "ridge": ridge.predict(z[:, :n_raw]),
+                "ridge": ridge.predict(ridge_input(puppet, raw)),
             }
             if posterior:
                 preds["voice-posterior"] = puppet.animate(features=raw, posterior=True).face
