@@ -764,35 +764,58 @@ struct SpringMeshTracker::Impl {
     const int S = static_cast<int>(std::ceil(opt.search_radius));
     bool moved = false;
     if (S < 1) return moved;
-    const int side = 2 * S + 1;
     for (Index i = 0; i < P; ++i) {
       if (sides.size() == 0 || (sides(i, 0) == 0 && sides(i, 1) == 0)) continue;
       const Match m0 = match(0, pts(i, 0), pts(i, 1), current[static_cast<size_t>(i)]);
       if (m0.textured && m0.ncc >= opt.ncc_full) continue;  // stage A found it
       if (!ncc_map(i, S, nccs, current)) continue;
-      double best = -2, here = -2;
-      int bx = 0, by = 0;
-      for (int oy = -S; oy <= S; ++oy) {
-        for (int ox = -S; ox <= S; ++ox) {
-          if (ox * ox + oy * oy > S * S) continue;
-          const double ncc = nccs[static_cast<size_t>((oy + S) * side + ox + S)];
-          if (ncc < -1.5) continue;
-          // Longer moves must correlate better (along a lip contour, every offset matches
-          // about as well): the score loses kSearchPenalty at the edge of the search disc.
-          const double score = ncc - kSearchPenalty * (ox * ox + oy * oy) / double(S * S);
-          if (ox == 0 && oy == 0) here = score;
-          if (score > best) {
-            best = score;
-            bx = ox;
-            by = oy;
-          }
+      moved = move_to_best(i, S, opt.ncc_full) || moved;
+    }
+    return moved;
+  }
+
+  // The best whole-pixel offset of point i in `nccs` (an `ncc_map` of radius S) within the
+  // search disc: longer moves must correlate better (along a lip contour every offset matches
+  // about as well), so the score loses kSearchPenalty at the disc's edge. The point moves there
+  // when the score reaches `accept` and beats staying by kSearchMargin. Returns whether it moved.
+  bool move_to_best(Index i, int S, double accept) {
+    const int side = 2 * S + 1;
+    double best = -2, here = -2;
+    int bx = 0, by = 0;
+    for (int oy = -S; oy <= S; ++oy) {
+      for (int ox = -S; ox <= S; ++ox) {
+        if (ox * ox + oy * oy > S * S) continue;
+        const double ncc = nccs[static_cast<size_t>((oy + S) * side + ox + S)];
+        if (ncc < -1.5) continue;
+        const double score = ncc - kSearchPenalty * (ox * ox + oy * oy) / double(S * S);
+        if (ox == 0 && oy == 0) here = score;
+        if (score > best) {
+          best = score;
+          bx = ox;
+          by = oy;
         }
       }
-      if ((bx != 0 || by != 0) && best >= opt.ncc_full && best > here + kSearchMargin) {
-        pts(i, 0) += bx;
-        pts(i, 1) += by;
-        moved = true;
-      }
+    }
+    if ((bx == 0 && by == 0) || best < accept || !(best > here + kSearchMargin)) return false;
+    pts(i, 0) += bx;
+    pts(i, 1) += by;
+    return true;
+  }
+
+  // Exhaustive search of `reference_points` against their first-frame templates (finest
+  // level, whole-pixel offsets within `reference_search_radius`). A mouth corner's whole patch
+  // matches the upper lip's edge beside it nearly as well as the corner, so the gradient steps
+  // (and its current template, which may have followed the edge) leave it there as the mouth
+  // opens; over a wider window its first-frame patch still peaks at the corner. Returns
+  // whether any point moved.
+  bool reference_search() {
+    const int S = static_cast<int>(std::ceil(opt.reference_search_radius));
+    bool moved = false;
+    if (S < 1) return moved;
+    for (Index q = 0; q < opt.reference_points.size(); ++q) {
+      const Index i = opt.reference_points[q];
+      if (!ncc_map(i, S, nccs, first)) continue;
+      moved = move_to_best(i, S, opt.reference_search_ncc) || moved;
     }
     return moved;
   }
@@ -1054,6 +1077,13 @@ void check_options(const TrackerOptions& o) {
   if (!(std::isfinite(o.group_search_radius) && o.group_search_radius >= 0 && o.group_search_radius <= 64)) {
     fail_argument("options.group_search_radius must be in [0, 64] pixels, got ", o.group_search_radius);
   }
+  if (!(std::isfinite(o.reference_search_radius) && o.reference_search_radius >= 0 &&
+        o.reference_search_radius <= 64)) {
+    fail_argument("options.reference_search_radius must be in [0, 64] pixels, got ", o.reference_search_radius);
+  }
+  if (!(o.reference_search_ncc >= -1 && o.reference_search_ncc <= 1)) {
+    fail_argument("options.reference_search_ncc must be a correlation in [-1, 1], got ", o.reference_search_ncc);
+  }
   if (!(std::isfinite(o.spring_outlier) && o.spring_outlier >= 0)) {
     fail_argument("options.spring_outlier must be a number of standard deviations >= 0 (0: off), got ",
                   o.spring_outlier);
@@ -1092,6 +1122,13 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   }
   check_mesh(mesh, points.rows());
   check_frame_points(options.frame_points, points.rows(), "options.frame_points");
+  for (Index q = 0; q < options.reference_points.size(); ++q) {
+    const Index i = options.reference_points[q];
+    if (i < 0 || i >= points.rows()) {
+      fail_argument("options.reference_points[", q, "] = ", i, " is not a point index (0 to ", points.rows() - 1,
+                    "); pass indices of the points to search for against their first-frame templates");
+    }
+  }
   if (options.search_groups.size() != 0) {
     if (options.search_groups.size() != points.rows() || options.search_groups.minCoeff() < -1) {
       fail_argument("options.search_groups must hold one group id per point (", points.rows(),
@@ -1181,6 +1218,10 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
   if (s.opt.search_radius > 0 && s.search()) {
     out.iterations += s.relax(0, 0, s.current);
   }
+  // Points found again against their first-frame templates go straight to stage B, which
+  // refines them against those templates (relaxing against the current templates first would
+  // pull them back toward where those templates had followed the contour).
+  if (s.opt.reference_search_radius > 0) s.reference_search();
   // Points whose data disagree with their offset springs are handed to the springs.
   std::fill(s.muted.begin(), s.muted.end(), 0);
   for (int round = 0; round < 2 && s.opt.spring_outlier > 0 && s.mute_inconsistent(); ++round) {
