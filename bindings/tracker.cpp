@@ -81,6 +81,7 @@ void bind_tracker(py::module_& m) {
       .def_readwrite("spring_outlier", &TrackerOptions::spring_outlier)
       .def_readwrite("outlier_edges", &TrackerOptions::outlier_edges)
       .def_readwrite("reference_points", &TrackerOptions::reference_points)
+      .def_readwrite("reference_sides", &TrackerOptions::reference_sides)
       .def_readwrite("reference_search_radius", &TrackerOptions::reference_search_radius)
       .def_readwrite("reference_search_ncc", &TrackerOptions::reference_search_ncc);
 

@@ -172,6 +172,11 @@ struct TrackerOptions {
   /// nearly as well (a mouth corner next to the upper lip's edge), where the gradient steps
   /// and a current template that followed the contour leave them.
   VectorXi reference_points;
+  /// #P by 2 directions, or empty: a reference point with a non-zero row is searched for with
+  /// only the half of its first-frame patch on that side (as `patch_sides`; the outer upper lip,
+  /// whose lower half turns into teeth) and only along that direction, i.e. across its contour
+  /// (along it a half patch matches about equally well everywhere); its tracking is unchanged
+  RowMatrixXd reference_sides;
   double reference_search_radius = 0.0;  ///< px (0: no reference search)
   double reference_search_ncc = 0.7;     ///< acceptance correlation of a reference search move
 };
