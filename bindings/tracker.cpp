@@ -79,7 +79,11 @@ void bind_tracker(py::module_& m) {
       .def_readwrite("search_groups", &TrackerOptions::search_groups)
       .def_readwrite("group_search_radius", &TrackerOptions::group_search_radius)
       .def_readwrite("spring_outlier", &TrackerOptions::spring_outlier)
-      .def_readwrite("outlier_edges", &TrackerOptions::outlier_edges);
+      .def_readwrite("outlier_edges", &TrackerOptions::outlier_edges)
+      .def_readwrite("reference_points", &TrackerOptions::reference_points)
+      .def_readwrite("reference_sides", &TrackerOptions::reference_sides)
+      .def_readwrite("reference_search_radius", &TrackerOptions::reference_search_radius)
+      .def_readwrite("reference_search_ncc", &TrackerOptions::reference_search_ncc);
 
   py::class_<TrackerFrame>(m, "TrackerFrame", "One frame's answer of SpringMeshTracker.track.")
       .def_readonly("points", &TrackerFrame::points, "#P by 2 positions (x, y)")

@@ -499,6 +499,7 @@ struct SpringMeshTracker::Impl {
   std::vector<float> patch, big, window;
   std::vector<double> nccs;
   std::vector<std::vector<double>> group_maps;
+  std::vector<Template> reference;  // finest-level first-frame templates of the reference search
   std::vector<std::pair<int, float>> used_px;
   RowMatrixXd A;
   // The Gauss-Newton system in block form: 2x2 diagonal blocks per point, one 2x2 coupling
@@ -574,14 +575,17 @@ struct SpringMeshTracker::Impl {
   // Builds point i's template `tpl` from the current pyramid at level l around level-0
   // position (x, y), on the half of the patch its side vector selects (all of it without one).
   // Returns the fraction of the patch inside the image.
-  double make_template(Index l, Index i, double x, double y, Template& tpl) {
+  // `side` (optional) replaces the point's own side vector.
+  double make_template(Index l, Index i, double x, double y, Template& tpl,
+                       const Eigen::Vector2d* side = nullptr) {
     const int q = r + 1, m = 2 * q + 1, n = 2 * r + 1;
     const double inside =
         sample_patch(pyr[l], level_coord(x, l), level_coord(y, l), q, big.data());
     tpl.t.assign(n_pad, 0.0f);
     tpl.gx.assign(n_pad, 0.0f);
     tpl.gy.assign(n_pad, 0.0f);
-    const double sx = sides.size() ? sides(i, 0) : 0.0, sy = sides.size() ? sides(i, 1) : 0.0;
+    const double sx = side ? (*side)[0] : sides.size() ? sides(i, 0) : 0.0;
+    const double sy = side ? (*side)[1] : sides.size() ? sides(i, 1) : 0.0;
     const bool half = sx != 0 || sy != 0;
     tpl.mask.assign(half ? n_pad : 0, 0.0f);
     tpl.n_used = 0;
@@ -764,35 +768,68 @@ struct SpringMeshTracker::Impl {
     const int S = static_cast<int>(std::ceil(opt.search_radius));
     bool moved = false;
     if (S < 1) return moved;
-    const int side = 2 * S + 1;
     for (Index i = 0; i < P; ++i) {
       if (sides.size() == 0 || (sides(i, 0) == 0 && sides(i, 1) == 0)) continue;
       const Match m0 = match(0, pts(i, 0), pts(i, 1), current[static_cast<size_t>(i)]);
       if (m0.textured && m0.ncc >= opt.ncc_full) continue;  // stage A found it
       if (!ncc_map(i, S, nccs, current)) continue;
-      double best = -2, here = -2;
-      int bx = 0, by = 0;
-      for (int oy = -S; oy <= S; ++oy) {
-        for (int ox = -S; ox <= S; ++ox) {
-          if (ox * ox + oy * oy > S * S) continue;
-          const double ncc = nccs[static_cast<size_t>((oy + S) * side + ox + S)];
-          if (ncc < -1.5) continue;
-          // Longer moves must correlate better (along a lip contour, every offset matches
-          // about as well): the score loses kSearchPenalty at the edge of the search disc.
-          const double score = ncc - kSearchPenalty * (ox * ox + oy * oy) / double(S * S);
-          if (ox == 0 && oy == 0) here = score;
-          if (score > best) {
-            best = score;
-            bx = ox;
-            by = oy;
-          }
+      moved = move_to_best(i, S, opt.ncc_full) || moved;
+    }
+    return moved;
+  }
+
+  // The best whole-pixel offset of point i in `nccs` (an `ncc_map` of radius S) within the
+  // search disc: longer moves must correlate better (along a lip contour every offset matches
+  // about as well), so the score loses kSearchPenalty at the disc's edge. The point moves there
+  // when the score reaches `accept` and beats staying by kSearchMargin. Returns whether it moved.
+  // With a unit direction `line`, only the offsets within half a pixel of that line count.
+  bool move_to_best(Index i, int S, double accept, const Eigen::Vector2d* line = nullptr) {
+    const int side = 2 * S + 1;
+    double best = -2, here = -2;
+    int bx = 0, by = 0;
+    for (int oy = -S; oy <= S; ++oy) {
+      for (int ox = -S; ox <= S; ++ox) {
+        if (ox * ox + oy * oy > S * S) continue;
+        if (line && std::abs(ox * (*line)[1] - oy * (*line)[0]) > 0.5) continue;
+        const double ncc = nccs[static_cast<size_t>((oy + S) * side + ox + S)];
+        if (ncc < -1.5) continue;
+        const double score = ncc - kSearchPenalty * (ox * ox + oy * oy) / double(S * S);
+        if (ox == 0 && oy == 0) here = score;
+        if (score > best) {
+          best = score;
+          bx = ox;
+          by = oy;
         }
       }
-      if ((bx != 0 || by != 0) && best >= opt.ncc_full && best > here + kSearchMargin) {
-        pts(i, 0) += bx;
-        pts(i, 1) += by;
-        moved = true;
-      }
+    }
+    if ((bx == 0 && by == 0) || best < accept || !(best > here + kSearchMargin)) return false;
+    pts(i, 0) += bx;
+    pts(i, 1) += by;
+    return true;
+  }
+
+  // Exhaustive search of `reference_points` against their first-frame templates (finest
+  // level, whole-pixel offsets within `reference_search_radius`). A mouth corner's whole patch
+  // matches the upper lip's edge beside it nearly as well as the corner, so the gradient steps
+  // (and its current template, which may have followed the edge) leave it there as the mouth
+  // opens; over a wider window its first-frame patch still peaks at the corner. Returns
+  // whether any point moved.
+  // A point with a `reference_sides` row is searched for with the half of its first-frame
+  // patch on that side, and only along that direction (across the contour: along it a half
+  // patch on a contour matches about equally well everywhere).
+  bool reference_search() {
+    const int S = static_cast<int>(std::ceil(opt.reference_search_radius));
+    bool moved = false;
+    if (S < 1) return moved;
+    for (Index q = 0; q < opt.reference_points.size(); ++q) {
+      const Index i = opt.reference_points[q];
+      if (!ncc_map(i, S, nccs, reference)) continue;
+      const bool sided = opt.reference_sides.size() != 0 &&
+                         (opt.reference_sides(i, 0) != 0 || opt.reference_sides(i, 1) != 0);
+      const Eigen::Vector2d dir =
+          sided ? Eigen::Vector2d(opt.reference_sides(i, 0), opt.reference_sides(i, 1)).normalized()
+                : Eigen::Vector2d::Zero();
+      moved = move_to_best(i, S, opt.reference_search_ncc, sided ? &dir : nullptr) || moved;
     }
     return moved;
   }
@@ -1054,6 +1091,13 @@ void check_options(const TrackerOptions& o) {
   if (!(std::isfinite(o.group_search_radius) && o.group_search_radius >= 0 && o.group_search_radius <= 64)) {
     fail_argument("options.group_search_radius must be in [0, 64] pixels, got ", o.group_search_radius);
   }
+  if (!(std::isfinite(o.reference_search_radius) && o.reference_search_radius >= 0 &&
+        o.reference_search_radius <= 64)) {
+    fail_argument("options.reference_search_radius must be in [0, 64] pixels, got ", o.reference_search_radius);
+  }
+  if (!(o.reference_search_ncc >= -1 && o.reference_search_ncc <= 1)) {
+    fail_argument("options.reference_search_ncc must be a correlation in [-1, 1], got ", o.reference_search_ncc);
+  }
   if (!(std::isfinite(o.spring_outlier) && o.spring_outlier >= 0)) {
     fail_argument("options.spring_outlier must be a number of standard deviations >= 0 (0: off), got ",
                   o.spring_outlier);
@@ -1092,6 +1136,20 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   }
   check_mesh(mesh, points.rows());
   check_frame_points(options.frame_points, points.rows(), "options.frame_points");
+  if (options.reference_sides.size() != 0 &&
+      (options.reference_sides.rows() != points.rows() || options.reference_sides.cols() != 2 ||
+       !options.reference_sides.allFinite())) {
+    fail_argument("options.reference_sides must be ", points.rows(), " by 2 finite directions (one per point; a zero row: "
+                  "the whole patch, searched for in every direction) or empty, got ", options.reference_sides.rows(),
+                  " by ", options.reference_sides.cols());
+  }
+  for (Index q = 0; q < options.reference_points.size(); ++q) {
+    const Index i = options.reference_points[q];
+    if (i < 0 || i >= points.rows()) {
+      fail_argument("options.reference_points[", q, "] = ", i, " is not a point index (0 to ", points.rows() - 1,
+                    "); pass indices of the points to search for against their first-frame templates");
+    }
+  }
   if (options.search_groups.size() != 0) {
     if (options.search_groups.size() != points.rows() || options.search_groups.minCoeff() < -1) {
       fail_argument("options.search_groups must hold one group id per point (", points.rows(),
@@ -1145,6 +1203,16 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
     }
   }
   s.current = s.first;
+  s.reference = std::vector<Template>(s.first.begin(), s.first.begin() + s.P);
+  for (Index q = 0; q < options.reference_points.size(); ++q) {
+    const Index i = options.reference_points[q];
+    if (options.reference_sides.size() == 0 ||
+        (options.reference_sides(i, 0) == 0 && options.reference_sides(i, 1) == 0)) {
+      continue;
+    }
+    const Eigen::Vector2d side(options.reference_sides(i, 0), options.reference_sides(i, 1));
+    s.make_template(0, i, s.pts(i, 0), s.pts(i, 1), s.reference[static_cast<size_t>(i)], &side);
+  }
   s.prev_weight.assign(static_cast<size_t>(s.P), 1.0);
   s.muted.assign(static_cast<size_t>(s.P), 0);
   s.checked.assign(static_cast<size_t>(s.P), 0);
@@ -1181,6 +1249,10 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
   if (s.opt.search_radius > 0 && s.search()) {
     out.iterations += s.relax(0, 0, s.current);
   }
+  // Points found again against their first-frame templates go straight to stage B, which
+  // refines them against those templates (relaxing against the current templates first would
+  // pull them back toward where those templates had followed the contour).
+  if (s.opt.reference_search_radius > 0) s.reference_search();
   // Points whose data disagree with their offset springs are handed to the springs.
   std::fill(s.muted.begin(), s.muted.end(), 0);
   for (int round = 0; round < 2 && s.opt.spring_outlier > 0 && s.mute_inconsistent(); ++round) {

@@ -516,6 +516,117 @@ TEST_CASE("tracker: a point whose data contradict its springs by many sigmas is 
                        std::invalid_argument);
 }
 
+TEST_CASE("tracker: a reference search finds a feature that jumped out of its patch") {
+  // A bright blob on a flat disc (a feature, e.g. a mouth corner) in a static texture jumps
+  // 12 px down in one frame: beyond its 13x13 patch, so the gradient steps on one level do not
+  // reach it and its soft springs to the static points leave it behind. Searched for against
+  // its first-frame template within 14 px, it is found, at the planted position.
+  const Texture tex(31);
+  const Index W = 200, H = 160;
+  auto render_blob = [&](double bx, double by) {
+    Frame f = render(tex, W, H, 0, 0);
+    for (Index y = 0; y < H; ++y) {
+      for (Index x = 0; x < W; ++x) {
+        const double d2 = (x - bx) * (x - bx) + (y - by) * (y - by);
+        if (d2 > 8.0 * 8.0) continue;
+        const double v = 100.0 + 100.0 * std::exp(-d2 / (2 * 2.5 * 2.5));
+        f.pix[static_cast<size_t>(y * W + x)] = static_cast<std::uint8_t>(std::lround(std::min(v, 255.0)));
+      }
+    }
+    return f;
+  };
+  RowMatrixXd p0(4, 2);
+  p0 << 100, 60, 60, 62, 140, 58, 101, 110;
+  const SpringMesh mesh = springs_from_points(p0, delaunay_edges(p0), 0.5);  // std 20 px
+  TrackerOptions plain;
+  plain.levels = 1;
+  TrackerOptions searched = plain;
+  searched.reference_points = VectorXi::Constant(1, 0);
+  searched.reference_search_radius = 14;
+  SpringMeshTracker plain_t(render_blob(100, 60).view(), p0, mesh, plain),
+      search_t(render_blob(100, 60).view(), p0, mesh, searched);
+  // A frame where nothing moved: the search leaves every point where it is.
+  const Frame still = render_blob(100, 60);
+  const TrackerFrame s0 = search_t.track(still.view());
+  plain_t.track(still.view());
+  CHECK((s0.points - p0).cwiseAbs().maxCoeff() < 0.02);
+  const Frame jumped = render_blob(100, 72);
+  const TrackerFrame rp = plain_t.track(jumped.view()), rs = search_t.track(jumped.view());
+  const double err_plain = std::hypot(rp.points(0, 0) - 100, rp.points(0, 1) - 72);
+  const double err_search = std::hypot(rs.points(0, 0) - 100, rs.points(0, 1) - 72);
+  MESSAGE("blob jumped 12 px: error without the reference search ", err_plain, " px, with it ", err_search,
+          " px (confidence ", rs.confidence[0], ")");
+  CHECK(err_plain > 5.0);
+  CHECK(err_search < 0.1);
+  CHECK(rs.confidence[0] > 0.9);
+  // The static points stay put.
+  CHECK((rs.points.bottomRows(3) - p0.bottomRows(3)).cwiseAbs().maxCoeff() < 0.05);
+  // Bad options are refused with a reason.
+  TrackerOptions bad = searched;
+  bad.reference_points = VectorXi::Constant(1, 4);
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(still.view(), p0, mesh, bad), doctest::Contains("reference_points"),
+                       std::invalid_argument);
+  bad = searched;
+  bad.reference_search_radius = -1;
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(still.view(), p0, mesh, bad),
+                       doctest::Contains("reference_search_radius"), std::invalid_argument);
+  bad = searched;
+  bad.reference_search_ncc = 1.5;
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(still.view(), p0, mesh, bad),
+                       doctest::Contains("reference_search_ncc"), std::invalid_argument);
+}
+
+TEST_CASE("tracker: a sided reference search finds a contour whose other side changed") {
+  // An upper lip's edge: above y = e(t) horizontal stripes (texture in y only), below it a
+  // texture that changes every frame (teeth, cavity). The edge drops 6 px in one frame. The
+  // point's whole first-frame patch no longer matches anywhere (its lower half is gone), and
+  // along the stripes every x matches; the half patch above the point, searched for along the
+  // vertical only, finds the edge at the planted place.
+  const Texture static_tex(41), stripes(42);
+  const Index W = 200, H = 160;
+  auto render_edge = [&](double e, unsigned below_seed) {
+    const Texture below(below_seed);
+    Frame f = render(static_tex, W, H, 0, 0);
+    for (Index y = 50; y < 100; ++y) {
+      for (Index x = 70; x < 130; ++x) {
+        const double u = double(y) - e;
+        const double v = u < 0 ? stripes(17.0, 3.0 * u) : below(double(x), double(y));
+        f.pix[static_cast<size_t>(y * W + x)] = static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 255.0)));
+      }
+    }
+    return f;
+  };
+  RowMatrixXd p0(4, 2);
+  p0 << 100, 70, 30, 40, 170, 42, 101, 140;
+  const SpringMesh mesh = springs_from_points(p0, delaunay_edges(p0), 0.5);  // std of 10-50 px
+  TrackerOptions whole;
+  whole.levels = 1;
+  whole.reference_points = VectorXi::Constant(1, 0);
+  whole.reference_search_radius = 9;
+  TrackerOptions sided = whole;
+  sided.reference_sides = RowMatrixXd::Zero(4, 2);
+  sided.reference_sides(0, 1) = -1;  // the half patch above the point, searched for vertically
+  const Frame f0 = render_edge(70, 1);
+  SpringMeshTracker whole_t(f0.view(), p0, mesh, whole), sided_t(f0.view(), p0, mesh, sided);
+  const Frame f1 = render_edge(76, 2);
+  const TrackerFrame rw = whole_t.track(f1.view()), rs = sided_t.track(f1.view());
+  // Across the contour (y) the data decide; along it (x) the stripes say nothing.
+  const double err_whole = std::abs(rw.points(0, 1) - 76), err_sided = std::abs(rs.points(0, 1) - 76);
+  MESSAGE("edge dropped 6 px: error across it with the whole-patch reference search ", err_whole,
+          " px, with the sided one ", err_sided, " px (along it: ", rw.points(0, 0) - 100, ", ",
+          rs.points(0, 0) - 100, " px)");
+  CHECK(err_whole > 2.0);
+  // Whole-pixel steps from where stage A left it (0.38 px: its stage B answer, against the whole
+  // first-frame patch, is rejected, so the search's grid stays).
+  CHECK(err_sided < 0.5);
+  CHECK(std::abs(rs.points(0, 0) - rw.points(0, 0)) < 1e-9);  // the search moved it across only
+  CHECK((rs.points.bottomRows(3) - p0.bottomRows(3)).cwiseAbs().maxCoeff() < 0.05);
+  TrackerOptions bad = sided;
+  bad.reference_sides = RowMatrixXd::Zero(3, 2);
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p0, mesh, bad), doctest::Contains("reference_sides"),
+                       std::invalid_argument);
+}
+
 TEST_CASE("tracker: a sub-pixel shift of a textured image is recovered to 0.06 px") {
   const Texture tex(3);
   const Frame f0 = render(tex, 200, 160, 0, 0);

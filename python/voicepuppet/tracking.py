@@ -50,11 +50,22 @@ FACE_FRAME_POINTS = (27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
 # opening their patches match about equally well anywhere along the lip edge beside them, so
 # their springs to the lower lip stay stiff across the opening and check their data.
 MOUTH_CORNERS = (48, 54, 60, 64)
+# The outer corners are also searched for against their first-frame patches within the lip
+# search radius after stage A: over that window the first-frame patch still peaks at the
+# corner of an open mouth (180 s video, openings above 18 px: within 2 px in 98 % of frames),
+# where the gradient steps leave it on the upper lip's edge. The inner corners are not: their
+# first-frame patches turn into teeth and cavity (a search moved 60 outwards, worse). The outer
+# upper lip (49-53) is searched for with the half of its first-frame patch above it (its lower
+# half turns into teeth) along the face's vertical only (along the lip edge the half patch
+# matches about equally well everywhere); it is still tracked on whole patches.
+OUTER_MOUTH_CORNERS = (48, 54)
+OUTER_UPPER_LIP = (49, 50, 51, 52, 53)
 
 _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
                  "damping", "patch_sides", "search_radius", "frame_points", "spring_outlier", "outlier_edges",
-                 "search_groups", "group_search_radius")
+                 "search_groups", "group_search_radius", "reference_points", "reference_sides",
+                 "reference_search_radius", "reference_search_ncc")
 
 
 @dataclass
@@ -298,6 +309,11 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         options.setdefault("search_groups", groups)
         options.setdefault("group_search_radius", LIP_GROUP_SEARCH_IOD * iod)
         options.setdefault("spring_outlier", LIP_SPRING_OUTLIER)
+        options.setdefault("reference_points", np.asarray(OUTER_MOUTH_CORNERS + OUTER_UPPER_LIP, dtype=np.int64))
+        reference_sides = np.zeros((68, 2))
+        reference_sides[list(OUTER_UPPER_LIP)] = lip_patch_sides(init)[62]  # up the face
+        options.setdefault("reference_sides", reference_sides)
+        options.setdefault("reference_search_radius", LIP_SEARCH_IOD * iod)
         lip_floor = LIP_SPRING_FLOOR_IOD * iod
     if passes < 1:
         raise ValueError(f"passes must be >= 1 (tracking passes with spring re-estimation), got {passes}")
@@ -364,7 +380,11 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         ``group_search_radius``) and, from the second pass, a lip point further than 6
         standard deviations of its within-lip springs (and a mouth corner's springs to the
         lower lip) from where they put it handed to them for the frame (``spring_outlier``,
-        ``outlier_edges``); default: on when there are 68 points; explicit options win)
+        ``outlier_edges``), the outer mouth corners searched for against their first-frame
+        patches within the lip search radius and the outer upper lip against the upper half of
+        theirs along the face's vertical (``reference_points``, ``reference_sides``,
+        ``reference_search_radius``, ``reference_search_ncc``); default: on when there are 68
+        points; explicit options win)
 
     Returns
     -------

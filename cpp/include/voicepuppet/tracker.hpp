@@ -164,6 +164,21 @@ struct TrackerOptions {
   /// indices into the mesh's edges of the springs the outlier check uses: those that hold
   /// whatever the face does (within one lip), not those that stretch with an expression
   VectorXi outlier_edges;
+  /// indices of points searched for after stage A against their *first-frame* templates:
+  /// every whole-pixel offset within `reference_search_radius` of where they are (finest
+  /// level, longer moves penalised like `search_radius`'s); a point moves to the best offset
+  /// when that correlates at least `reference_search_ncc` and clearly better than staying, and
+  /// stage B (against the first-frame templates) refines it from there. For points whose whole patch matches a contour beside them
+  /// nearly as well (a mouth corner next to the upper lip's edge), where the gradient steps
+  /// and a current template that followed the contour leave them.
+  VectorXi reference_points;
+  /// #P by 2 directions, or empty: a reference point with a non-zero row is searched for with
+  /// only the half of its first-frame patch on that side (as `patch_sides`; the outer upper lip,
+  /// whose lower half turns into teeth) and only along that direction, i.e. across its contour
+  /// (along it a half patch matches about equally well everywhere); its tracking is unchanged
+  RowMatrixXd reference_sides;
+  double reference_search_radius = 0.0;  ///< px (0: no reference search)
+  double reference_search_ncc = 0.7;     ///< acceptance correlation of a reference search move
 };
 
 /// One frame's answer.
