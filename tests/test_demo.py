@@ -25,6 +25,7 @@ def test_demo_writes_everything(tmp_path):
         assert all(np.isfinite(v) for split in row.values() for v in split.values())
     assert rows["mean-face"]["train"]["err"] == pytest.approx(1.0, abs=0.05)
     assert 0 < saved["tracker_rmse_iod"] < 0.2
+    assert saved["trained_on"] == "tracked"  # the default: the puppet learns what the tracker found
     assert any("[5/5]" in line for line in logs)
     with pytest.raises(ValueError, match="train_on"):
         demo.run(tmp_path, train_on="guess")

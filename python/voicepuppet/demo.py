@@ -4,9 +4,9 @@
    several voices) and held-out utterances (new sentences and voices, and a real recording).
 2. The spring-mesh tracker follows the training video from the first frame's points and is
    measured against the ground truth.
-3. A puppet is trained on the video's sound and the performer's ground-truth landmarks (default)
-   or the tracked ones (``--train-on tracked``), by entropic estimation; a conventionally trained
-   one (Baum-Welch) beside it for comparison.
+3. A puppet is trained on the video's sound and the tracked landmarks (as on a user's video; or
+   on the performer's ground truth with ``--train-on truth``), by entropic estimation; a
+   conventionally trained one (Baum-Welch) beside it for comparison.
 4. Both animate the held-out audio; :func:`voicepuppet.evaluation.evaluate_split` measures them
    against the ground truth with the baselines (mean face; ridge regression fitted on the same
    training landmarks as the puppet).
@@ -27,12 +27,13 @@ import numpy as np
 
 
 def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int = 10, seed: int = 0,
-        n_states: int = 40, train_on: str = "truth", compare_conventional: bool = True,
+        n_states: int = 40, train_on: str = "tracked", compare_conventional: bool = True,
         render_video: bool = True, progress: bool = True, log=print) -> dict:
     """Run the demo; returns the metrics (also written to ``out_dir/metrics.json``).
 
-    ``train_on`` picks the training landmarks: ``"truth"`` (the performer's ground truth; the
-    tracker is still run and measured) or ``"tracked"`` (what the spring-mesh tracker found).
+    ``train_on`` picks the training landmarks: ``"tracked"`` (what the spring-mesh tracker found,
+    the default) or ``"truth"`` (the performer's ground truth; the tracker is still run and
+    measured).
     """
     if train_on not in ("truth", "tracked"):
         raise ValueError(f"train_on must be 'truth' or 'tracked', got {train_on!r}")
@@ -156,9 +157,9 @@ def add_parser(sub) -> None:
                                    "against ground truth and render an mp4.")
     p.add_argument("--out", default="voicepuppet-demo", help="output folder (default voicepuppet-demo)")
     p.add_argument("--train-seconds", type=float, default=180.0, help="training video length (default 180)")
-    p.add_argument("--train-on", choices=["truth", "tracked"], default="truth",
-                   help="train on the performer's ground-truth landmarks (default; the tracker is still "
-                        "run and measured) or on the tracked ones")
+    p.add_argument("--train-on", choices=["tracked", "truth"], default="tracked",
+                   help="train on the tracked landmarks (default, as on your own video) or on the "
+                        "performer's ground truth (the tracker is still run and measured)")
     p.add_argument("--n-test", type=int, default=10, help="held-out utterances (default 10)")
     p.add_argument("--states", type=int, default=40, help="initial facial states (default 40)")
     p.add_argument("--seed", type=int, default=0)
