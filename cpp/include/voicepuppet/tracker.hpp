@@ -168,9 +168,9 @@ struct TrackerOptions {
   /// every whole-pixel offset within `reference_search_radius` of where they are (finest
   /// level, longer moves penalised like `search_radius`'s); a point moves to the best offset
   /// when that correlates at least `reference_search_ncc` and clearly better than staying, and
-  /// stage B (against the first-frame templates) refines it from there. For points whose whole patch matches a contour beside them
-  /// nearly as well (a mouth corner next to the upper lip's edge), where the gradient steps
-  /// and a current template that followed the contour leave them.
+  /// stage B (against the first-frame templates) refines it from there. For points whose whole
+  /// patch matches a contour beside them nearly as well (a mouth corner next to the upper lip's
+  /// edge), where the gradient steps and a current template that followed the contour leave them.
   VectorXi reference_points;
   /// #P by 2 directions, or empty: a reference point with a non-zero row is searched for with
   /// only the half of its first-frame patch on that side (as `patch_sides`; the outer upper lip,
