@@ -247,6 +247,39 @@ def test_bad_input_gives_clear_value_errors(rng, bad, message):
         bad(m, X)
 
 
+def test_random_frame_start_draws_distinct_training_frames_per_seed(rng):
+    X = rng.normal(size=(300, 2))
+    starts = []
+    for seed in (4, 4, 5):
+        m = GaussianHMM(6, "full", n_iter=0, random_state=seed, init="frames")
+        m._init(X)
+        rows = [int(np.flatnonzero(np.all(X == mu, axis=1))[0]) for mu in m.means_]  # each mean is a frame
+        assert len(set(rows)) == 6
+        starts.append(m.means_)
+    np.testing.assert_array_equal(starts[0], starts[1])
+    assert not np.array_equal(starts[0], starts[2])
+    km = GaussianHMM(6, "full", n_iter=0, random_state=4)
+    km._init(X)
+    assert not any(np.all(X == mu, axis=1).any() for mu in km.means_)  # k-means means are averages
+    # EM from random starts (which can stick: one state over two clusters) finds a planted model
+    # of well-separated states in the best of a few seeds, its likelihood never decreasing (no
+    # variance floor: plain EM)
+    truth = random_model(rng, 3, 2, "full")
+    truth.means_ = np.array([[0.0, 0.0], [6.0, 0.0], [0.0, 6.0]])
+    truth.covars_ = np.tile(0.3 * np.eye(2), (3, 1, 1))
+    Y, states = truth.sample(3000, random_state=11)
+    fits = [GaussianHMM(3, "full", n_iter=100, tol=1e-8, min_covar=0.0, random_state=s, init="frames").fit(Y)
+            for s in range(5)]
+    for f in fits:
+        lls = np.array([h["log_likelihood"] for h in f.history_])
+        assert np.all(np.diff(lls) >= -1e-8 * np.abs(lls[1:]))
+    fit = max(fits, key=lambda f: f.score(Y))
+    order = [int(np.argmin(np.linalg.norm(fit.means_ - mu, axis=1))) for mu in truth.means_]
+    np.testing.assert_allclose(fit.means_[order], truth.means_, atol=0.2)
+    with pytest.raises(ValueError, match="init must be"):
+        GaussianHMM(3, init="random")
+
+
 def test_bad_parameters_are_named(rng):
     m = random_model(rng, 3, 3, "full")
     X, _ = m.sample(20, random_state=0)

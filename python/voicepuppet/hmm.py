@@ -97,7 +97,12 @@ class GaussianHMM:
         training data is added to every covariance diagonal at initialisation and after each
         M-step (0 gives plain maximum likelihood).
     random_state : int
-        Seed of the k-means++ initialisation and of :meth:`sample` (deterministic per seed).
+        Seed of the initialisation and of :meth:`sample` (deterministic per seed).
+    init : {"kmeans", "frames"}
+        How the state means start: ``"kmeans"`` (k-means++ seeding refined by Lloyd
+        iterations) or ``"frames"`` (distinct training frames drawn at random, the plain
+        random start of Brand's comparisons). Starts and transitions start uniform and
+        covariances at the data's either way.
     init_params, params : str
         Which parameters to initialise / update: any of ``s`` (starts), ``t`` (transitions),
         ``m`` (means), ``c`` (covariances). As in hmmlearn.
@@ -132,7 +137,8 @@ class GaussianHMM:
     def __init__(self, n_states: int = 1, covariance: str = "full", *, n_iter: int = 10,
                  tol: float = 1e-2, min_covar: float = 1e-3, random_state: int = 0,
                  init_params: str = "stmc", params: str = "stmc", progress: bool = False,
-                 prior: str | None = None, z=1.0, trim: bool = True, exact: bool = False):
+                 prior: str | None = None, z=1.0, trim: bool = True, exact: bool = False,
+                 init: str = "kmeans"):
         if int(n_states) != n_states or n_states < 1:
             raise ValueError(f"n_states must be a positive integer, got {n_states!r}")
         if covariance not in ("full", "diag"):
@@ -144,6 +150,10 @@ class GaussianHMM:
         for pname, value in (("init_params", init_params), ("params", params)):
             if set(value) - set("stmc"):
                 raise ValueError(f"{pname} may only contain the letters s, t, m, c; got {value!r}")
+        if init not in ("kmeans", "frames"):
+            raise ValueError(f"init must be 'kmeans' (k-means++ state means) or 'frames' (random training "
+                             f"frames), got {init!r}")
+        self.init = init
         self.n_states = int(n_states)
         self.covariance = covariance
         self.n_iter = int(n_iter)
@@ -269,7 +279,11 @@ class GaussianHMM:
         if "t" in self.init_params or not hasattr(self, "transmat_"):
             self.transmat_ = np.full((n, n), 1.0 / n)
         if "m" in self.init_params or not hasattr(self, "means_"):
-            self.means_ = _core.kmeans(X, n, self.random_state)
+            if self.init == "kmeans":
+                self.means_ = _core.kmeans(X, n, self.random_state)
+            else:
+                pick = np.random.default_rng(self.random_state).choice(T, size=n, replace=False)
+                self.means_ = np.array(X[np.sort(pick)], dtype=np.float64)
         if "c" in self.init_params or not hasattr(self, "covars_"):
             cov = np.atleast_2d(np.cov(X, rowvar=False, bias=True)) if T > 1 else np.zeros((d, d))
             cov = cov + self._variance_floor * np.eye(d)

@@ -48,6 +48,7 @@ TRAIN_DEFAULTS = {
     "vocal_covariance": "full",
     "vocal_shrinkage": 1.0,  # evidence of the pooled Gaussian in each state's, in units of A frames
     "min_covar": 0.1,        # facial variance floor, x the mean data variance: chosen by CV (docs/results.md)
+    "init": "kmeans",        # state means from k-means++, or "frames": random training frames
     "seed": 0,
 }
 
@@ -206,7 +207,7 @@ class Puppet:
         for k, sl in enumerate(fs.part_slices):
             O = observations(Y[:, sl], lengths)
             hmm = GaussianHMM(opt["n_states"], "full", n_iter=opt["n_iter"], min_covar=opt["min_covar"],
-                              random_state=opt["seed"], progress=progress, **prior)
+                              random_state=opt["seed"], init=opt["init"], progress=progress, **prior)
             if client is None:
                 hmm.fit(O, lengths)
             else:
