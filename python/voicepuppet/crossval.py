@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["kfold", "mean_ci"]
+__all__ = ["kfold", "mean_ci", "fold_summary"]
 
 
 def kfold(n_sequences: int, k: int = 10, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -83,3 +83,10 @@ def mean_ci(values, level: float = 0.95) -> tuple[float, float, float]:
         return m, m, m
     half = float(stats.t.ppf(0.5 + level / 2, v.size - 1) * v.std(ddof=1) / np.sqrt(v.size))
     return m, m - half, m + half
+
+
+def fold_summary(values) -> dict:
+    """Per-fold values with their mean and 95% interval (:func:`mean_ci`):
+    ``{"mean", "low", "high", "folds"}``, as the evaluation harnesses report every measure."""
+    mean, low, high = mean_ci(values)
+    return {"mean": mean, "low": low, "high": high, "folds": [float(v) for v in values]}

@@ -450,7 +450,7 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
     from tqdm.auto import tqdm
 
     from . import dpds
-    from .crossval import kfold, mean_ci
+    from .crossval import fold_summary, kfold
     from .face import FaceSpace
 
     seqs = list(sequences)
@@ -459,29 +459,14 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
     if not peers and not puppet:
         raise ValueError("nothing to evaluate: enable the puppet or the peers (--peers)")
     fps = float(seqs[0].fps) if seqs else 0.0
-    if features is not None:
-        features = [np.asarray(f, dtype=np.float64) for f in features]
-        if len(features) != len(seqs) or any(f.ndim != 2 or len(f) != len(s.points)
-                                             for f, s in zip(features, seqs)):
-            raise ValueError(f"features must be one (T, A) array per sequence ({len(seqs)} sequences), with "
-                             f"one row per frame of its landmarks; got {[np.shape(f) for f in features]}")
-    elif puppet:
-        for s in seqs:
-            if s.samples is None:
-                raise ValueError(f"sequence {s.name} has no audio; the voice puppet needs it (give "
-                                 f"NAME.wav, or evaluate without the puppet: --no-puppet)")
-    feats: dict = {}
+    if puppet:
+        from .evaluation import sequence_features
+        from .puppet import TRAIN_DEFAULTS
 
-    def features_of(i):
-        """Raw audio features of sequence i, computed once for all folds."""
-        if features is not None:
-            return features[i]
-        if i not in feats:
-            from .evaluation import _sequence_features
-            from .puppet import TRAIN_DEFAULTS
+        features_at = sequence_features(seqs, fps, features)
 
-            feats[i] = _sequence_features(seqs[i], fps, TRAIN_DEFAULTS["feature_set"])
-        return feats[i]
+        def features_of(i):
+            return features_at(i, TRAIN_DEFAULTS["feature_set"])
 
     folds = kfold(len(seqs), k, seed)
     names = (["voice-puppet", *BASELINES] if puppet else []) + (list(dpds.MODELS) if peers else [])
@@ -515,10 +500,6 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
             bar.update()
     bar.close()
 
-    def summary(vals):
-        mean, lo, hi = mean_ci(vals)
-        return {"mean": mean, "low": lo, "high": hi, "folds": [float(v) for v in vals]}
-
     result = {"models": {}, "differences": {}, "config": {
         "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
         "fps": fps, "n_components": n_components, "n_states": int(n_states),
@@ -529,14 +510,14 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         for m in METRICS:
             vals = [r[m] for r in rows if m in r]
             if len(vals) == len(rows):
-                entry[m] = summary(vals)
+                entry[m] = fold_summary(vals)
         entry["frames"] = [r["frames"] for r in rows]
         result["models"][name] = entry
     if puppet:
         result["models"]["ridge"]["alpha"] = alphas
         voice = per_fold["voice-puppet"]
         result["differences"]["voice-puppet"] = {
-            name: {m: summary([a[m] - b[m] for a, b in zip(voice, per_fold[name])])
+            name: {m: fold_summary([a[m] - b[m] for a, b in zip(voice, per_fold[name])])
                    for m in METRICS if m in voice[0] and m in per_fold[name][0]}
             for name in BASELINES}
     return result
@@ -546,6 +527,8 @@ def format_table(result: dict) -> str:
     """Markdown table: one row per model, ``mean ± half-width`` of the 95% interval per measure;
     then, where the result has them, the paired per-fold differences (``voice-puppet − ridge``,
     ``voice-puppet − mean-face``), ``mean [low, high]`` of the 95% interval."""
+    from .evaluation import format_difference
+
     cols = [m for m in METRICS if any(m in e for e in result["models"].values())]
     head = "| model | " + " | ".join(METRICS[m][0] for m in cols) + " |"
     sep = "|---|" + "---:|" * len(cols)
@@ -568,8 +551,7 @@ def format_table(result: dict) -> str:
         for a, by in diffs.items():
             for b, d in by.items():
                 lines.append(f"| {a} − {b} | " + " | ".join(
-                    f"{d[m]['mean']:+.3g} [{d[m]['low']:+.3g}, {d[m]['high']:+.3g}]" if m in d else "—"
-                    for m in dcols) + " |")
+                    format_difference(d[m]) if m in d else "—" for m in dcols) + " |")
     lines.append("")
     lines.append(f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} "
                  f"frames at {c['fps']:.4g} fps, seed {c['seed']}); mean over folds ± half-width of the "

@@ -249,14 +249,50 @@ def format_table(result: dict, title: str = "") -> str:
 COMPARE_MEASURES = ("err", "lve", "rmse_iod", "entropy_rate", "states_err")
 
 
-def _sequence_features(seq, fps: float, feature_set) -> np.ndarray:
-    """Raw audio features [T, A] of one :class:`voicepuppet.evaluate.Sequence`, one row per frame."""
+def sequence_features(seqs, fps: float, features=None):
+    """The raw audio features of each sequence, one row per frame, computed once for all folds.
+
+    Parameters
+    ----------
+    seqs : list of voicepuppet.evaluate.Sequence
+    fps : float
+        Frame rate of the features.
+    features : list of arrays (T_s, A), optional
+        Given features, one per sequence (then every feature set asked for gets these).
+
+    Returns
+    -------
+    callable ``(i, feature_set) -> ndarray (T_i, A)``, caching what it computes.
+
+    Raises
+    ------
+    ValueError
+        Given features of the wrong count or shape; a sequence without audio (and no features).
+    """
     from voicepuppet import audio as vaudio
 
-    if seq.samples is None:
-        raise ValueError(f"sequence {seq.name} has no audio; the voice puppet needs it")
-    a = vaudio.prepare(np.asarray(seq.samples, dtype=np.float64), int(seq.rate))
-    return vaudio.extract(a, fps=fps, features=feature_set, n_out=len(seq.points)).values
+    if features is not None:
+        features = [np.asarray(f, dtype=np.float64) for f in features]
+        if len(features) != len(seqs) or any(f.ndim != 2 or len(f) != len(s.points)
+                                             for f, s in zip(features, seqs)):
+            raise ValueError(f"features must be one (T, A) array per sequence ({len(seqs)} sequences), with "
+                             f"one row per frame of its landmarks; got {[np.shape(f) for f in features]}")
+        return lambda i, feature_set: features[i]
+    for s in seqs:
+        if s.samples is None:
+            raise ValueError(f"sequence {s.name} has no audio; the voice puppet needs it (give "
+                             f"NAME.wav, or evaluate without the puppet: --no-puppet)")
+    cache: dict = {}
+
+    def of(i, feature_set):
+        key = (i, str(feature_set))
+        if key not in cache:
+            seq = seqs[i]
+            a = vaudio.prepare(np.asarray(seq.samples, dtype=np.float64), int(seq.rate))
+            cache[key] = vaudio.extract(a, fps=fps, features=feature_set, n_out=len(seq.points)).values
+        return cache[key]
+
+    return of
 
 
 def compare_training(sequences, variants: dict, *, baseline: str | None = None, k: int = 10,
@@ -302,7 +338,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     """
     from tqdm.auto import tqdm
 
-    from voicepuppet.crossval import kfold, mean_ci
+    from voicepuppet.crossval import fold_summary, kfold
     from voicepuppet.evaluate import _as_face, _fold_metrics, learnt_points
     from voicepuppet.face import FaceSpace
     from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet
@@ -323,22 +359,8 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
         raise ValueError("no sequences to compare on")
     fit = [learnt_points(s) for s in seqs]  # refuses train_points of the wrong shape up front
     fps = float(seqs[0].fps)
-    if features is not None:
-        features = list(features)
-        if len(features) != len(seqs) or any(np.ndim(f) != 2 or len(f) != len(s.points)
-                                             for f, s in zip(features, seqs)):
-            raise ValueError(f"features must be one (T, A) array per sequence ({len(seqs)}), with one row per "
-                             "frame of its landmarks")
+    features_of = sequence_features(seqs, fps, features)
     fsets = {name: variants[name].get("feature_set", TRAIN_DEFAULTS["feature_set"]) for name in names}
-    feats: dict = {}
-
-    def features_of(i, fset):
-        if features is not None:
-            return np.asarray(features[i], dtype=np.float64)
-        key = (i, str(fset))
-        if key not in feats:
-            feats[key] = _sequence_features(seqs[i], fps, fset)
-        return feats[key]
 
     folds = kfold(len(seqs), k, seed)
     per_fold: dict = {n: [] for n in names}
@@ -368,10 +390,6 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
             bar.update()
     bar.close()
 
-    def summary(vals):
-        mean, lo, hi = mean_ci(vals)
-        return {"mean": mean, "low": lo, "high": hi, "folds": [float(v) for v in vals]}
-
     measures = [m for m in COMPARE_MEASURES + ("states", "arcs") if all(m in r for r in per_fold[baseline])]
     out = {"variants": {}, "differences": {}, "config": {
         "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
@@ -380,11 +398,16 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
         "options": {n: dict(variants[n]) for n in names},
         "folds": [[seqs[i].name for i in te] for _, te in folds]}}
     for name in names:
-        out["variants"][name] = {m: summary([r[m] for r in per_fold[name]]) for m in measures}
+        out["variants"][name] = {m: fold_summary([r[m] for r in per_fold[name]]) for m in measures}
         if name != baseline:
             out["differences"][name] = {
-                m: summary([a[m] - b[m] for a, b in zip(per_fold[name], per_fold[baseline])]) for m in measures}
+                m: fold_summary([a[m] - b[m] for a, b in zip(per_fold[name], per_fold[baseline])]) for m in measures}
     return out
+
+
+def format_difference(d: dict) -> str:
+    """A paired difference's cell: ``mean [low, high]`` of its 95% interval, signed."""
+    return f"{d['mean']:+.3g} [{d['low']:+.3g}, {d['high']:+.3g}]"
 
 
 def format_comparison(result: dict) -> str:
@@ -402,7 +425,7 @@ def format_comparison(result: dict) -> str:
               "|---|" + "---:|" * len(measures)]
     for name, row in result["differences"].items():
         lines.append(f"| {name} − {base} | " + " | ".join(
-            f"{row[m]['mean']:+.3g} [{row[m]['low']:+.3g}, {row[m]['high']:+.3g}]" for m in measures) + " |")
+            format_difference(row[m]) for m in measures) + " |")
     c = result["config"]
     lines += ["", f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} frames "
               f"at {c['fps']:.4g} fps, seed {c['seed']}); variants: mean over folds ± half-width of the 95% "
