@@ -173,7 +173,7 @@ def test_log_posterior_never_decreases_and_trims_raise_it():
     assert sum(r["states_trimmed"] for r in ent.history_) > 0
     # The recorded value is the exact log posterior of the recorded model: recompute at the end.
     final = E._State(ent.startprob_, ent.transmat_, ent.means_, ent.covars_, "full")
-    assert final.log_prior(1.0, ent._variance_floor) == pytest.approx(E.log_prior(ent, 1.0, ent._variance_floor))
+    assert final.log_prior(1.0) == pytest.approx(E.log_prior(ent, 1.0))
 
 
 def test_every_trim_step_raises_the_log_posterior(monkeypatch):
@@ -183,18 +183,18 @@ def test_every_trim_step_raises_the_log_posterior(monkeypatch):
     seen = []
     real = E._evaluate
 
-    def spy(st, log_b, lengths, z, gp):
-        res = real(st, log_b, lengths, z, gp)
+    def spy(st, log_b, lengths, z):
+        res = real(st, log_b, lengths, z)
         seen.append((E._State(st.startprob.copy(), st.transmat.copy(), st.means.copy(), st.covars.copy(),
-                              st.covariance), z, gp, res[0]))
+                              st.covariance), z, res[0]))
         return res
 
     real_lp = E._log_posterior
 
-    def spy_lp(st, log_b, lengths, z, gp):
-        value = real_lp(st, log_b, lengths, z, gp)
+    def spy_lp(st, log_b, lengths, z):
+        value = real_lp(st, log_b, lengths, z)
         seen.append((E._State(st.startprob.copy(), st.transmat.copy(), st.means.copy(), st.covars.copy(),
-                              st.covariance), z, gp, value))
+                              st.covariance), z, value))
         return value
 
     monkeypatch.setattr(E, "_evaluate", spy)
@@ -204,10 +204,10 @@ def test_every_trim_step_raises_the_log_posterior(monkeypatch):
     assert trims
     for r in trims:
         assert r["log_posterior"] > r["log_posterior_untrimmed"]
-    for st, z, gp, value in seen[:: max(1, len(seen) // 12)]:
+    for st, z, value in seen[:: max(1, len(seen) // 12)]:
         m = GaussianHMM(st.n)
         m.startprob_, m.transmat_, m.means_, m.covars_ = st.startprob, st.transmat, st.means, st.covars
-        assert m.score(X) + E.log_prior(m, z, gp) == pytest.approx(value, rel=1e-10)
+        assert m.score(X) + E.log_prior(m, z) == pytest.approx(value, rel=1e-10)
 
 
 @pytest.mark.parametrize("min_covar", [0.0, 1e-3, 1e-1])

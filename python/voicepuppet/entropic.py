@@ -133,9 +133,10 @@ class _State:
         return {"startprob": self.startprob, "transmat": self.transmat, "means": self.means,
                 "covars": self.covars_2d(), "covariance": self.covariance}
 
-    def log_prior(self, z: float, gp: float) -> float:
+    def log_prior(self, z: float) -> float:
+        """Brand's entropic prior alone (no covariance prior: training never uses one)."""
         return float(_core.entropic_log_prior(self.startprob, self.transmat, self.covars_2d(),
-                                              self.covariance, z, gp))
+                                              self.covariance, z, 0.0))
 
 
 class LocalEvaluation:
@@ -222,16 +223,16 @@ class LocalData:
 _TRIALS = [0]  # forward passes spent on trimming trials (reported per iteration in the history)
 
 
-def _log_posterior(st: _State, log_b, data, z, gp) -> float:
+def _log_posterior(st: _State, log_b, data, z) -> float:
     """Exact log posterior at st from a forward pass only (for trimming trials)."""
     _TRIALS[0] += 1
-    return data.log_likelihood(st.params(), log_b) + st.log_prior(z, gp)
+    return data.log_likelihood(st.params(), log_b) + st.log_prior(z)
 
 
-def _evaluate(st: _State, log_b, data, z, gp):
+def _evaluate(st: _State, log_b, data, z):
     """Forward-backward at st: (log posterior, log-likelihood, evaluation)."""
     ev = data.evaluate(st.params(), log_b)
-    return ev.log_likelihood + st.log_prior(z, gp), ev.log_likelihood, ev
+    return ev.log_likelihood + st.log_prior(z), ev.log_likelihood, ev
 
 
 def _drop_state(st: _State, i: int, into: int) -> _State | None:
@@ -251,14 +252,13 @@ def _drop_state(st: _State, i: int, into: int) -> _State | None:
                   np.ascontiguousarray(st.means[keep]), np.ascontiguousarray(st.covars[keep]), st.covariance)
 
 
-def _state_trim_scores(st: _State, ev, z, gp) -> np.ndarray:
+def _state_trim_scores(st: _State, ev, z) -> np.ndarray:
     """Estimated log-posterior gain of deleting each state (the rule of docs/entropic.md):
-    its description cost Z·[H(θ_i·) + ½ log((2πe)^D |K_i|)] (+ (gp/2) tr K_i⁻¹; training passes
-    gp = 0) minus the evidence only it explains, Σ_t γ_ti · max(0, log b_i(x_t) − max_{j≠i} log b_j(x_t))."""
+    its description cost Z·[H(θ_i·) + ½ log((2πe)^D |K_i|)] minus the evidence only it explains, Σ_t γ_ti · max(0, log b_i(x_t) − max_{j≠i} log b_j(x_t))."""
     n = st.n
     if n < 2:
         return np.full(n, -np.inf)
-    cost = _core.entropic_state_costs(st.transmat, st.covars_2d(), st.covariance, z, gp)
+    cost = _core.entropic_state_costs(st.transmat, st.covars_2d(), st.covariance, z, 0.0)
     return cost - ev.exclusive_evidence()
 
 
@@ -304,9 +304,8 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
         _check_z(z)
     # The variance floor c acts per frame, as in Baum-Welch: K = (S + c w I) / (w + Z⁺), so Z = 0
     # is Baum-Welch with its floor. It is not part of the prior: the log posterior is the
-    # log-likelihood plus Brand's entropic prior alone (gp = 0 in the prior terms).
+    # log-likelihood plus Brand's entropic prior alone (no covariance prior term).
     floor = model._variance_floor
-    gp = 0.0
     cov = model.covariance
     shift = X.mean(axis=0)
     data = LocalData(X, lengths, cov) if estep is None else estep
@@ -327,7 +326,7 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
             z = float(zs[it])
             log_b = data.densities(st.params())
             try:
-                lp, ll, ev = _evaluate(st, log_b, data, z, gp)
+                lp, ll, ev = _evaluate(st, log_b, data, z)
             except RuntimeError as exc:
                 raise RuntimeError(f"entropic training at iteration {it} (z = {z}, {st.n} states, "
                                    f"{int(np.count_nonzero(st.transmat))} arcs) has no state sequence "
@@ -349,14 +348,14 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
                         f[sel[:, 0], sel[:, 1]] = 1.0
                         trial = _State(st.startprob, _core.trim_transitions(st.transmat, f), st.means,
                                        st.covars, cov)
-                        if _log_posterior(trial, log_b, data, z, gp) > lp:
-                            st, (lp, ll, ev) = trial, _evaluate(trial, log_b, data, z, gp)
+                        if _log_posterior(trial, log_b, data, z) > lp:
+                            st, (lp, ll, ev) = trial, _evaluate(trial, log_b, data, z)
                             arcs_trimmed = k
                             break
                         if k == 1:
                             break
                 # State trimming: best-scoring candidates first, each verified exactly.
-                scores = _state_trim_scores(st, ev, z, gp)
+                scores = _state_trim_scores(st, ev, z)
                 tried = 0
                 while st.n > 1 and tried < 3:
                     i = int(np.argmax(scores))
@@ -369,13 +368,13 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
                         continue
                     trial_log_b = data.drop_state(log_b, i)
                     try:
-                        accept = _log_posterior(trial, trial_log_b, data, z, gp) > lp
+                        accept = _log_posterior(trial, trial_log_b, data, z) > lp
                     except RuntimeError:  # no allowed path without this state
                         continue
                     if accept:
-                        res = _evaluate(trial, trial_log_b, data, z, gp)
+                        res = _evaluate(trial, trial_log_b, data, z)
                         st, log_b, (lp, ll, ev) = trial, trial_log_b, res
-                        scores = _state_trim_scores(st, ev, z, gp)
+                        scores = _state_trim_scores(st, ev, z)
                         states_trimmed += 1
             _record(history, it, z, lp, lp_untrimmed, ll, st, arcs_trimmed, states_trimmed,
                     _TRIALS[0] - trials_before)
