@@ -371,6 +371,59 @@ def test_evaluate_verb_train_on_tracked(tmp_path, capsys, monkeypatch):
     assert "--corpus-seed must be a non-negative integer" in capsys.readouterr().err
 
 
+def test_with_landmark_noise_adds_seeded_gaussian_noise_to_the_learnt_landmarks_only():
+    """Noise of sigma px lands on the landmarks models learn from (on top of tracked ones where
+    set), with the planted spread, fixed by the seed; the measured-against points stay clean."""
+    rng = np.random.default_rng(SEED + 6)
+    seqs = planted_sequences(rng, n_seq=3, T=200)
+    tracked = seqs[1].points + 0.5
+    seqs[1] = ev.Sequence(seqs[1].name, seqs[1].points, 30.0, seqs[1].labels, train_points=tracked)
+    noisy = ev.with_landmark_noise(seqs, 2.0, seed=3)
+    for a, b in zip(seqs, noisy):
+        assert b.points is a.points and b.name == a.name
+    d = np.concatenate([(b.train_points - ev.learnt_points(a)).ravel() for a, b in zip(seqs, noisy)])
+    assert d.size == 3 * 200 * 68 * 2
+    assert np.std(d) == pytest.approx(2.0, rel=0.02) and abs(np.mean(d)) < 0.02
+    assert abs(np.mean(noisy[1].train_points - tracked)) < 0.05  # on the tracked ones, not the truth
+    # independent across sequences and fixed by the seed
+    assert abs(np.corrcoef((noisy[0].train_points - seqs[0].points).ravel(),
+                           (noisy[2].train_points - seqs[2].points).ravel())[0, 1]) < 0.02
+    again = ev.with_landmark_noise(seqs, 2.0, seed=3)
+    other = ev.with_landmark_noise(seqs, 2.0, seed=4)
+    assert all(np.array_equal(a.train_points, b.train_points) for a, b in zip(noisy, again))
+    assert not np.allclose(noisy[0].train_points, other[0].train_points)
+    assert ev.with_landmark_noise(seqs, 0.0)[0].train_points is None
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="finite number of pixels >= 0"):
+            ev.with_landmark_noise(seqs, bad)
+
+
+def test_evaluate_verb_landmark_noise(tmp_path, capsys, monkeypatch):
+    """``--landmark-noise PX`` trains on noisy landmarks (seeded by --seed), measures against the
+    clean ones, and is written into the reproducing command; a negative value is refused."""
+    rng = np.random.default_rng(SEED + 7)
+    seqs = planted_sequences(rng, n_seq=4, T=40)
+    monkeypatch.setattr(ev, "synth_sequences", lambda *a, **k: seqs)
+    seen = {}
+
+    def fake_cv(sequences, **kw):
+        seen["seqs"] = sequences
+        return real_cv(sequences, **kw)
+
+    real_cv = ev.cross_validate
+    monkeypatch.setattr(ev, "cross_validate", fake_cv)
+    js = tmp_path / "r.json"
+    assert main(["evaluate", "--landmark-noise", "1.5", "--seed", "2", "--folds", "2", "--peers",
+                 "--no-puppet", "--components", "3", "--json", str(js), "-q"]) == 0
+    assert "--landmark-noise 1.5 --folds 2 --seed 2" in json.loads(js.read_text())["command"]
+    want = ev.with_landmark_noise(seqs, 1.5, seed=2)
+    for got, w, clean in zip(seen["seqs"], want, seqs):
+        assert np.array_equal(got.train_points, w.train_points) and got.points is clean.points
+    capsys.readouterr()
+    assert main(["evaluate", "--landmark-noise", "-2", "--peers", "--no-puppet", "-q"]) == 2
+    assert "landmark noise must be a finite number of pixels >= 0" in capsys.readouterr().err
+
+
 def _direct_baselines(seqs, feats, k, seed, n_components):
     """The baselines' fold measures computed here, independently of the harness: each fold's face
     space fitted on the training sequences' learnt landmarks, the features standardised with the

@@ -28,6 +28,7 @@ same sequences; every measure stays against the ground truth.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shlex
@@ -102,6 +103,31 @@ def learnt_points(seq: Sequence) -> np.ndarray:
                          f"{np.shape(seq.points)} (the same frames and landmarks), got {tp.shape}; cut "
                          f"them at the same frames")
     return tp
+
+
+def with_landmark_noise(sequences: list[Sequence], sigma: float, seed: int = 0) -> list[Sequence]:
+    """The sequences with independent Gaussian noise of ``sigma`` pixels added to every coordinate
+    of the landmarks models learn from (:func:`learnt_points`), as ``train_points``: a worse
+    tracker, for measuring how training degrades with tracking error. ``points`` (what every
+    prediction is measured against) are untouched; the noise is fixed by ``seed`` and the
+    sequence's position. ``sigma = 0`` returns the sequences as given.
+
+    Raises
+    ------
+    ValueError
+        ``sigma`` negative or not finite.
+    """
+    sigma = float(sigma)
+    if not np.isfinite(sigma) or sigma < 0:
+        raise ValueError(f"landmark noise must be a finite number of pixels >= 0, got {sigma}")
+    if sigma == 0:
+        return list(sequences)
+    out = []
+    for i, seq in enumerate(sequences):
+        base = np.asarray(learnt_points(seq), dtype=np.float64)
+        rng = np.random.default_rng([int(seed), i])
+        out.append(dataclasses.replace(seq, train_points=base + rng.normal(0.0, sigma, np.shape(base))))
+    return out
 
 
 def _alphabet_of(source: str) -> str:
@@ -604,7 +630,8 @@ def _command(args) -> str:
                  ("--train-on", None if args.train_on == "truth" else args.train_on)]
     else:
         opts += [("--alphabet", args.alphabet)]
-    opts += [("--folds", str(args.folds)), ("--seed", str(args.seed)), ("--states", str(args.states)),
+    opts += [("--landmark-noise", f"{args.landmark_noise:g}" if args.landmark_noise else None),
+             ("--folds", str(args.folds)), ("--seed", str(args.seed)), ("--states", str(args.states)),
              ("--components", args.components), ("-o", args.out), ("--json", args.json)]
     for flag, val in opts:
         if val is not None:
@@ -674,6 +701,7 @@ def _run(args) -> int:
         seqs = synth_sequences(args.corpus_dir, train_seconds=args.train_seconds, n_test=args.n_test,
                                seed=args.seed if args.corpus_seed is None else args.corpus_seed,
                                progress=not args.quiet, train_on=args.train_on)
+    seqs = with_landmark_noise(seqs, args.landmark_noise, seed=args.seed)
     try:
         n_comp = float(args.components) if "." in args.components else int(args.components)
     except ValueError:
@@ -718,6 +746,9 @@ def add_parser(sub) -> None:
                    help="performer landmarks the models learn from: 'truth' (default) or 'tracked' (what "
                         "the spring-mesh tracker finds in each clip's video from its first true frame, "
                         "cached beside the corpus); measures stay against the ground truth")
+    p.add_argument("--landmark-noise", type=float, default=0.0, metavar="PX",
+                   help="add independent Gaussian noise of PX pixels to every training landmark (a worse "
+                        "tracker; seeded by --seed); measures stay against the clean landmarks")
     p.add_argument("--peers", action="store_true", help="also evaluate the four phoneme-driven models")
     p.add_argument("--no-puppet", action="store_true", help="skip the voice puppet (and its baselines)")
     p.add_argument("--states", type=int, default=40, help="voice puppet states (default 40)")
