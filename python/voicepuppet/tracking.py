@@ -326,8 +326,11 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
                                      0.0 if initial_min_sigma is None else initial_min_sigma)
     if lips:
         mesh = _lip_springs(init, edges, mesh, relative_sigma, min_sigma, lip_floor)
-        options.setdefault("frame_points", np.asarray(FACE_FRAME_POINTS, dtype=np.int64))
         options.setdefault("outlier_edges", _checked_lip_edges(edges))
+    # The head pose the templates, half patches and springs follow: the nose and eye corners of
+    # a 68-point face, otherwise all points (frame_points=() for the image frame).
+    options.setdefault("frame_points", np.asarray(FACE_FRAME_POINTS if len(init) == 68 else range(len(init)),
+                                                  dtype=np.int64))
     opts = _options(options)
     # The first pass's lip springs are guesses: their check on the data (spring_outlier) waits
     # for the springs re-estimated from a pass.
