@@ -291,6 +291,47 @@ Eigen::Matrix2d face_similarity(const MatrixRef& from, const MatrixRef& to, cons
   return A;
 }
 
+namespace {
+
+// The face frame of `to` relative to `from` from the frame points `idx` (see
+// `face_similarity`), refitted once without the points that it leaves more than 3 robust
+// standard deviations (1.4826 · median residual, at least 2 % of the points' RMS radius) off:
+// a frame point that slid off its feature (an eye corner in a blink) would tilt and scale the
+// face frame for all the others. `idx` is left holding the points used.
+Eigen::Matrix2d robust_similarity(const MatrixRef& from, const MatrixRef& to, VectorXi& idx) {
+  Eigen::Matrix2d A = face_similarity(from, to, idx);
+  const Index n = idx.size();
+  if (n < 3) return A;
+  Eigen::Vector2d mf = Eigen::Vector2d::Zero(), mt = Eigen::Vector2d::Zero();
+  for (Index k = 0; k < n; ++k) {
+    mf += from.row(idx[k]).transpose();
+    mt += to.row(idx[k]).transpose();
+  }
+  mf /= static_cast<double>(n);
+  mt /= static_cast<double>(n);
+  std::vector<double> res(static_cast<size_t>(n));
+  double spread = 0;
+  for (Index k = 0; k < n; ++k) {
+    const Eigen::Vector2d f = from.row(idx[k]).transpose() - mf;
+    res[static_cast<size_t>(k)] = (to.row(idx[k]).transpose() - mt - A * f).norm();
+    spread += f.squaredNorm();
+  }
+  std::vector<double> sorted = res;
+  std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
+  const double limit = std::max(3.0 * 1.4826 * sorted[static_cast<size_t>(n / 2)],
+                                0.02 * std::sqrt(spread / static_cast<double>(n)) * std::sqrt(std::abs(A.determinant())));
+  VectorXi inliers(n);
+  Index kept = 0;
+  for (Index k = 0; k < n; ++k) {
+    if (res[static_cast<size_t>(k)] <= limit) inliers[kept++] = idx[k];
+  }
+  if (kept == n || kept < 2) return A;
+  idx = inliers.head(kept);
+  return face_similarity(from, to, idx);
+}
+
+}  // namespace
+
 SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
                             const SpringMesh& previous, double min_sigma,
                             const VectorXi& frame_points) {
@@ -323,7 +364,7 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
     for (Index t = 0; t < T; ++t) {
       for (Index i = 0; i < P; ++i) frame_t.row(i) << tracks(t, 2 * i), tracks(t, 2 * i + 1);
       found_points(frame_points, [&](Index i) { return lost(t, i); }, idx);
-      to_face[static_cast<size_t>(t)] = face_similarity(first, frame_t, idx).inverse();
+      to_face[static_cast<size_t>(t)] = robust_similarity(first, frame_t, idx).inverse();
     }
   }
   if (!face_frame && mesh.offset_precision.size() != 0) {
@@ -1093,7 +1134,7 @@ struct SpringMeshTracker::Impl {
   void update_pose() {
     if (opt.frame_points.size() == 0) return;
     found_points(opt.frame_points, [&](Index i) { return prev_lost[static_cast<size_t>(i)] != 0; }, pose_idx);
-    pose = face_similarity(init_pts, pts, pose_idx);
+    pose = robust_similarity(init_pts, pts, pose_idx);
     to_face = pose.inverse();
     face_scale = std::sqrt(std::abs(pose.determinant()));
     const double corner = (r + 1) * std::sqrt(2.0);
