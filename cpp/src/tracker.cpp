@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 namespace voicepuppet {
@@ -294,36 +295,55 @@ Eigen::Matrix2d face_similarity(const MatrixRef& from, const MatrixRef& to, cons
 namespace {
 
 // The face frame of `to` relative to `from` from the frame points `idx` (see
-// `face_similarity`), refitted once without the points that it leaves more than 3 robust
-// standard deviations (1.4826 · median residual, at least 2 % of the points' RMS radius) off:
-// a frame point that slid off its feature (an eye corner in a blink) would tilt and scale the
-// face frame for all the others. `idx` is left holding the points used.
+// `face_similarity`), robust to frame points that slid off their feature (an eye corner in a
+// blink), which would tilt and scale the least-squares face frame for all the others: the
+// similarity through the pair of points whose exact fit leaves the smallest median residual
+// over the rest (least median of squares over all pairs, a few dozen points) picks the
+// inliers, those within 3 robust standard deviations of it (1.4826 · median residual, at least
+// 2 % of the points' RMS radius), and the least-squares fit to the inliers is returned. With
+// no point outside, that is `face_similarity` over all of them. `idx` is left holding the
+// inliers.
 Eigen::Matrix2d robust_similarity(const MatrixRef& from, const MatrixRef& to, VectorXi& idx) {
-  Eigen::Matrix2d A = face_similarity(from, to, idx);
   const Index n = idx.size();
-  if (n < 3) return A;
-  Eigen::Vector2d mf = Eigen::Vector2d::Zero(), mt = Eigen::Vector2d::Zero();
-  for (Index k = 0; k < n; ++k) {
-    mf += from.row(idx[k]).transpose();
-    mt += to.row(idx[k]).transpose();
+  if (n < 4) return face_similarity(from, to, idx);
+  std::vector<double> res(static_cast<size_t>(n)), best_res, scratch;
+  double best = std::numeric_limits<double>::infinity();
+  for (Index a = 0; a < n; ++a) {
+    for (Index b = a + 1; b < n; ++b) {
+      const double fx = from(idx[b], 0) - from(idx[a], 0), fy = from(idx[b], 1) - from(idx[a], 1);
+      const double tx = to(idx[b], 0) - to(idx[a], 0), ty = to(idx[b], 1) - to(idx[a], 1);
+      const double den = fx * fx + fy * fy;
+      if (!(den > 0)) continue;
+      // (c + i d) = (tx + i ty) / (fx + i fy): the similarity mapping a onto a and b onto b.
+      const double c = (tx * fx + ty * fy) / den, d = (ty * fx - tx * fy) / den;
+      for (Index k = 0; k < n; ++k) {
+        const double ux = from(idx[k], 0) - from(idx[a], 0), uy = from(idx[k], 1) - from(idx[a], 1);
+        const double ex = to(idx[a], 0) + c * ux - d * uy - to(idx[k], 0);
+        const double ey = to(idx[a], 1) + d * ux + c * uy - to(idx[k], 1);
+        res[static_cast<size_t>(k)] = std::hypot(ex, ey);
+      }
+      scratch = res;
+      std::nth_element(scratch.begin(), scratch.begin() + n / 2, scratch.end());
+      const double med = scratch[static_cast<size_t>(n / 2)];
+      if (med < best) {
+        best = med;
+        best_res = res;
+      }
+    }
   }
+  if (best_res.empty()) return face_similarity(from, to, idx);
+  Eigen::Vector2d mf = Eigen::Vector2d::Zero();
+  for (Index k = 0; k < n; ++k) mf += from.row(idx[k]).transpose();
   mf /= static_cast<double>(n);
-  mt /= static_cast<double>(n);
-  std::vector<double> res(static_cast<size_t>(n));
   double spread = 0;
-  for (Index k = 0; k < n; ++k) {
-    const Eigen::Vector2d f = from.row(idx[k]).transpose() - mf;
-    res[static_cast<size_t>(k)] = (to.row(idx[k]).transpose() - mt - A * f).norm();
-    spread += f.squaredNorm();
-  }
-  std::vector<double> sorted = res;
-  std::nth_element(sorted.begin(), sorted.begin() + n / 2, sorted.end());
-  const double limit = std::max(3.0 * 1.4826 * sorted[static_cast<size_t>(n / 2)],
-                                0.02 * std::sqrt(spread / static_cast<double>(n)) * std::sqrt(std::abs(A.determinant())));
+  for (Index k = 0; k < n; ++k) spread += (from.row(idx[k]).transpose() - mf).squaredNorm();
+  const Eigen::Matrix2d A = face_similarity(from, to, idx);
+  const double limit = std::max(3.0 * 1.4826 * best,
+                                0.02 * std::sqrt(spread / static_cast<double>(n) * std::abs(A.determinant())));
   VectorXi inliers(n);
   Index kept = 0;
   for (Index k = 0; k < n; ++k) {
-    if (res[static_cast<size_t>(k)] <= limit) inliers[kept++] = idx[k];
+    if (best_res[static_cast<size_t>(k)] <= limit) inliers[kept++] = idx[k];
   }
   if (kept == n || kept < 2) return A;
   idx = inliers.head(kept);
@@ -379,7 +399,8 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
     for (Index t = 0; t < T; ++t) {
       if (lost(t, a) || lost(t, b)) continue;
       const Eigen::Vector2d dv(tracks(t, 2 * b) - tracks(t, 2 * a), tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1));
-      d.push_back(face_frame ? (to_face[static_cast<size_t>(t)] * dv).norm() : dv.norm());
+      const Eigen::Vector2d fv = face_frame ? Eigen::Vector2d(to_face[static_cast<size_t>(t)] * dv) : dv;
+      d.push_back(std::hypot(fv[0], fv[1]));
       frames.push_back(t);
     }
     if (d.size() < 2) continue;

@@ -757,6 +757,31 @@ TEST_CASE("estimate_springs: with frame points, lengths are measured in the face
   lost(2, 1) = true;
   const SpringMesh held = estimate_springs(moved, lost, m, 0.5, VectorXi::LinSpaced(3, 0, 2));
   CHECK(held.rest_length[1] == doctest::Approx(m.rest_length[1]).epsilon(1e-9));  // edge 0-2
+  // A frame point that slid off its feature without being flagged lost is left out of the face
+  // frame by the robust refit: a 3 x 3 grid turned and scaled, its corner point 0 moved 10 px in
+  // one frame; the springs between the other points keep their frame-0 lengths exactly.
+  const RowMatrixXd g = grid_points(3, 3, 0, 0, 20);
+  const EdgeMatrix ge = delaunay_edges(g);
+  const SpringMesh gm = springs_from_points(g, ge, 0.1);
+  RowMatrixXd gt(3, 18);
+  for (int t = 0; t < 3; ++t) {
+    const Eigen::Matrix2d A = similarity(0.15 * t, 1 + 0.2 * t);
+    for (Index i = 0; i < 9; ++i) {
+      const Eigen::Vector2d q = A * g.row(i).transpose();
+      gt(t, 2 * i) = q[0];
+      gt(t, 2 * i + 1) = q[1];
+    }
+  }
+  gt(2, 0) += 10;
+  // (a wide outlier band, 3 x 5 px: the refit, not the band, must keep frame 2 right)
+  const SpringMesh gr = estimate_springs(gt, RowMatrixXb::Zero(3, 9), gm, 5.0, VectorXi::LinSpaced(9, 0, 8));
+  Index checked_edges = 0;
+  for (Index k = 0; k < ge.rows(); ++k) {
+    if (ge(k, 0) == 0) continue;
+    CHECK(gr.rest_length[k] == doctest::Approx(gm.rest_length[k]).epsilon(1e-9));
+    ++checked_edges;
+  }
+  CHECK(checked_edges >= 8);
 }
 
 TEST_CASE("tracker: a 9 px jump with a brightness change is caught by the pyramid") {
