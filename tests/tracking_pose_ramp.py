@@ -63,12 +63,14 @@ def main() -> None:
     ramps = [("30 deg, scale 1 -> 1.4 -> 0.75", (150, 30.0, 1.4, 0.75)),
              ("30 deg, no scale", (150, 30.0, 1.0, 1.0)),
              ("no rotation, scale 1 -> 1.4 -> 0.7", (150, 0.0, 1.4, 0.7)),
-             ("45 deg, scale 1 -> 1.6 -> 0.6 (beyond the target)", (150, 45.0, 1.6, 0.6))]
+             ("45 deg, scale 1 -> 1.6 -> 0.6 (beyond the target)", (150, 45.0, 1.6, 0.6)),
+             ("fast: 30 deg, scale 1 -> 1.4 -> 0.75 in 40 frames", (40, 30.0, 1.4, 0.75))]
     print(f"voicepuppet from {voicepuppet.__file__}")
-    print("| ramp (150 frames, seed 0) | frame | mean px | max px | mean / IOD | max / IOD | lips px | lost |")
+    print("| ramp (seed 0) | frame | mean px | max px | mean / IOD | max / IOD | lips px | lost |")
     print("|---|---|---|---|---|---|---|---|")
     for name, args in ramps:
-        frames, truth, _, _ = similarity_ramp(*args, seed=0)
+        frames, truth, angle, _ = similarity_ramp(*args, seed=0)
+        name = f"{name} (up to {np.rad2deg(np.abs(np.diff(angle)).max()):.2f} deg/frame)"
         for label, kw in (("default", {}), ("image (frame_points=())", {"frame_points": ()})):
             t0 = time.perf_counter()
             r = tracking.track_frames(frames, truth[0], **kw)

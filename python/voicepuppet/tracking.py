@@ -370,7 +370,11 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         re-estimated from the tracked distances (mean and variance), as in the paper
     progress : show a tqdm progress bar
     **options : fields of the C++ ``TrackerOptions`` (patch_radius, levels, ncc_floor, ...,
-        ``patch_sides`` (P, 2) half-patch directions, ``search_radius`` px) and
+        ``patch_sides`` (P, 2) half-patch directions, ``search_radius`` px, ``frame_points``:
+        the points whose similarity to frame 0 is the head pose that the first-frame templates,
+        half patches, search radii and spring lengths follow through in-plane rotation and
+        scale; default the nose and eye corners of a 68-point face (``FACE_FRAME_POINTS``),
+        all points otherwise; ``()`` for the image frame) and
         ``relative_sigma`` (initial spring std as a fraction of length), ``min_sigma`` (px floor
         of re-estimated spring std), ``initial_min_sigma`` (px floor of the initial spring std;
         default none), ``lips`` (lip tracking for a 68-point iBUG layout:
