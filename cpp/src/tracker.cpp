@@ -296,20 +296,38 @@ namespace {
 
 // The face frame of `to` relative to `from` from the frame points `idx` (see
 // `face_similarity`), robust to frame points that slid off their feature (an eye corner in a
-// blink), which would tilt and scale the least-squares face frame for all the others: the
-// similarity through the pair of points whose exact fit leaves the smallest median residual
-// over the rest (least median of squares over all pairs, a few dozen points) picks the
-// inliers, those within 3 robust standard deviations of it (1.4826 · median residual, at least
-// 2 % of the points' RMS radius), and the least-squares fit to the inliers is returned. With
-// no point outside, that is `face_similarity` over all of them. `idx` is left holding the
-// inliers.
+// blink), which would tilt and scale the least-squares face frame for all the others. When the
+// least-squares fit leaves every point within the floor (2 % of the points' RMS radius, at the
+// face's scale), it is the answer. Otherwise the similarity through the pair of points whose
+// exact fit leaves the smallest median residual over all of them (least median of squares over
+// the 2n pairs (k, k + ⌊n/2⌋) and (k, k + ⌊n/3⌋), mod n: a point off its feature spoils four of
+// them) picks the inliers, those within 3 robust standard deviations of it (1.4826 · median
+// residual, at least the floor), and the least-squares fit to the inliers is returned. `idx` is
+// left holding the inliers.
 Eigen::Matrix2d robust_similarity(const MatrixRef& from, const MatrixRef& to, VectorXi& idx) {
   const Index n = idx.size();
-  if (n < 4) return face_similarity(from, to, idx);
-  std::vector<double> res(static_cast<size_t>(n)), best_res, scratch;
+  const Eigen::Matrix2d A = face_similarity(from, to, idx);
+  if (n < 4) return A;
+  Eigen::Vector2d mf = Eigen::Vector2d::Zero(), mt = Eigen::Vector2d::Zero();
+  for (Index k = 0; k < n; ++k) {
+    mf += from.row(idx[k]).transpose();
+    mt += to.row(idx[k]).transpose();
+  }
+  mf /= static_cast<double>(n);
+  mt /= static_cast<double>(n);
+  double spread = 0, worst = 0;
+  for (Index k = 0; k < n; ++k) {
+    const Eigen::Vector2d f = from.row(idx[k]).transpose() - mf;
+    spread += f.squaredNorm();
+    worst = std::max(worst, (to.row(idx[k]).transpose() - mt - A * f).norm());
+  }
+  const double floor = 0.02 * std::sqrt(spread / static_cast<double>(n) * std::abs(A.determinant()));
+  if (worst <= floor) return A;
+  std::vector<double> res(static_cast<size_t>(n)), best_res(static_cast<size_t>(n)), scratch(static_cast<size_t>(n));
   double best = std::numeric_limits<double>::infinity();
-  for (Index a = 0; a < n; ++a) {
-    for (Index b = a + 1; b < n; ++b) {
+  for (const Index step : {n / 2, n / 3}) {
+    for (Index a = 0; a < n; ++a) {
+      const Index b = (a + step) % n;
       const double fx = from(idx[b], 0) - from(idx[a], 0), fy = from(idx[b], 1) - from(idx[a], 1);
       const double tx = to(idx[b], 0) - to(idx[a], 0), ty = to(idx[b], 1) - to(idx[a], 1);
       const double den = fx * fx + fy * fy;
@@ -322,24 +340,17 @@ Eigen::Matrix2d robust_similarity(const MatrixRef& from, const MatrixRef& to, Ve
         const double ey = to(idx[a], 1) + d * ux + c * uy - to(idx[k], 1);
         res[static_cast<size_t>(k)] = std::hypot(ex, ey);
       }
-      scratch = res;
+      std::copy(res.begin(), res.end(), scratch.begin());
       std::nth_element(scratch.begin(), scratch.begin() + n / 2, scratch.end());
       const double med = scratch[static_cast<size_t>(n / 2)];
       if (med < best) {
         best = med;
-        best_res = res;
+        best_res.swap(res);
       }
     }
   }
-  if (best_res.empty()) return face_similarity(from, to, idx);
-  Eigen::Vector2d mf = Eigen::Vector2d::Zero();
-  for (Index k = 0; k < n; ++k) mf += from.row(idx[k]).transpose();
-  mf /= static_cast<double>(n);
-  double spread = 0;
-  for (Index k = 0; k < n; ++k) spread += (from.row(idx[k]).transpose() - mf).squaredNorm();
-  const Eigen::Matrix2d A = face_similarity(from, to, idx);
-  const double limit = std::max(3.0 * 1.4826 * best,
-                                0.02 * std::sqrt(spread / static_cast<double>(n) * std::abs(A.determinant())));
+  if (!(best < std::numeric_limits<double>::infinity())) return A;
+  const double limit = std::max(3.0 * 1.4826 * best, floor);
   VectorXi inliers(n);
   Index kept = 0;
   for (Index k = 0; k < n; ++k) {

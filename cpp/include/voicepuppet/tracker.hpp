@@ -161,8 +161,8 @@ struct TrackerOptions {
   double search_radius = 0.0;
   /// indices of the points whose similarity to the first frame defines the face frame (head
   /// pose): the previous frame's positions of those not lost there, so the frame is fixed
-  /// within a frame's relaxation, with the points a least-median fit over all their pairs
-  /// finds off (beyond 3 robust sigmas, at least 2 % of their RMS radius) left out. The offset
+  /// within a frame's relaxation, with the points a least-median fit over pairs of them finds
+  /// off (beyond 3 robust sigmas, at least 2 % of their RMS radius) left out. The offset
   /// springs (`SpringMesh`) live in it, length springs scale with it, and the first-frame
   /// templates are re-cut through it whenever it has moved by more than 0.2 px at a patch
   /// corner since they were cut (exactly the first frame's while that close to the identity);
