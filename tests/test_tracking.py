@@ -467,3 +467,27 @@ def test_tracking_holds_under_head_rotation_and_scale():
     # The control: without the face frame the same ramp breaks the tracker.
     assert err0.mean() > 1.5
     assert (err0 / iod).max() > 0.2
+
+
+def test_lips_of_a_performer_turning_while_speaking(performer):
+    # The synthetic performer's 6 s clip with the head turning to 20 degrees and back while it
+    # speaks (each frame rotated about the image centre by 20 sin(pi t / T) degrees, bicubic;
+    # truth rotated exactly). The first-frame templates, half patches and springs follow the
+    # head pose. Before (translation-only first-frame templates): lips 1.85 px, the rest of the
+    # face 1.71 px, 6.6 % of point-frames lost; after: 1.52, 0.39 px, 2.9 %.
+    frames, truth, fps = performer
+    n = min(len(frames), len(truth))
+    angle = 20.0 * np.sin(np.pi * np.arange(n) / (n - 1))
+    turned, turned_truth = [], []
+    for k in range(n):
+        M = cv2.getRotationMatrix2D((160.0, 160.0), float(angle[k]), 1.0)
+        turned.append(cv2.warpAffine(frames[k], M, (320, 320), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT))
+        turned_truth.append(truth[k] @ M[:, :2].T + M[:, 2])
+    turned, turned_truth = np.stack(turned), np.stack(turned_truth)
+    result = tracking.track_frames(turned, turned_truth[0], fps=fps)
+    err = np.linalg.norm(result.points - turned_truth, axis=2)
+    print(f"turning to 20 deg while speaking: lips {err[:, 48:].mean():.3f} px, rest {err[:, :48].mean():.3f} px, "
+          f"lost {result.lost.mean():.4f}")
+    assert err[:, 48:].mean() < 1.7
+    assert err[:, :48].mean() < 0.6
+    assert result.lost.mean() < 0.045
