@@ -69,6 +69,19 @@ RowMatrixXd grid_points(int nx, int ny, double x0, double y0, double step) {
   return p;
 }
 
+// The right triangle with sides 3, 4, 5 and its three edges.
+RowMatrixXd triangle_3_4_5() {
+  RowMatrixXd p(3, 2);
+  p << 0, 0, 3, 0, 0, 4;
+  return p;
+}
+
+EdgeMatrix triangle_edges() {
+  EdgeMatrix e(3, 2);
+  e << 0, 1, 0, 2, 1, 2;
+  return e;
+}
+
 }  // namespace
 
 TEST_CASE("delaunay_edges: square with its centre gives 4 sides and 4 spokes") {
@@ -157,10 +170,8 @@ TEST_CASE("delaunay_edges: bad input is refused with a reason") {
 }
 
 TEST_CASE("springs_from_points and estimate_springs: closed-form lengths, means and variances") {
-  RowMatrixXd p(3, 2);
-  p << 0, 0, 3, 0, 0, 4;
-  EdgeMatrix e(3, 2);
-  e << 0, 1, 0, 2, 1, 2;
+  const RowMatrixXd p = triangle_3_4_5();
+  const EdgeMatrix e = triangle_edges();
   const SpringMesh m = springs_from_points(p, e, 0.1);
   CHECK(m.rest_length[0] == doctest::Approx(3));
   CHECK(m.rest_length[2] == doctest::Approx(5));
@@ -727,10 +738,8 @@ TEST_CASE("estimate_springs: with frame points, lengths are measured in the face
   // points to frame 0's) its sides do not change, so the rest lengths are frame 0's and the
   // stiffnesses sit at the variance floor; in the image frame they are the means of the
   // scaled lengths.
-  RowMatrixXd p(3, 2);
-  p << 0, 0, 3, 0, 0, 4;
-  EdgeMatrix e(3, 2);
-  e << 0, 1, 0, 2, 1, 2;
+  const RowMatrixXd p = triangle_3_4_5();
+  const EdgeMatrix e = triangle_edges();
   const SpringMesh m = springs_from_points(p, e, 0.1);
   RowMatrixXd tracks(3, 6);
   for (int t = 0; t < 3; ++t) {
