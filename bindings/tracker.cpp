@@ -100,7 +100,8 @@ void bind_tracker(py::module_& m) {
   m.def("estimate_springs", &estimate_springs, py::arg("tracks"), py::arg("lost"),
         py::arg("previous"), py::arg("min_sigma") = 0.5, py::arg("frame_points") = VectorXi(),
         "Re-estimate rest lengths (mean) and stiffnesses (1/variance), and the offset springs "
-        "(face-frame mean and inverse covariance), from a #T by 2#P pass.");
+        "(face-frame mean and inverse covariance), from a #T by 2#P pass; with frame_points, "
+        "lengths are measured in each frame's face frame.");
   m.def("face_similarity", &face_similarity, py::arg("from"), py::arg("to"), py::arg("idx"),
         "The 2x2 similarity [[a, -b], [b, a]] best mapping centred from[idx] onto to[idx].");
 

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 namespace voicepuppet {
@@ -219,6 +220,22 @@ void check_frame_points(const VectorXi& idx, Index n_points, const char* name) {
   }
 }
 
+// The frame points not flagged lost (into `idx`), or all of them when fewer than 2 are left:
+// a lost point (occluded, off its feature) would pull the least-squares face frame with it.
+template <class Lost>
+void found_points(const VectorXi& frame_points, Lost&& is_lost, VectorXi& idx) {
+  idx.resize(frame_points.size());
+  Index n = 0;
+  for (Index k = 0; k < frame_points.size(); ++k) {
+    if (!is_lost(frame_points[k])) idx[n++] = frame_points[k];
+  }
+  if (n < 2) {
+    idx = frame_points;
+  } else {
+    idx.conservativeResize(n);
+  }
+}
+
 }  // namespace
 
 SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
@@ -275,6 +292,77 @@ Eigen::Matrix2d face_similarity(const MatrixRef& from, const MatrixRef& to, cons
   return A;
 }
 
+namespace {
+
+// The face frame of `to` relative to `from` from the frame points `idx` (see
+// `face_similarity`), robust to frame points that slid off their feature (an eye corner in a
+// blink), which would tilt and scale the least-squares face frame for all the others. When the
+// least-squares fit leaves every point within the floor (2 % of the points' RMS radius, at the
+// face's scale), it is the answer. Otherwise the similarity through the pair of points whose
+// exact fit leaves the smallest median residual over all of them (least median of squares over
+// the 2n pairs (k, k + ⌊n/2⌋) and (k, k + ⌊n/3⌋), mod n: a point off its feature spoils four of
+// them) picks the inliers, those within 3 robust standard deviations of it (1.4826 · median
+// residual, at least the floor), and the least-squares fit to the inliers is returned. `idx` is
+// left holding the inliers.
+Eigen::Matrix2d robust_similarity(const MatrixRef& from, const MatrixRef& to, VectorXi& idx) {
+  const Index n = idx.size();
+  const Eigen::Matrix2d A = face_similarity(from, to, idx);
+  if (n < 4) return A;
+  Eigen::Vector2d mf = Eigen::Vector2d::Zero(), mt = Eigen::Vector2d::Zero();
+  for (Index k = 0; k < n; ++k) {
+    mf += from.row(idx[k]).transpose();
+    mt += to.row(idx[k]).transpose();
+  }
+  mf /= static_cast<double>(n);
+  mt /= static_cast<double>(n);
+  double spread = 0, worst = 0;
+  for (Index k = 0; k < n; ++k) {
+    const Eigen::Vector2d f = from.row(idx[k]).transpose() - mf;
+    spread += f.squaredNorm();
+    worst = std::max(worst, (to.row(idx[k]).transpose() - mt - A * f).norm());
+  }
+  const double floor = 0.02 * std::sqrt(spread / static_cast<double>(n) * std::abs(A.determinant()));
+  if (worst <= floor) return A;
+  std::vector<double> res(static_cast<size_t>(n)), best_res(static_cast<size_t>(n)), scratch(static_cast<size_t>(n));
+  double best = std::numeric_limits<double>::infinity();
+  for (const Index step : {n / 2, n / 3}) {
+    for (Index a = 0; a < n; ++a) {
+      const Index b = (a + step) % n;
+      const double fx = from(idx[b], 0) - from(idx[a], 0), fy = from(idx[b], 1) - from(idx[a], 1);
+      const double tx = to(idx[b], 0) - to(idx[a], 0), ty = to(idx[b], 1) - to(idx[a], 1);
+      const double den = fx * fx + fy * fy;
+      if (!(den > 0)) continue;
+      // (c + i d) = (tx + i ty) / (fx + i fy): the similarity mapping a onto a and b onto b.
+      const double c = (tx * fx + ty * fy) / den, d = (ty * fx - tx * fy) / den;
+      for (Index k = 0; k < n; ++k) {
+        const double ux = from(idx[k], 0) - from(idx[a], 0), uy = from(idx[k], 1) - from(idx[a], 1);
+        const double ex = to(idx[a], 0) + c * ux - d * uy - to(idx[k], 0);
+        const double ey = to(idx[a], 1) + d * ux + c * uy - to(idx[k], 1);
+        res[static_cast<size_t>(k)] = std::hypot(ex, ey);
+      }
+      std::copy(res.begin(), res.end(), scratch.begin());
+      std::nth_element(scratch.begin(), scratch.begin() + n / 2, scratch.end());
+      const double med = scratch[static_cast<size_t>(n / 2)];
+      if (med < best) {
+        best = med;
+        best_res.swap(res);
+      }
+    }
+  }
+  if (!(best < std::numeric_limits<double>::infinity())) return A;
+  const double limit = std::max(3.0 * 1.4826 * best, floor);
+  VectorXi inliers(n);
+  Index kept = 0;
+  for (Index k = 0; k < n; ++k) {
+    if (best_res[static_cast<size_t>(k)] <= limit) inliers[kept++] = idx[k];
+  }
+  if (kept == n || kept < 2) return A;
+  idx = inliers.head(kept);
+  return face_similarity(from, to, idx);
+}
+
+}  // namespace
+
 SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
                             const SpringMesh& previous, double min_sigma,
                             const VectorXi& frame_points) {
@@ -295,17 +383,23 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
   }
   check_frame_points(frame_points, P, "frame_points");
   SpringMesh mesh = previous;
-  // Face frame of every frame (only needed for offset springs): A_t^-1 maps frame t's offsets
-  // into frame 0's.
+  // Face frame of every frame: A_t^-1 maps frame t's offsets into frame 0's, so lengths and
+  // offsets are measured in the face frame (the tracker scales them back with the face).
   std::vector<Eigen::Matrix2d> to_face;
-  if (mesh.offset_precision.size() != 0) {
+  const bool face_frame = frame_points.size() != 0;
+  if (face_frame) {
     to_face.resize(static_cast<size_t>(T));
     RowMatrixXd first(P, 2), frame_t(P, 2);
     for (Index i = 0; i < P; ++i) first.row(i) << tracks(0, 2 * i), tracks(0, 2 * i + 1);
+    VectorXi idx;
     for (Index t = 0; t < T; ++t) {
       for (Index i = 0; i < P; ++i) frame_t.row(i) << tracks(t, 2 * i), tracks(t, 2 * i + 1);
-      to_face[static_cast<size_t>(t)] = face_similarity(first, frame_t, frame_points).inverse();
+      found_points(frame_points, [&](Index i) { return lost(t, i); }, idx);
+      to_face[static_cast<size_t>(t)] = robust_similarity(first, frame_t, idx).inverse();
     }
+  }
+  if (!face_frame && mesh.offset_precision.size() != 0) {
+    to_face.assign(static_cast<size_t>(T), Eigen::Matrix2d::Identity());  // the image frame
   }
   std::vector<double> d, dev;
   std::vector<Index> frames;
@@ -315,7 +409,9 @@ SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
     frames.clear();
     for (Index t = 0; t < T; ++t) {
       if (lost(t, a) || lost(t, b)) continue;
-      d.push_back(std::hypot(tracks(t, 2 * b) - tracks(t, 2 * a), tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1)));
+      const Eigen::Vector2d dv(tracks(t, 2 * b) - tracks(t, 2 * a), tracks(t, 2 * b + 1) - tracks(t, 2 * a + 1));
+      const Eigen::Vector2d fv = face_frame ? Eigen::Vector2d(to_face[static_cast<size_t>(t)] * dv) : dv;
+      d.push_back(std::hypot(fv[0], fv[1]));
       frames.push_back(t);
     }
     if (d.size() < 2) continue;
@@ -454,6 +550,34 @@ double sample_patch(const Level& im, double cx, double cy, int q, float* out) {
   return static_cast<double>(inside) / static_cast<double>(m * m);
 }
 
+// Bilinear samples of the (2q+1)² grid (u, v) in [-q, q]² mapped to (cx, cy) + M (u, v): a
+// patch seen through the similarity M (rotated and scaled), outside samples taking the nearest
+// border pixel. Returns the fraction of samples inside the image.
+double sample_warped(const Level& im, double cx, double cy, int q, const Eigen::Matrix2d& M,
+                     float* out) {
+  const int m = 2 * q + 1;
+  Index inside = 0;
+  auto px = [&](Index x, Index y) -> float {
+    x = std::clamp<Index>(x, 0, im.width - 1);
+    y = std::clamp<Index>(y, 0, im.height - 1);
+    return im.data[y * im.stride + x];
+  };
+  const double xmax = static_cast<double>(im.width - 1), ymax = static_cast<double>(im.height - 1);
+  for (int j = 0; j < m; ++j) {
+    for (int i = 0; i < m; ++i) {
+      const double u = i - q, v = j - q;
+      const double sx = cx + M(0, 0) * u + M(0, 1) * v, sy = cy + M(1, 0) * u + M(1, 1) * v;
+      if (sx >= 0 && sy >= 0 && sx <= xmax && sy <= ymax) ++inside;
+      const double fxf = std::floor(sx), fyf = std::floor(sy);
+      const float fx = static_cast<float>(sx - fxf), fy = static_cast<float>(sy - fyf);
+      const Index x = static_cast<Index>(fxf), y = static_cast<Index>(fyf);
+      out[j * m + i] = (1 - fx) * (1 - fy) * px(x, y) + fx * (1 - fy) * px(x + 1, y) +
+                       (1 - fx) * fy * px(x, y + 1) + fx * fy * px(x + 1, y + 1);
+    }
+  }
+  return static_cast<double>(inside) / static_cast<double>(m * m);
+}
+
 // A template patch at one pyramid level: zero-mean values and gradients, contrast, Hessian.
 struct Template {
   std::vector<float> t, gx, gy;
@@ -477,6 +601,9 @@ constexpr double kCoarseFloor = 0.2;
 constexpr double kSearchMargin = 0.05;  // a searched point moves only for a clearly better match
 constexpr double kSearchPenalty = 0.1;  // score lost by a search move of the full radius
 constexpr int kGroupSlack = 2;  // px each point of a jointly searched group may deviate
+// px: the first-frame templates are re-cut through the current pose when it has moved further
+// than this at the corner of a patch since they were last cut (or from the identity)
+constexpr double kWarpTolerance = 0.2;
 
 }  // namespace
 
@@ -500,6 +627,19 @@ struct SpringMeshTracker::Impl {
   std::vector<double> nccs;
   std::vector<std::vector<double>> group_maps;
   std::vector<Template> reference;  // finest-level first-frame templates of the reference search
+  // Head pose. `pose` is this frame's similarity A (from the first frame's `frame_points` to
+  // the previous frame's; the identity without frame points), `face_scale` its scale. The
+  // first-frame templates in `first` and `reference` are `first_base` and `reference_base`
+  // (cut from the first frame, kept in `first_pyr`) seen through `warp`, a recent pose
+  // (`warped`: not the identity), re-cut when the pose moves on by more than kWarpTolerance.
+  Eigen::Matrix2d pose = Eigen::Matrix2d::Identity();
+  double face_scale = 1.0;
+  Eigen::Matrix2d warp = Eigen::Matrix2d::Identity(), warp_inv = Eigen::Matrix2d::Identity();
+  bool warped = false;
+  std::vector<char> prev_lost;  // lost flags of the previous frame (its lost points give no pose)
+  VectorXi pose_idx;
+  std::vector<Level> first_pyr;
+  std::vector<Template> first_base, reference_base;
   std::vector<std::pair<int, float>> used_px;
   RowMatrixXd A;
   // The Gauss-Newton system in block form: 2x2 diagonal blocks per point, one 2x2 coupling
@@ -575,17 +715,24 @@ struct SpringMeshTracker::Impl {
   // Builds point i's template `tpl` from the current pyramid at level l around level-0
   // position (x, y), on the half of the patch its side vector selects (all of it without one).
   // Returns the fraction of the patch inside the image.
-  // `side` (optional) replaces the point's own side vector.
+  // `side` (optional) replaces the point's own side vector. Sides are first-frame directions:
+  // they turn with the face (`warp`). With `src`, the patch is cut from that pyramid (the
+  // first frame's) seen through `warp`: pixel offset u of the template samples src at
+  // (x, y) + warp⁻¹ u, so a first-frame template looks as the face does now.
   double make_template(Index l, Index i, double x, double y, Template& tpl,
-                       const Eigen::Vector2d* side = nullptr) {
+                       const Eigen::Vector2d* side = nullptr, const std::vector<Level>* src = nullptr) {
     const int q = r + 1, m = 2 * q + 1, n = 2 * r + 1;
     const double inside =
-        sample_patch(pyr[l], level_coord(x, l), level_coord(y, l), q, big.data());
+        src ? sample_warped((*src)[static_cast<size_t>(l)], level_coord(x, l), level_coord(y, l), q,
+                            warp_inv, big.data())
+            : sample_patch(pyr[l], level_coord(x, l), level_coord(y, l), q, big.data());
     tpl.t.assign(n_pad, 0.0f);
     tpl.gx.assign(n_pad, 0.0f);
     tpl.gy.assign(n_pad, 0.0f);
-    const double sx = side ? (*side)[0] : sides.size() ? sides(i, 0) : 0.0;
-    const double sy = side ? (*side)[1] : sides.size() ? sides(i, 1) : 0.0;
+    Eigen::Vector2d sv(side ? (*side)[0] : sides.size() ? sides(i, 0) : 0.0,
+                       side ? (*side)[1] : sides.size() ? sides(i, 1) : 0.0);
+    if (warped) sv = warp * sv;
+    const double sx = sv[0], sy = sv[1];
     const bool half = sx != 0 || sy != 0;
     tpl.mask.assign(half ? n_pad : 0, 0.0f);
     tpl.n_used = 0;
@@ -765,7 +912,7 @@ struct SpringMeshTracker::Impl {
   }
 
   bool search() {
-    const int S = static_cast<int>(std::ceil(opt.search_radius));
+    const int S = static_cast<int>(std::ceil(opt.search_radius * warp_scale()));
     bool moved = false;
     if (S < 1) return moved;
     for (Index i = 0; i < P; ++i) {
@@ -818,7 +965,7 @@ struct SpringMeshTracker::Impl {
   // patch on that side, and only along that direction (across the contour: along it a half
   // patch on a contour matches about equally well everywhere).
   bool reference_search() {
-    const int S = static_cast<int>(std::ceil(opt.reference_search_radius));
+    const int S = static_cast<int>(std::ceil(opt.reference_search_radius * warp_scale()));
     bool moved = false;
     if (S < 1) return moved;
     for (Index q = 0; q < opt.reference_points.size(); ++q) {
@@ -827,7 +974,7 @@ struct SpringMeshTracker::Impl {
       const bool sided = opt.reference_sides.size() != 0 &&
                          (opt.reference_sides(i, 0) != 0 || opt.reference_sides(i, 1) != 0);
       const Eigen::Vector2d dir =
-          sided ? Eigen::Vector2d(opt.reference_sides(i, 0), opt.reference_sides(i, 1)).normalized()
+          sided ? (warp * Eigen::Vector2d(opt.reference_sides(i, 0), opt.reference_sides(i, 1))).normalized()
                 : Eigen::Vector2d::Zero();
       moved = move_to_best(i, S, opt.reference_search_ncc, sided ? &dir : nullptr) || moved;
     }
@@ -843,7 +990,7 @@ struct SpringMeshTracker::Impl {
   // less the search's distance penalty; the group moves (each point to its own best offset
   // near o) when the best o is clearly better than staying. Returns whether a group moved.
   bool group_search() {
-    const int S = static_cast<int>(std::ceil(opt.group_search_radius));
+    const int S = static_cast<int>(std::ceil(opt.group_search_radius * warp_scale()));
     if (S < 1 || opt.search_groups.size() == 0) return false;
     const int D = kGroupSlack, W = S + D, side = 2 * W + 1;
     const Index n_groups = opt.search_groups.maxCoeff() + 1;
@@ -935,11 +1082,13 @@ struct SpringMeshTracker::Impl {
       h = to_face.transpose() * lam * to_face;
       g = to_face.transpose() * (lam * f);
     }
-    const double k = mesh.stiffness[e] * opt.spring_weight;
+    // Rest lengths are face-frame lengths: energy k (|d| / s - L)² = (k / s²) (|d| - s L)²
+    // with s the face's scale (1 without frame points), as the offset springs see it.
+    const double k = mesh.stiffness[e] * opt.spring_weight / (face_scale * face_scale);
     const double len = d.norm();
     if (k <= 0 || len < 1e-9) return;
     const Eigen::Vector2d u = d / len;
-    const double r = len - mesh.rest_length[e];
+    const double r = len - face_scale * mesh.rest_length[e];
     h += k * u * u.transpose();
     // Newton's curvature term of a stretched spring, k (r / len) (I - u u^T), is positive
     // semidefinite and speeds up motion across the spring; a compressed one's is not.
@@ -1002,6 +1151,55 @@ struct SpringMeshTracker::Impl {
       }
     }
     return any;
+  }
+
+  // Scale of the pose the first-frame templates are seen through (1 when not warped): search
+  // radii, given for the first frame, grow and shrink with the face.
+  double warp_scale() const { return warped ? std::sqrt(std::abs(warp.determinant())) : 1.0; }
+
+  // This frame's head pose from the previous frame's `frame_points` (nothing without them): the
+  // similarity A for the springs, and the first-frame templates re-cut through A when it has
+  // moved by more than kWarpTolerance at a patch corner since they were cut, back to the
+  // uncut first-frame templates when A is that close to the identity. In-plane rotation and
+  // scale of the face then change neither what a first-frame template looks like nor which
+  // half of a patch a half-patch point uses; the Lucas–Kanade steps stay translations.
+  void update_pose() {
+    if (opt.frame_points.size() == 0) return;
+    found_points(opt.frame_points, [&](Index i) { return prev_lost[static_cast<size_t>(i)] != 0; }, pose_idx);
+    pose = robust_similarity(init_pts, pts, pose_idx);
+    to_face = pose.inverse();
+    face_scale = std::sqrt(std::abs(pose.determinant()));
+    const double corner = (r + 1) * std::sqrt(2.0);
+    const Eigen::Matrix2d I = Eigen::Matrix2d::Identity();
+    if ((pose - I).norm() * corner <= kWarpTolerance) {
+      if (warped) {
+        warped = false;
+        warp = I;
+        warp_inv = I;
+        first = first_base;
+        reference = reference_base;
+      }
+      return;
+    }
+    if (warped && (pose - warp).norm() * corner <= kWarpTolerance) return;
+    warped = true;
+    warp = pose;
+    warp_inv = to_face;
+    for (Index l = 0; l < n_levels; ++l) {
+      for (Index i = 0; i < P; ++i) {
+        make_template(l, i, init_pts(i, 0), init_pts(i, 1), first[static_cast<size_t>(l * P + i)],
+                      nullptr, &first_pyr);
+      }
+    }
+    for (Index q = 0; q < opt.reference_points.size(); ++q) {
+      const Index i = opt.reference_points[q];
+      const bool sided = opt.reference_sides.size() != 0 &&
+                         (opt.reference_sides(i, 0) != 0 || opt.reference_sides(i, 1) != 0);
+      const Eigen::Vector2d side = sided ? Eigen::Vector2d(opt.reference_sides(i, 0), opt.reference_sides(i, 1))
+                                         : Eigen::Vector2d::Zero();
+      make_template(0, i, init_pts(i, 0), init_pts(i, 1), reference[static_cast<size_t>(i)],
+                    sided ? &side : nullptr, &first_pyr);
+    }
   }
 
   // Joint Gauss–Newton relaxation over levels [l_hi .. l_lo] against `tpls`; updates pts.
@@ -1213,7 +1411,28 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
     const Eigen::Vector2d side(options.reference_sides(i, 0), options.reference_sides(i, 1));
     s.make_template(0, i, s.pts(i, 0), s.pts(i, 1), s.reference[static_cast<size_t>(i)], &side);
   }
+  if (options.frame_points.size() != 0) {
+    // The first frame's pyramid outlives the caller's buffer: first-frame templates are re-cut
+    // from it as the head turns and scales.
+    s.first_base = s.first;
+    s.reference_base = s.reference;
+    s.first_pyr.resize(s.pyr.size());
+    for (size_t l = 0; l < s.pyr.size(); ++l) {
+      const Level& src = s.pyr[l];
+      Level& dst = s.first_pyr[l];
+      dst.width = src.width;
+      dst.height = src.height;
+      dst.stride = src.width;
+      dst.owned.resize(static_cast<size_t>(src.width * src.height));
+      for (Index y = 0; y < src.height; ++y) {
+        std::copy(src.data + y * src.stride, src.data + y * src.stride + src.width,
+                  dst.owned.begin() + y * src.width);
+      }
+      dst.data = dst.owned.data();
+    }
+  }
   s.prev_weight.assign(static_cast<size_t>(s.P), 1.0);
+  s.prev_lost.assign(static_cast<size_t>(s.P), 0);
   s.muted.assign(static_cast<size_t>(s.P), 0);
   s.checked.assign(static_cast<size_t>(s.P), 0);
   for (Index q = 0; q < options.outlier_edges.size(); ++q) {
@@ -1235,9 +1454,7 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
                   s.width, " x ", s.height, " frame; every frame of a sequence must have one size");
   }
   s.build_pyramid(frame);
-  if (s.mesh.offset_precision.size() != 0) {
-    s.to_face = face_similarity(s.init_pts, s.pts, s.opt.frame_points).inverse();
-  }
+  s.update_pose();
   TrackerFrame out;
   // Stage A: coarse to fine against the current templates.
   out.iterations = s.relax(s.n_levels - 1, 0, s.current);
@@ -1294,6 +1511,7 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
     s.prev_weight[static_cast<size_t>(i)] =
         std::clamp((out.confidence[i] - s.opt.ncc_floor) / (s.opt.ncc_full - s.opt.ncc_floor), 0.0, 1.0);
     out.lost[i] = outside || conf < s.opt.lost_confidence;
+    s.prev_lost[static_cast<size_t>(i)] = out.lost[i] ? 1 : 0;
   }
   out.points = s.pts;
   return out;

@@ -69,6 +69,19 @@ RowMatrixXd grid_points(int nx, int ny, double x0, double y0, double step) {
   return p;
 }
 
+// The right triangle with sides 3, 4, 5 and its three edges.
+RowMatrixXd triangle_3_4_5() {
+  RowMatrixXd p(3, 2);
+  p << 0, 0, 3, 0, 0, 4;
+  return p;
+}
+
+EdgeMatrix triangle_edges() {
+  EdgeMatrix e(3, 2);
+  e << 0, 1, 0, 2, 1, 2;
+  return e;
+}
+
 }  // namespace
 
 TEST_CASE("delaunay_edges: square with its centre gives 4 sides and 4 spokes") {
@@ -157,10 +170,8 @@ TEST_CASE("delaunay_edges: bad input is refused with a reason") {
 }
 
 TEST_CASE("springs_from_points and estimate_springs: closed-form lengths, means and variances") {
-  RowMatrixXd p(3, 2);
-  p << 0, 0, 3, 0, 0, 4;
-  EdgeMatrix e(3, 2);
-  e << 0, 1, 0, 2, 1, 2;
+  const RowMatrixXd p = triangle_3_4_5();
+  const EdgeMatrix e = triangle_edges();
   const SpringMesh m = springs_from_points(p, e, 0.1);
   CHECK(m.rest_length[0] == doctest::Approx(3));
   CHECK(m.rest_length[2] == doctest::Approx(5));
@@ -642,6 +653,144 @@ TEST_CASE("tracker: a sub-pixel shift of a textured image is recovered to 0.06 p
       CHECK(r.confidence[i] > 0.95);
     }
   }
+}
+
+// Renders the texture seen through the similarity A about c, then moved by b: the content
+// at x in frame 0 is at c + A (x - c) + b (rotation and scale of the whole picture).
+Frame render_similar(const Texture& tex, Index w, Index h, const Eigen::Matrix2d& A,
+                     const Eigen::Vector2d& c, const Eigen::Vector2d& b) {
+  Frame f{std::vector<std::uint8_t>(static_cast<size_t>(w * h)), w, h};
+  const Eigen::Matrix2d Ai = A.inverse();
+  for (Index y = 0; y < h; ++y) {
+    for (Index x = 0; x < w; ++x) {
+      const Eigen::Vector2d src = c + Ai * (Eigen::Vector2d(double(x), double(y)) - c - b);
+      f.pix[static_cast<size_t>(y * w + x)] =
+          static_cast<std::uint8_t>(std::lround(std::clamp(tex(src[0], src[1]), 0.0, 255.0)));
+    }
+  }
+  return f;
+}
+
+Eigen::Matrix2d similarity(double angle, double scale) {
+  return (Eigen::Matrix2d() << std::cos(angle), -std::sin(angle), std::sin(angle), std::cos(angle))
+             .finished() * scale;
+}
+
+TEST_CASE("tracker: first-frame templates and springs follow a face that turns 30 degrees and scales") {
+  // A textured picture turns from 0 to 30 degrees while it grows to 1.4 times its size, then
+  // turns back while it shrinks to 0.75 (0.75 degrees and about 1 % per frame), drifting
+  // sideways. With frame points the first-frame templates are re-cut through the pose, the
+  // springs' rest lengths scale with it, and every point stays within a fraction of a pixel
+  // of the planted position, matching its first-frame template. Without frame points (the
+  // image frame) the first-frame templates decorrelate: points are flagged lost, and their
+  // stiff springs, still at the first frame's lengths, pull them off.
+  const Texture tex(21);
+  const Index W = 320, H = 280;
+  const Eigen::Vector2d c(160, 140);
+  const RowMatrixXd p0 = grid_points(4, 4, 115, 95, 30);
+  const SpringMesh mesh = springs_from_points(p0, delaunay_edges(p0));
+  const Frame f0 = render_similar(tex, W, H, Eigen::Matrix2d::Identity(), c, Eigen::Vector2d::Zero());
+  TrackerOptions image_frame;
+  TrackerOptions face_frame;
+  face_frame.frame_points = VectorXi::LinSpaced(p0.rows(), 0, static_cast<int>(p0.rows()) - 1);
+  SpringMeshTracker plain(f0.view(), p0, mesh, image_frame), posed(f0.view(), p0, mesh, face_frame);
+  const double deg = 3.14159265358979 / 180;
+  double worst_posed = 0, worst_plain = 0, min_conf = 1, sum_posed = 0, sum_plain = 0;
+  Index lost_posed = 0, lost_plain = 0;
+  const int n = 80;
+  for (int t = 1; t <= n; ++t) {
+    const double u = double(t) / n;  // 0 .. 1
+    const double angle = 30 * deg * std::sin(3.14159265358979 * u);
+    const double scale = u < 0.5 ? 1 + 0.8 * u : 1.4 - 1.3 * (u - 0.5);
+    const Eigen::Matrix2d A = similarity(angle, scale);
+    const Eigen::Vector2d b(8 * std::sin(6.283185307179586 * u), -5 * u);
+    const Frame f = render_similar(tex, W, H, A, c, b);
+    const TrackerFrame rp = posed.track(f.view()), rq = plain.track(f.view());
+    for (Index i = 0; i < p0.rows(); ++i) {
+      const Eigen::Vector2d truth = c + A * (p0.row(i).transpose() - c) + b;
+      const double ep = (rp.points.row(i).transpose() - truth).norm();
+      const double eq = (rq.points.row(i).transpose() - truth).norm();
+      worst_posed = std::max(worst_posed, ep);
+      worst_plain = std::max(worst_plain, eq);
+      sum_posed += ep;
+      sum_plain += eq;
+      min_conf = std::min(min_conf, rp.confidence[i]);
+    }
+    lost_posed += rp.lost.count();
+    lost_plain += rq.lost.count();
+  }
+  const double mean_posed = sum_posed / double(n * p0.rows()), mean_plain = sum_plain / double(n * p0.rows());
+  MESSAGE("turn to 30 deg, scale 1.4 -> 0.75: error with frame points mean ", mean_posed, " px, worst ",
+          worst_posed, " px (lowest confidence ", min_conf, ", ", lost_posed,
+          " point-frames lost); without: mean ", mean_plain, " px, worst ", worst_plain, " px (", lost_plain,
+          " lost)");
+  CHECK(mean_posed < 0.1);
+  CHECK(worst_posed < 0.4);
+  CHECK(lost_posed == 0);
+  CHECK(min_conf > 0.95);
+  CHECK(mean_plain > 1.0);
+  CHECK(worst_plain > 5.0);
+  CHECK(lost_plain > 0);
+}
+
+TEST_CASE("estimate_springs: with frame points, lengths are measured in the face frame") {
+  // A triangle scaled by 1, 2, 3 and turned: in the face frame (the similarity of all its
+  // points to frame 0's) its sides do not change, so the rest lengths are frame 0's and the
+  // stiffnesses sit at the variance floor; in the image frame they are the means of the
+  // scaled lengths.
+  const RowMatrixXd p = triangle_3_4_5();
+  const EdgeMatrix e = triangle_edges();
+  const SpringMesh m = springs_from_points(p, e, 0.1);
+  RowMatrixXd tracks(3, 6);
+  for (int t = 0; t < 3; ++t) {
+    const Eigen::Matrix2d A = similarity(0.2 * t, t + 1.0);
+    for (Index i = 0; i < 3; ++i) {
+      const Eigen::Vector2d q = A * p.row(i).transpose() + Eigen::Vector2d(5.0 * t, -2.0 * t);
+      tracks(t, 2 * i) = q[0];
+      tracks(t, 2 * i + 1) = q[1];
+    }
+  }
+  const RowMatrixXb none = RowMatrixXb::Zero(3, 3);
+  const SpringMesh face = estimate_springs(tracks, none, m, 0.5, VectorXi::LinSpaced(3, 0, 2));
+  const SpringMesh image = estimate_springs(tracks, none, m, 0.5);
+  for (Index k = 0; k < 3; ++k) {
+    CHECK(face.rest_length[k] == doctest::Approx(m.rest_length[k]).epsilon(1e-9));
+    CHECK(face.stiffness[k] == doctest::Approx(4.0));
+    CHECK(image.rest_length[k] == doctest::Approx(2 * m.rest_length[k]).epsilon(1e-9));
+  }
+  // A lost frame point gives no face frame: frame 2 with point 1 lost and moved far away keeps
+  // the face frame of the other two points (which, with 2 points, is still exact).
+  RowMatrixXd moved = tracks;
+  moved(2, 2) += 40;
+  RowMatrixXb lost = none;
+  lost(2, 1) = true;
+  const SpringMesh held = estimate_springs(moved, lost, m, 0.5, VectorXi::LinSpaced(3, 0, 2));
+  CHECK(held.rest_length[1] == doctest::Approx(m.rest_length[1]).epsilon(1e-9));  // edge 0-2
+  // A frame point that slid off its feature without being flagged lost is left out of the face
+  // frame by the robust refit: a 3 x 3 grid turned and scaled, its corner point 0 moved 10 px in
+  // one frame; the springs between the other points keep their frame-0 lengths exactly.
+  const RowMatrixXd g = grid_points(3, 3, 0, 0, 20);
+  const EdgeMatrix ge = delaunay_edges(g);
+  const SpringMesh gm = springs_from_points(g, ge, 0.1);
+  RowMatrixXd gt(3, 18);
+  for (int t = 0; t < 3; ++t) {
+    const Eigen::Matrix2d A = similarity(0.15 * t, 1 + 0.2 * t);
+    for (Index i = 0; i < 9; ++i) {
+      const Eigen::Vector2d q = A * g.row(i).transpose();
+      gt(t, 2 * i) = q[0];
+      gt(t, 2 * i + 1) = q[1];
+    }
+  }
+  gt(2, 0) += 10;
+  // (a wide outlier band, 3 x 5 px: the refit, not the band, must keep frame 2 right)
+  const SpringMesh gr = estimate_springs(gt, RowMatrixXb::Zero(3, 9), gm, 5.0, VectorXi::LinSpaced(9, 0, 8));
+  Index checked_edges = 0;
+  for (Index k = 0; k < ge.rows(); ++k) {
+    if (ge(k, 0) == 0) continue;
+    CHECK(gr.rest_length[k] == doctest::Approx(gm.rest_length[k]).epsilon(1e-9));
+    ++checked_edges;
+  }
+  CHECK(checked_edges >= 8);
 }
 
 TEST_CASE("tracker: a 9 px jump with a brightness change is caught by the pyramid") {

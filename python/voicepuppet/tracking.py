@@ -326,8 +326,11 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
                                      0.0 if initial_min_sigma is None else initial_min_sigma)
     if lips:
         mesh = _lip_springs(init, edges, mesh, relative_sigma, min_sigma, lip_floor)
-        options.setdefault("frame_points", np.asarray(FACE_FRAME_POINTS, dtype=np.int64))
         options.setdefault("outlier_edges", _checked_lip_edges(edges))
+    # The head pose the templates, half patches and springs follow: the nose and eye corners of
+    # a 68-point face, otherwise all points (frame_points=() for the image frame).
+    options.setdefault("frame_points", np.asarray(FACE_FRAME_POINTS if len(init) == 68 else range(len(init)),
+                                                  dtype=np.int64))
     opts = _options(options)
     # The first pass's lip springs are guesses: their check on the data (spring_outlier) waits
     # for the springs re-estimated from a pass.
@@ -367,7 +370,11 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         re-estimated from the tracked distances (mean and variance), as in the paper
     progress : show a tqdm progress bar
     **options : fields of the C++ ``TrackerOptions`` (patch_radius, levels, ncc_floor, ...,
-        ``patch_sides`` (P, 2) half-patch directions, ``search_radius`` px) and
+        ``patch_sides`` (P, 2) half-patch directions, ``search_radius`` px, ``frame_points``:
+        the points whose similarity to frame 0 is the head pose that the first-frame templates,
+        half patches, search radii and spring lengths follow through in-plane rotation and
+        scale; default the nose and eye corners of a 68-point face (``FACE_FRAME_POINTS``),
+        all points otherwise; ``()`` for the image frame) and
         ``relative_sigma`` (initial spring std as a fraction of length), ``min_sigma`` (px floor
         of re-estimated spring std), ``initial_min_sigma`` (px floor of the initial spring std;
         default none), ``lips`` (lip tracking for a 68-point iBUG layout:

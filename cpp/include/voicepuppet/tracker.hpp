@@ -26,6 +26,14 @@
 /// and a point whose data contradict such springs by many standard deviations is handed to them
 /// for the frame (`spring_outlier`).
 ///
+/// Head pose: with `TrackerOptions::frame_points`, each frame's similarity A (rotation and
+/// scale of those points from the first frame to the previous frame, fitted robustly) is the
+/// face frame. The first-frame templates are re-cut from the first frame seen through A (so
+/// they look as the face does now), half patches and sided searches turn with it, search radii
+/// and spring rest lengths scale with it; the Lucas–Kanade steps stay per-point translations,
+/// since the warp is known rather than estimated per patch. Without frame points nothing of
+/// this happens (the image frame).
+///
 /// Images come in as plain 8-bit grey buffers (`GreyImage`); `tracker_opencv.hpp` adapts a
 /// `cv::Mat` for C++ callers who use OpenCV. Coordinates are pixels, (x, y), the centre of the
 /// top-left pixel at (0, 0).
@@ -63,8 +71,11 @@ using VectorXb = Eigen::Matrix<bool, Eigen::Dynamic, 1>;
 /// pixels but barely slides along its contour, which a length spring cannot tell apart.
 struct SpringMesh {
   EdgeMatrix edges;      ///< #E by 2 point indices
-  VectorXd rest_length;  ///< #E rest lengths L_e in pixels (> 0)
-  VectorXd stiffness;    ///< #E stiffnesses k_e in 1/px² (>= 0), energy k_e·(|p_j − p_i| − L_e)²
+  /// #E rest lengths L_e in face-frame pixels (> 0): the first frame's pixels, scaled with
+  /// the face's scale s when the tracker follows the head pose (image pixels without frame points)
+  VectorXd rest_length;
+  /// #E stiffnesses k_e in 1/(face-frame px)² (>= 0), energy k_e·(|p_j − p_i| / s − L_e)²
+  VectorXd stiffness;
   /// #E by 4 offset-spring precisions Λ_e (row-major 2×2, symmetric positive semidefinite,
   /// 1/px²; a zero row: no offset spring on that edge), or empty (none at all)
   RowMatrixXd offset_precision;
@@ -100,13 +111,16 @@ SpringMesh springs_from_points(const MatrixRef& points, const EdgeMatrix& edges,
 /// 2 such frames keep their previous values. An edge with an offset spring gets, over the same
 /// frames, μ_e = the mean face-frame offset and Λ_e = the inverse of its covariance (eigenvalues
 /// floored at min_sigma²); its length spring is then switched off (k_e = 0), since the offset
-/// spring already holds the length's statistics.
+/// spring already holds the length's statistics. With `frame_points`, distances are measured
+/// in each frame's face frame (divided by the face's scale), as the tracker uses them.
 /// @param[in] tracks     #T by 2·#P positions, row t = (x0, y0, x1, y1, ...) of frame t
 /// @param[in] lost       #T by #P lost flags (true: exclude from the statistics)
 /// @param[in] previous   the mesh used for the pass (its edges are kept)
 /// @param[in] min_sigma  floor on the distance standard deviation in pixels (> 0)
 /// @param[in] frame_points  indices of the points that define the face frame of each frame
-///                     (similarity to frame 0, see `SpringMesh`); empty: the image frame
+///                     (similarity to frame 0, see `SpringMesh`; of those not lost in that frame,
+///                     and robust to the ones that slid off, as in the tracker); empty: the
+///                     image frame
 /// @throws std::invalid_argument on shape mismatches, non-finite tracks or a bad floor.
 SpringMesh estimate_springs(const MatrixRef& tracks, const RowMatrixXb& lost,
                             const SpringMesh& previous, double min_sigma = 0.5,
@@ -145,9 +159,15 @@ struct TrackerOptions {
   /// moves penalised); it moves to the best offset if that correlates at least `ncc_full`, and
   /// the mesh is relaxed again (0: no search)
   double search_radius = 0.0;
-  /// indices of the points whose similarity to the first frame defines the face frame of the
-  /// offset springs (`SpringMesh`): the previous frame's positions, so the frame is fixed
-  /// within a frame's relaxation; empty: the image frame
+  /// indices of the points whose similarity to the first frame defines the face frame (head
+  /// pose): the previous frame's positions of those not lost there, so the frame is fixed
+  /// within a frame's relaxation, with the points a least-median fit over pairs of them finds
+  /// off (beyond 3 robust sigmas, at least 2 % of their RMS radius) left out. The offset
+  /// springs (`SpringMesh`) live in it, length springs scale with it, and the first-frame
+  /// templates are re-cut through it whenever it has moved by more than 0.2 px at a patch
+  /// corner since they were cut (exactly the first frame's while that close to the identity);
+  /// half-patch sides, reference search directions and search radii turn and scale with it.
+  /// Empty: the image frame (none of this).
   VectorXi frame_points;
   /// #P group ids (-1: in no group), or empty: points searched for jointly after stage A, by a
   /// common whole-pixel offset within `group_search_radius` (each point free to deviate 2 px
