@@ -971,12 +971,10 @@ struct SpringMeshTracker::Impl {
     for (Index q = 0; q < opt.reference_points.size(); ++q) {
       const Index i = opt.reference_points[q];
       if (!ncc_map(i, S, nccs, reference)) continue;
-      const bool sided = opt.reference_sides.size() != 0 &&
-                         (opt.reference_sides(i, 0) != 0 || opt.reference_sides(i, 1) != 0);
-      const Eigen::Vector2d dir =
-          sided ? (warp * Eigen::Vector2d(opt.reference_sides(i, 0), opt.reference_sides(i, 1))).normalized()
-                : Eigen::Vector2d::Zero();
-      moved = move_to_best(i, S, opt.reference_search_ncc, sided ? &dir : nullptr) || moved;
+      Eigen::Vector2d dir;
+      const Eigen::Vector2d* side = reference_side(i, dir);
+      if (side) dir = (warp * dir).normalized();
+      moved = move_to_best(i, S, opt.reference_search_ncc, side) || moved;
     }
     return moved;
   }
@@ -1153,6 +1151,35 @@ struct SpringMeshTracker::Impl {
     return any;
   }
 
+  // Point i's `reference_sides` direction (first-frame axes) in `buf`, or nullptr when it has
+  // none (the whole patch, searched for in every direction).
+  const Eigen::Vector2d* reference_side(Index i, Eigen::Vector2d& buf) const {
+    if (opt.reference_sides.size() == 0 || (opt.reference_sides(i, 0) == 0 && opt.reference_sides(i, 1) == 0)) {
+      return nullptr;
+    }
+    buf << opt.reference_sides(i, 0), opt.reference_sides(i, 1);
+    return &buf;
+  }
+
+  // Cuts the first-frame templates at the first frame's points: every point on every level
+  // (`first`) and the reference-search ones (`reference`: level 0, on their side's half), from
+  // `src` seen through `warp` (the current pyramid, unwarped, when src is null).
+  void cut_first_templates(const std::vector<Level>* src) {
+    for (Index l = 0; l < n_levels; ++l) {
+      for (Index i = 0; i < P; ++i) {
+        make_template(l, i, init_pts(i, 0), init_pts(i, 1), first[static_cast<size_t>(l * P + i)], nullptr, src);
+      }
+    }
+    reference.assign(first.begin(), first.begin() + P);
+    Eigen::Vector2d buf;
+    for (Index q = 0; q < opt.reference_points.size(); ++q) {
+      const Index i = opt.reference_points[q];
+      if (const Eigen::Vector2d* side = reference_side(i, buf)) {
+        make_template(0, i, init_pts(i, 0), init_pts(i, 1), reference[static_cast<size_t>(i)], side, src);
+      }
+    }
+  }
+
   // Scale of the pose the first-frame templates are seen through (1 when not warped): search
   // radii, given for the first frame, grow and shrink with the face.
   double warp_scale() const { return warped ? std::sqrt(std::abs(warp.determinant())) : 1.0; }
@@ -1185,21 +1212,7 @@ struct SpringMeshTracker::Impl {
     warped = true;
     warp = pose;
     warp_inv = to_face;
-    for (Index l = 0; l < n_levels; ++l) {
-      for (Index i = 0; i < P; ++i) {
-        make_template(l, i, init_pts(i, 0), init_pts(i, 1), first[static_cast<size_t>(l * P + i)],
-                      nullptr, &first_pyr);
-      }
-    }
-    for (Index q = 0; q < opt.reference_points.size(); ++q) {
-      const Index i = opt.reference_points[q];
-      const bool sided = opt.reference_sides.size() != 0 &&
-                         (opt.reference_sides(i, 0) != 0 || opt.reference_sides(i, 1) != 0);
-      const Eigen::Vector2d side = sided ? Eigen::Vector2d(opt.reference_sides(i, 0), opt.reference_sides(i, 1))
-                                         : Eigen::Vector2d::Zero();
-      make_template(0, i, init_pts(i, 0), init_pts(i, 1), reference[static_cast<size_t>(i)],
-                    sided ? &side : nullptr, &first_pyr);
-    }
+    cut_first_templates(&first_pyr);
   }
 
   // Joint Gauss–Newton relaxation over levels [l_hi .. l_lo] against `tpls`; updates pts.
@@ -1395,22 +1408,8 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   s.coupling.resize(static_cast<size_t>(mesh.edges.rows()));
   s.build_pyramid(first);
   s.first.resize(static_cast<size_t>(s.n_levels * s.P));
-  for (Index l = 0; l < s.n_levels; ++l) {
-    for (Index i = 0; i < s.P; ++i) {
-      s.make_template(l, i, s.pts(i, 0), s.pts(i, 1), s.first[static_cast<size_t>(l * s.P + i)]);
-    }
-  }
+  s.cut_first_templates(nullptr);
   s.current = s.first;
-  s.reference = std::vector<Template>(s.first.begin(), s.first.begin() + s.P);
-  for (Index q = 0; q < options.reference_points.size(); ++q) {
-    const Index i = options.reference_points[q];
-    if (options.reference_sides.size() == 0 ||
-        (options.reference_sides(i, 0) == 0 && options.reference_sides(i, 1) == 0)) {
-      continue;
-    }
-    const Eigen::Vector2d side(options.reference_sides(i, 0), options.reference_sides(i, 1));
-    s.make_template(0, i, s.pts(i, 0), s.pts(i, 1), s.reference[static_cast<size_t>(i)], &side);
-  }
   if (options.frame_points.size() != 0) {
     // The first frame's pyramid outlives the caller's buffer: first-frame templates are re-cut
     // from it as the head turns and scales.
