@@ -30,6 +30,35 @@ def test_info_reports_the_compiled_core(capsys):
     assert "Release" in out
 
 
+def _blas_line(out):
+    return next(line for line in out.splitlines() if line.strip().startswith("blas:"))
+
+
+def test_commands_run_blas_on_one_thread_unless_told(capsys, monkeypatch):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads():
+        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+    for var in ("VOICEPUPPET_BLAS_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert set(blas_threads()) == {2}
+        assert main(["info"]) == 0
+        assert _blas_line(capsys.readouterr().out).endswith(", 1 thread")
+        assert set(blas_threads()) == {2}  # restored when the command returns
+        monkeypatch.setenv("VOICEPUPPET_BLAS_THREADS", "2")
+        assert main(["info"]) == 0
+        assert _blas_line(capsys.readouterr().out).endswith(", 2 threads")
+        monkeypatch.delenv("VOICEPUPPET_BLAS_THREADS")
+        monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")  # the user's own setting is left alone
+        assert main(["info"]) == 0
+        assert _blas_line(capsys.readouterr().out).endswith(", 2 threads")
+    monkeypatch.setenv("VOICEPUPPET_BLAS_THREADS", "many")
+    assert main(["info"]) == 2
+    assert "VOICEPUPPET_BLAS_THREADS must be a whole number >= 1, got 'many'" in capsys.readouterr().err
+
+
 def test_bench_hmm_quick_writes_the_documented_schema(tmp_path):
     out = tmp_path / "bench.json"
     assert main(["bench", "hmm", "--quick", "--repeats", "1", "--json", str(out)]) == 0
