@@ -109,6 +109,29 @@ def test_bad_input_is_reported_and_writes_nothing(workdir, tmp_path, capsys):
     assert sorted(os.listdir(tmp_path)) == ["cut.vpp"]
 
 
+def test_a_video_without_sound_fails_before_it_is_tracked(workdir, tmp_path, capsys, monkeypatch):
+    import cv2
+
+    from voicepuppet import tracking
+
+    def no_tracking(*args, **kwargs):
+        raise AssertionError("tracked a video whose sound was never going to load")
+
+    monkeypatch.setattr(tracking, "track_video", no_tracking)
+    silent_film = tmp_path / "silent.mp4"
+    w = cv2.VideoWriter(str(silent_film), cv2.VideoWriter_fourcc(*"mp4v"), FPS, (64, 64))
+    for _ in range(5):
+        w.write(np.full((64, 64, 3), 128, np.uint8))
+    w.release()
+    # the second video has no sound: found before the first one is tracked
+    assert main(["train", str(silent_film), str(silent_film), "--audio", str(workdir / "train.wav"),
+                 str(tmp_path / "missing.wav"), "-o", str(tmp_path / "q.vpp"), "--quiet"]) == 2
+    assert "missing.wav" in capsys.readouterr().err
+    assert main(["train", str(silent_film), "-o", str(tmp_path / "q.vpp"), "--quiet"]) == 2
+    assert "has no audio track" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["silent.mp4"]
+
+
 def test_palette_of_puppets(workdir, tmp_path, capsys):
     import shutil
 

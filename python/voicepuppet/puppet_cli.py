@@ -67,6 +67,9 @@ def _train(args) -> int:
     if marks and not videos and not audios:
         raise ValueError("--landmarks needs --audio (or the videos they were tracked from)")
     n = max(len(videos), len(marks))
+    # Every sound before any tracking: a video without an audio track fails in a second, not
+    # after minutes of tracking it (and the ones before it).
+    sounds = [vaudio.load_audio(audios[i] if audios else videos[i]) for i in range(n)]
     points_list, audio_list, fps = [], [], None
     for i in range(n):
         if marks:
@@ -84,9 +87,7 @@ def _train(args) -> int:
             fps = f
         elif abs(f - fps) > 1e-3:
             raise ValueError(f"sequence {i} runs at {f:g} fps but the first at {fps:g}; use one frame rate")
-        src = audios[i] if audios else videos[i]
-        snd = vaudio.load_audio(src)
-        for seg in usable_segments(pts, lost, snd, f, where):
+        for seg in usable_segments(pts, lost, sounds[i], f, where):
             points_list.append(seg[0])
             audio_list.append(seg[1])
     options = {k: v for k, v in {"n_states": args.states, "n_iter": args.iterations, "parts": args.parts,
