@@ -29,3 +29,22 @@ def test_demo_writes_everything(tmp_path):
     assert any("[5/5]" in line for line in logs)
     with pytest.raises(ValueError, match="train_on"):
         demo.run(tmp_path, train_on="guess")
+
+
+def test_demo_with_real_speech_uses_the_real_speech_performer(tmp_path, monkeypatch):
+    """``speech="real"`` builds its corpus with ``make_real_corpus`` in ``corpus-real`` (stood in
+    for here by a small espeak corpus: the real one is tested in test_real_speech.py)."""
+    calls, logs = [], []
+
+    def small_real(out_dir, seed=0, progress=True):
+        calls.append((out_dir, seed))
+        return synth.make_corpus(tmp_path / "small", train_seconds=12, n_test=1, seed=0, real_test=False,
+                                 progress=False)
+
+    monkeypatch.setattr(synth, "make_real_corpus", small_real)
+    s = demo.run(tmp_path / "out", speech="real", seed=2, n_states=6, compare_conventional=False,
+                 render_video=False, progress=False, log=logs.append)
+    assert calls == [(tmp_path / "out" / "corpus-real", 2)]
+    assert "real recordings" in logs[0] and s["train_frames"] > 300
+    with pytest.raises(ValueError, match="speech must be 'espeak' or 'real'"):
+        demo.run(tmp_path, speech="klingon")

@@ -347,18 +347,27 @@ def test_evaluate_verb_train_on_tracked(tmp_path, capsys, monkeypatch):
     seqs = planted_sequences(rng, n_seq=4, T=40)
     got = {}
 
-    def fake(out_dir=None, train_seconds=60.0, n_test=3, seed=0, progress=True, train_on="truth"):
-        got.update(seed=seed, train_on=train_on)
+    def fake(out_dir=None, train_seconds=60.0, n_test=3, seed=0, progress=True, train_on="truth",
+             speech="espeak"):
+        got.update(seed=seed, train_on=train_on, speech=speech)
         return seqs
 
     monkeypatch.setattr(ev, "synth_sequences", fake)
     js = tmp_path / "r.json"
     assert main(["evaluate", "--train-on", "tracked", "--seed", "1", "--corpus-seed", "0", "--folds", "2",
                  "--peers", "--no-puppet", "--components", "3", "--json", str(js), "-q"]) == 0
-    assert got == {"seed": 0, "train_on": "tracked"}
+    assert got == {"seed": 0, "train_on": "tracked", "speech": "espeak"}
     command = json.loads(js.read_text())["command"]
     assert "--corpus-seed 0 --train-on tracked" in command and "--seed 1" in command
+    assert "--train-seconds 60 --n-test 3" in command
+    assert main(["evaluate", "--speech", "real", "--folds", "2", "--peers", "--no-puppet", "--components", "3",
+                 "--json", str(js), "-q"]) == 0
+    assert got["speech"] == "real"
+    command = json.loads(js.read_text())["command"]
+    assert "--speech real" in command and "--train-seconds" not in command
     capsys.readouterr()
+    assert main(["evaluate", "--speech", "real", "--train-seconds", "30", "--peers", "--no-puppet", "-q"]) == 2
+    assert "--speech real) has its fixed recordings" in capsys.readouterr().err
     data = tmp_path / "data"
     data.mkdir()
     write_user_data(data, seqs)

@@ -28,15 +28,20 @@ import numpy as np
 
 def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int = 10, seed: int = 0,
         n_states: int = 40, train_on: str = "tracked", compare_conventional: bool = True,
-        render_video: bool = True, progress: bool = True, log=print) -> dict:
+        render_video: bool = True, progress: bool = True, log=print, speech: str = "espeak") -> dict:
     """Run the demo; returns the metrics (also written to ``out_dir/metrics.json``).
 
     ``train_on`` picks the training landmarks: ``"tracked"`` (what the spring-mesh tracker found,
     the default) or ``"truth"`` (the performer's ground truth; the tracker is still run and
-    measured).
+    measured). ``speech="real"``: the performer speaks the real recordings that ship inside
+    packages (:func:`voicepuppet.synth.make_real_corpus`: 80 s of two LibriVox readers, tested
+    on two CMU ARCTIC speakers; ``train_seconds`` and ``n_test`` are then not used), in
+    ``out_dir/corpus-real``.
     """
     if train_on not in ("truth", "tracked"):
         raise ValueError(f"train_on must be 'truth' or 'tracked', got {train_on!r}")
+    if speech not in ("espeak", "real"):
+        raise ValueError(f"speech must be 'espeak' or 'real', got {speech!r}")
     from voicepuppet import evaluation, metrics, synth, tracking
     from voicepuppet.animation import Animation, atomic_path, save_animation
     from voicepuppet.puppet import Puppet
@@ -45,10 +50,15 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
     out.mkdir(parents=True, exist_ok=True)
     timings = {}
     t0 = time.perf_counter()
-    log(f"[1/5] the synthetic performer: {train_seconds:g} s of training video and {n_test} held-out "
-        f"utterances (cached in {out / 'corpus'})")
-    corpus = synth.make_corpus(out / "corpus", train_seconds=train_seconds, n_test=n_test, seed=seed,
-                               progress=progress)
+    if speech == "real":
+        log(f"[1/5] the synthetic performer speaking real recordings: two LibriVox readers to learn from, "
+            f"two CMU ARCTIC speakers held out (cached in {out / 'corpus-real'})")
+        corpus = synth.make_real_corpus(out / "corpus-real", seed=seed, progress=progress)
+    else:
+        log(f"[1/5] the synthetic performer: {train_seconds:g} s of training video and {n_test} held-out "
+            f"utterances (cached in {out / 'corpus'})")
+        corpus = synth.make_corpus(out / "corpus", train_seconds=train_seconds, n_test=n_test, seed=seed,
+                                   progress=progress)
     train, tests = corpus.train, corpus.test
     timings["corpus_s"] = time.perf_counter() - t0
 
@@ -137,7 +147,7 @@ def _cli(args) -> int:
 
     s = run(args.out, train_seconds=args.train_seconds, n_test=args.n_test, seed=args.seed,
             n_states=args.states, train_on=args.train_on, compare_conventional=not args.no_conventional,
-            render_video=not args.no_render, progress=not args.quiet)
+            render_video=not args.no_render, progress=not args.quiet, speech=args.speech)
     print()
     for name, res in s["models"].items():
         print(evaluation.format_table(res, f"{name} puppet"))
@@ -161,6 +171,10 @@ def add_parser(sub) -> None:
                    help="train on the tracked landmarks (default, as on your own video) or on the "
                         "performer's ground truth (the tracker is still run and measured)")
     p.add_argument("--n-test", type=int, default=10, help="held-out utterances (default 10)")
+    p.add_argument("--speech", choices=["espeak", "real"], default="espeak",
+                   help="what the performer speaks: espeak-ng sentences (default) or the real recordings "
+                        "that ship inside packages (80 s of two LibriVox readers; held out: two CMU ARCTIC "
+                        "speakers; --train-seconds and --n-test then unused)")
     p.add_argument("--states", type=int, default=40, help="initial facial states (default 40)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-conventional", action="store_true", help="skip the Baum-Welch comparison puppet")

@@ -274,9 +274,10 @@ def tracked_landmarks(clip, cache_dir=None, *, progress: bool = True) -> np.ndar
 
 
 def synth_sequences(out_dir=None, train_seconds: float = 60.0, n_test: int = 3, seed: int = 0,
-                    progress: bool = True, train_on: str = "truth") -> list[Sequence]:
+                    progress: bool = True, train_on: str = "truth", speech: str = "espeak") -> list[Sequence]:
     """The synthetic performer as sequences: its training clip cut into utterances, then the
-    held-out clips (espeak-ng sentences and CMU ARCTIC a0009).
+    held-out clips (espeak-ng sentences and CMU ARCTIC a0009; with ``speech="real"`` the
+    performer of :func:`voicepuppet.synth.make_real_corpus`, which speaks real recordings).
 
     Parameters
     ----------
@@ -288,6 +289,9 @@ def synth_sequences(out_dir=None, train_seconds: float = 60.0, n_test: int = 3, 
         ``"tracked"``: every sequence's ``train_points`` are its clip's tracked landmarks
         (:func:`tracked_landmarks`, cached in ``out_dir/tracked``), cut at the same frames as
         the ground truth; ``"truth"``: none (models learn from the ground truth).
+    speech : {"espeak", "real"}
+        ``"real"``: the real-speech performer (then ``train_seconds`` and ``n_test`` are not
+        used; its default folder is ``~/.cache/voicepuppet/evaluate-corpus-real``).
 
     Returns
     -------
@@ -299,10 +303,15 @@ def synth_sequences(out_dir=None, train_seconds: float = 60.0, n_test: int = 3, 
     if train_on not in TRAIN_ON:
         raise ValueError(f"train_on must be one of {TRAIN_ON}, got {train_on!r}")
 
+    if speech not in ("espeak", "real"):
+        raise ValueError(f"speech must be 'espeak' or 'real', got {speech!r}")
     if out_dir is None:
-        out_dir = os.path.join(samples.cache_dir(), "evaluate-corpus")
-    corpus = synth.make_corpus(out_dir, train_seconds=train_seconds, n_test=n_test, seed=seed,
-                               progress=progress)
+        out_dir = os.path.join(samples.cache_dir(), "evaluate-corpus" + ("-real" if speech == "real" else ""))
+    if speech == "real":
+        corpus = synth.make_real_corpus(out_dir, seed=seed, progress=progress)
+    else:
+        corpus = synth.make_corpus(out_dir, train_seconds=train_seconds, n_test=n_test, seed=seed,
+                                   progress=progress)
     def fit_of(clip):
         return tracked_landmarks(clip, progress=progress) if train_on == "tracked" else None
 
@@ -625,8 +634,12 @@ def _command(args) -> str:
     parts = ["voicepuppet", "evaluate"]
     opts = [("--data", args.data), ("--corpus-dir", args.corpus_dir)]
     if not args.data:
-        opts += [("--train-seconds", f"{args.train_seconds:g}"), ("--n-test", str(args.n_test)),
-                 ("--corpus-seed", None if args.corpus_seed is None else str(args.corpus_seed)),
+        if args.speech == "real":
+            opts += [("--speech", "real")]
+        else:
+            opts += [("--train-seconds", f"{60.0 if args.train_seconds is None else args.train_seconds:g}"),
+                     ("--n-test", str(3 if args.n_test is None else args.n_test))]
+        opts += [("--corpus-seed", None if args.corpus_seed is None else str(args.corpus_seed)),
                  ("--train-on", None if args.train_on == "truth" else args.train_on)]
     else:
         opts += [("--alphabet", args.alphabet)]
@@ -698,9 +711,13 @@ def _run(args) -> int:
     else:
         if args.corpus_seed is not None and args.corpus_seed < 0:
             raise ValueError(f"--corpus-seed must be a non-negative integer, got {args.corpus_seed}")
-        seqs = synth_sequences(args.corpus_dir, train_seconds=args.train_seconds, n_test=args.n_test,
+        if args.speech == "real" and (args.train_seconds is not None or args.n_test is not None):
+            raise ValueError("--train-seconds and --n-test choose espeak-ng speech; the real-speech "
+                             "performer (--speech real) has its fixed recordings: leave them out")
+        seqs = synth_sequences(args.corpus_dir, train_seconds=60.0 if args.train_seconds is None else args.train_seconds,
+                               n_test=3 if args.n_test is None else args.n_test,
                                seed=args.seed if args.corpus_seed is None else args.corpus_seed,
-                               progress=not args.quiet, train_on=args.train_on)
+                               progress=not args.quiet, train_on=args.train_on, speech=args.speech)
     seqs = with_landmark_noise(seqs, args.landmark_noise, seed=args.seed)
     try:
         n_comp = float(args.components) if "." in args.components else int(args.components)
@@ -735,8 +752,12 @@ def add_parser(sub) -> None:
     p.add_argument("--alphabet", choices=["arpabet", "espeak"], default="arpabet",
                    help="phone alphabet of the label files (default arpabet)")
     p.add_argument("--corpus-dir", metavar="DIR", help="where the synthetic performer is built/cached")
-    p.add_argument("--train-seconds", type=float, default=60.0, help="performer training speech (s)")
-    p.add_argument("--n-test", type=int, default=3, help="performer held-out espeak-ng sentences")
+    p.add_argument("--speech", choices=["espeak", "real"], default="espeak",
+                   help="what the performer speaks: espeak-ng sentences (default) or the real recordings "
+                        "that ship inside packages (two LibriVox readers to learn from, two CMU ARCTIC "
+                        "speakers held out; voicepuppet.synth.make_real_corpus)")
+    p.add_argument("--train-seconds", type=float, help="performer training speech (s; default 60, espeak only)")
+    p.add_argument("--n-test", type=int, help="performer held-out espeak-ng sentences (default 3, espeak only)")
     p.add_argument("--folds", type=int, default=10, help="k of k-fold cross-validation (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seeds the corpus, the folds and the models")
     p.add_argument("--corpus-seed", type=int, metavar="N",

@@ -446,7 +446,8 @@ class AlignmentError(ValueError):
     """The transcript could not be aligned to the audio (the message says where it failed)."""
 
 
-def align(audio, transcript: str | None = None, *, sample_rate: int | None = None) -> list[Segment]:
+def align(audio, transcript: str | None = None, *, sample_rate: int | None = None,
+          pronunciations: dict | None = None) -> list[Segment]:
     """Phone segments of speech by pocketsphinx (its bundled US English model).
 
     With a transcript: forced alignment of the words' dictionary pronunciations (10 ms
@@ -459,6 +460,10 @@ def align(audio, transcript: str | None = None, *, sample_rate: int | None = Non
     transcript : str, optional
         The words spoken (letters, apostrophes; punctuation is ignored).
     sample_rate : int, optional
+    pronunciations : dict, optional
+        Words the model's dictionary lacks (names, old spellings): ``{"churl": "CH ER L"}``,
+        ARPAbet phones without stress digits. A word the dictionary has gets this pronunciation
+        as an alternative.
 
     Returns
     -------
@@ -496,11 +501,20 @@ def align(audio, transcript: str | None = None, *, sample_rate: int | None = Non
             raise ValueError(f"transcript must be a non-empty string (or None to recognise phones), "
                              f"got {transcript!r}")
         words = _transcript_words(transcript)
-        decoder = Decoder(lm=None, loglevel="FATAL")
+        extra = _pronunciations(pronunciations)
+
+        def make_decoder(**beams):
+            dec = Decoder(lm=None, loglevel="FATAL", **beams)
+            for word, phones in extra.items():
+                dec.add_word(word, phones, True)
+            return dec
+
+        decoder = make_decoder()
         missing = [w for w in words if decoder.lookup_word(w) is None]
         if missing:
             raise AlignmentError(f"words not in the pronunciation dictionary: {', '.join(missing)}; "
-                                 f"spell them as dictionary words or add them")
+                                 f"spell them as dictionary words or give their phones (pronunciations=, "
+                                 f"or --pronounce WORD='PH PH ...' on the command line)")
 
         def word_pass(dec):
             dec.set_align_text(" ".join(words))
@@ -513,7 +527,7 @@ def align(audio, transcript: str | None = None, *, sample_rate: int | None = Non
         hyp, got = word_pass(decoder)
         if hyp is None or got != words:
             # default beams prune the only path on some voices (e.g. synthetic speech): retry wide
-            decoder = Decoder(lm=None, loglevel="FATAL", beam=1e-80, wbeam=1e-60, pbeam=1e-80)
+            decoder = make_decoder(beam=1e-80, wbeam=1e-60, pbeam=1e-80)
             hyp, got = word_pass(decoder)
         if hyp is None or got != words:
             done = 0
@@ -548,6 +562,25 @@ def align(audio, transcript: str | None = None, *, sample_rate: int | None = Non
     if duration > t + 1e-6:
         out.append(Segment(SIL, t, duration))
     return normalize(out)
+
+
+def _pronunciations(given) -> dict:
+    """``{word: "PH PH ..."}`` checked against pocketsphinx's US English phone set."""
+    if not given:
+        return {}
+    if not isinstance(given, dict):
+        raise ValueError(f"pronunciations must be a dict {{word: 'PH PH ...'}}, got {type(given).__name__}")
+    out = {}
+    for word, phones in given.items():
+        w = str(word).strip().lower()
+        ph = str(phones).split() if isinstance(phones, str) else [str(p) for p in phones]
+        bad = [p for p in ph if p.upper() not in PHONE_INDEX or p.upper() in (SIL, BREATH)]
+        if not re.fullmatch(r"[a-z0-9']+", w) or not ph or bad:
+            raise ValueError(f"pronunciation of {word!r}: expected a word (letters, digits, apostrophes) "
+                             f"and ARPAbet phones without stress digits from {' '.join(PHONES[2:])}; "
+                             f"got {phones!r}" + (f" ({', '.join(bad)} not phones)" if bad else ""))
+        out[w] = " ".join(p.upper() for p in ph)
+    return out
 
 
 def _transcript_words(text: str) -> list[str]:
@@ -608,7 +641,13 @@ def _run_align(args) -> int:
     low = out.lower()
     if not (low.endswith(".textgrid") or low.endswith(".lab")):
         raise ValueError(f"the output must be a .TextGrid or a .lab (HTS) file, got {out!r}")
-    segs = align(args.audio, transcript)
+    pron = {}
+    for item in args.pronounce or []:
+        word, sep, phones = item.partition("=")
+        if not sep:
+            raise ValueError(f"--pronounce takes WORD='PH PH ...', got {item!r}")
+        pron[word] = phones
+    segs = align(args.audio, transcript, pronunciations=pron)
     if low.endswith(".lab"):
         write_hts(segs, out)
     else:
@@ -627,6 +666,8 @@ def add_parser(sub) -> None:
     p.add_argument("audio", help="sound file or video with sound")
     p.add_argument("-t", "--transcript", help="the words spoken")
     p.add_argument("--transcript-file", metavar="FILE", help="read the words from a text file")
+    p.add_argument("--pronounce", action="append", metavar="WORD='PH PH ...'",
+                   help="phones (ARPAbet) of a word the dictionary lacks, e.g. churl='CH ER L'; repeatable")
     p.add_argument("-o", "--output", required=True, metavar="OUT.TextGrid|OUT.lab",
                    help="output: .TextGrid (Praat) or .lab (HTS, 100 ns units)")
     p.set_defaults(func=_run_align)

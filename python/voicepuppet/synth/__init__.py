@@ -33,7 +33,7 @@ from .speech import (SAMPLE_RATE, VOICES, Phone, Utterance, arctic_utterance, co
                      espeak_available, espeak_version, read_hts_labels, speak)
 from .video import FacePhoto, FaceWarper, drawn_face, face_photo, render_video
 
-__all__ = ["make_corpus", "make_clip", "Corpus", "Clip", "speak", "articulate", "render_video",
+__all__ = ["make_corpus", "make_real_corpus", "REAL_TRAIN", "REAL_TEST", "make_clip", "Corpus", "Clip", "speak", "articulate", "render_video",
            "face_photo", "Utterance", "Phone", "Articulation", "FacePhoto", "SENTENCES",
            "ARTICULATORS", "PARAM_NAMES", "phone_class", "lip_gap", "arctic_utterance",
            "espeak_available", "SAMPLE_RATE", "VOICES", "deform", "apply_pose",
@@ -256,6 +256,52 @@ def _plan(train_seconds: float, n_test: int, seed: int):
     return train, test, rng
 
 
+def _corpus_dir(out_dir) -> str:
+    out_dir = os.fspath(out_dir)
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise ValueError(f"out_dir {out_dir!r} exists and is not a folder; choose a folder path")
+    os.makedirs(out_dir, exist_ok=True)
+    return out_dir
+
+
+def _cached_corpus(out_dir: str, key_src: dict, fps: float, size: tuple, seed: int):
+    """The corpus in ``out_dir`` if its manifest has the key of ``key_src`` and its files exist."""
+    key = hashlib.sha256(json.dumps(key_src, sort_keys=True).encode()).hexdigest()[:16]
+    manifest = os.path.join(out_dir, "corpus.json")
+    if not os.path.exists(manifest):
+        return None
+    try:
+        with open(manifest) as fh:
+            m = json.load(fh)
+        if m.get("key") == key and all(os.path.exists(os.path.join(out_dir, s + ext))
+                                       for s in [m["train"]] + m["test"]
+                                       for ext in (".mp4", ".wav", ".npz")):
+            return Corpus(out_dir, load_clip(os.path.join(out_dir, m["train"])),
+                          [load_clip(os.path.join(out_dir, s)) for s in m["test"]], float(fps),
+                          size, int(seed), m["photo"])
+    except (OSError, ValueError, KeyError):
+        pass
+    return None
+
+
+def _render_corpus(out_dir, key_src, train_utt, tests, photo, rng, fps, size, seed, progress) -> Corpus:
+    """Render the training utterance and the test utterances as clips, then the manifest."""
+    key = hashlib.sha256(json.dumps(key_src, sort_keys=True).encode()).hexdigest()[:16]
+    train = make_clip(train_utt, photo, os.path.join(out_dir, "train"), fps=fps,
+                      seed=int(rng.integers(2**31)), progress=progress)
+    test_clips = []
+    for i, u in enumerate(tests):
+        test_clips.append(make_clip(u, photo, os.path.join(out_dir, f"test_{i:02d}"), fps=fps,
+                                    seed=int(rng.integers(2**31)), progress=progress))
+    m = dict(key=key, params=key_src, train="train", test=[f"test_{i:02d}" for i in range(len(tests))],
+             photo=photo.name)
+    fd, tmp = tempfile.mkstemp(suffix=".json", dir=out_dir)
+    with os.fdopen(fd, "w") as fh:
+        json.dump(m, fh, indent=1)
+    publish(tmp, os.path.join(out_dir, "corpus.json"))
+    return Corpus(out_dir, train, test_clips, float(fps), size, int(seed), photo.name)
+
+
 def make_corpus(out_dir, train_seconds: float = 60.0, n_test: int = 3, seed: int = 0,
                 fps: float = 30000 / 1001, size: tuple = (320, 320), *, real_test: bool = True,
                 progress: bool = True) -> Corpus:
@@ -288,30 +334,16 @@ def make_corpus(out_dir, train_seconds: float = 60.0, n_test: int = 3, seed: int
 
     _check_params(train_seconds, n_test, seed, fps, size)
     size = (int(size[0]), int(size[1]))
-    out_dir = os.fspath(out_dir)
-    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise ValueError(f"out_dir {out_dir!r} exists and is not a folder; choose a folder path")
-    os.makedirs(out_dir, exist_ok=True)
+    out_dir = _corpus_dir(out_dir)
     if not espeak_available():
         raise RuntimeError("the synthetic performer needs espeak-ng to speak: install it "
                            "(Debian/Ubuntu: apt-get install espeak-ng)")
     key_src = dict(version=SYNTH_VERSION, train_seconds=float(train_seconds), n_test=int(n_test),
                    seed=int(seed), fps=float(fps), size=list(size), real_test=bool(real_test),
                    espeak=espeak_version())
-    key = hashlib.sha256(json.dumps(key_src, sort_keys=True).encode()).hexdigest()[:16]
-    manifest = os.path.join(out_dir, "corpus.json")
-    if os.path.exists(manifest):
-        try:
-            with open(manifest) as fh:
-                m = json.load(fh)
-            if m.get("key") == key and all(os.path.exists(os.path.join(out_dir, s + ext))
-                                           for s in [m["train"]] + m["test"]
-                                           for ext in (".mp4", ".wav", ".npz")):
-                return Corpus(out_dir, load_clip(os.path.join(out_dir, m["train"])),
-                              [load_clip(os.path.join(out_dir, s)) for s in m["test"]], float(fps),
-                              size, int(seed), m["photo"])
-        except (OSError, ValueError, KeyError):
-            pass
+    cached = _cached_corpus(out_dir, key_src, fps, size, seed)
+    if cached is not None:
+        return cached
     photo = face_photo(size)
     train_plan, test_plan, rng = _plan(train_seconds, n_test, seed)
     utts = []
@@ -351,16 +383,58 @@ def make_corpus(out_dir, train_seconds: float = 60.0, n_test: int = 3, seed: int
         except (RuntimeError, OSError) as e:
             warnings.warn(f"real test utterance (CMU ARCTIC a0009) skipped: {e}", RuntimeWarning,
                           stacklevel=2)
-    train = make_clip(train_utt, photo, os.path.join(out_dir, "train"), fps=fps,
-                      seed=int(rng.integers(2**31)), progress=progress)
-    test_clips = []
-    for i, u in enumerate(tests):
-        test_clips.append(make_clip(u, photo, os.path.join(out_dir, f"test_{i:02d}"), fps=fps,
-                                    seed=int(rng.integers(2**31)), progress=progress))
-    m = dict(key=key, params=key_src, train="train", test=[f"test_{i:02d}" for i in range(len(tests))],
-             photo=photo.name)
-    fd, tmp = tempfile.mkstemp(suffix=".json", dir=out_dir)
-    with os.fdopen(fd, "w") as fh:
-        json.dump(m, fh, indent=1)
-    publish(tmp, manifest)
-    return Corpus(out_dir, train, test_clips, float(fps), size, int(seed), photo.name)
+    return _render_corpus(out_dir, key_src, train_utt, tests, photo, rng, fps, size, seed, progress)
+
+
+#: The real recordings the performer learns from (two LibriVox readers, 78 s) and those it is
+#: tested on (two CMU ARCTIC speakers it never heard), see :func:`make_real_corpus`.
+REAL_TRAIN = ("sonnet_1", "librivox_0870", "librivox_0880", "librivox_0890", "librivox_0920",
+              "librivox_0930")
+REAL_TEST = ("arctic_a0007", "arctic_a0009")
+
+
+def make_real_corpus(out_dir, seed: int = 0, fps: float = 30000 / 1001, size: tuple = (320, 320), *,
+                     progress: bool = True) -> Corpus:
+    """The performer speaking real recordings instead of espeak-ng, cached.
+
+    The recordings are those that ship inside packages
+    (:func:`voicepuppet.audio.samples.real_recordings`), their phones from pocketsphinx's forced
+    alignment of their transcripts (CMU ARCTIC a0009: its hand-checked labels). Training clip
+    (:data:`REAL_TRAIN`): Shakespeare's Sonnet 1 read by a female LibriVox reader (53 s) and
+    five utterances of *Sense and Sensibility* by a male one (25 s), with pauses of 0.25-0.6 s:
+    80 s. Test clips (:data:`REAL_TEST`): CMU ARCTIC a0007 (male) and a0009 (female), speakers
+    absent from training. Face, articulation and rendering as :func:`make_corpus`.
+
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+        Folder for the clips and ``corpus.json``; a second call returns the cached files.
+    seed : int
+        Seeds the pauses, blinks and head motion.
+    fps, size
+        As in :func:`make_corpus`.
+
+    Raises
+    ------
+    RuntimeError
+        A recording's source archive cannot be fetched (offline and not cached).
+    voicepuppet.phonemes.AlignmentError
+        A transcript does not align with its recording.
+    """
+    from ..audio import samples
+    from .speech import recording_utterance
+
+    _check_params(60.0, 0, seed, fps, size)
+    size = (int(size[0]), int(size[1]))
+    out_dir = _corpus_dir(out_dir)
+    key_src = dict(version=SYNTH_VERSION, speech="real", train=list(REAL_TRAIN), test=list(REAL_TEST),
+                   seed=int(seed), fps=float(fps), size=list(size))
+    cached = _cached_corpus(out_dir, key_src, fps, size, seed)
+    if cached is not None:
+        return cached
+    photo = face_photo(size)
+    rng = np.random.default_rng(seed)
+    utts = [recording_utterance(r) for r in samples.real_recordings(REAL_TRAIN + REAL_TEST)]
+    train, tests = utts[:len(REAL_TRAIN)], utts[len(REAL_TRAIN):]
+    train_utt = concatenate(train, [float(rng.uniform(0.25, 0.6)) for _ in train])
+    return _render_corpus(out_dir, key_src, train_utt, tests, photo, rng, fps, size, seed, progress)

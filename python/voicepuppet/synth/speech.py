@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["SAMPLE_RATE", "Phone", "Utterance", "speak", "espeak_available", "espeak_version",
-           "arctic_utterance", "read_hts_labels", "concatenate", "VOICES"]
+           "arctic_utterance", "recording_utterance", "read_hts_labels", "concatenate", "VOICES"]
 
 #: sample rate of every utterance the performer speaks (Hz)
 SAMPLE_RATE = 16000
@@ -200,21 +200,34 @@ def read_hts_labels(path) -> list[tuple[float, float, str]]:
     return rows
 
 
+def recording_utterance(recording, sample_rate: int = SAMPLE_RATE) -> Utterance:
+    """A real recording (:class:`voicepuppet.audio.samples.Recording`) as an utterance: its
+    phones from its hand-checked labels if it has them, else from pocketsphinx's forced
+    alignment of its transcript (:func:`voicepuppet.phonemes.align`, 10 ms)."""
+    import soundfile
+
+    from ..phonemes import align
+
+    x, sr = soundfile.read(recording.wav, dtype="float64", always_2d=True)
+    x = _resample(x.mean(axis=1), sr, int(sample_rate)).astype(np.float32)
+    duration = len(x) / float(sample_rate)
+    if recording.labels:
+        rows = [(s, p) for s, _, p in read_hts_labels(recording.labels)]
+    else:
+        rows = [(sg.start, sg.label.lower()) for sg in align(x, recording.text, sample_rate=int(sample_rate),
+                                                             pronunciations=recording.pronunciations)]
+    phones = _contiguous([(s, "_" if p in ("sil", "pau", "br") else p) for s, p in rows], duration)
+    return Utterance(x, int(sample_rate), phones, recording.text, f"{recording.name} ({recording.speaker})")
+
+
 def arctic_utterance(sample_rate: int = SAMPLE_RATE) -> Utterance:
     """CMU ARCTIC a0009 (a real US English speaker) with its hand-checked phone labels,
     fetched and cached by :func:`voicepuppet.audio.samples.arctic_a0009`."""
-    import soundfile
-
     from ..audio import samples
 
-    wav, lab = samples.arctic_a0009(with_labels=True)
-    x, sr = soundfile.read(wav, dtype="float64", always_2d=True)
-    x = _resample(x.mean(axis=1), sr, int(sample_rate)).astype(np.float32)
-    duration = len(x) / float(sample_rate)
-    rows = read_hts_labels(lab)
-    phones = _contiguous([(s, "_" if p in ("sil", "pau") else p) for s, _, p in rows], duration)
-    return Utterance(x, int(sample_rate), phones,
-                     "He turned sharply, and faced Gregson across the table.", "CMU ARCTIC a0009 (bdl)")
+    u = recording_utterance(samples.real_recordings(["arctic_a0009"])[0], sample_rate)
+    u.source = "CMU ARCTIC a0009"
+    return u
 
 
 def concatenate(utterances: list[Utterance], pauses: list[float]) -> Utterance:
