@@ -85,7 +85,6 @@ def test_words_the_dictionary_lacks_get_their_phones(recordings, tmp_path, capsy
     assert "--pronounce takes WORD='PH PH ...'" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(not synth.espeak_available(), reason="the performer's photo pipeline is tested with espeak")
 def test_the_performer_speaks_the_real_recordings(tmp_path):
     """Small frames and a low rate to keep it quick: the training clip is the two LibriVox readers
     with pauses, the test clips the two ARCTIC speakers; the second call reads the cache."""

@@ -33,8 +33,8 @@ from .speech import (SAMPLE_RATE, VOICES, Phone, Utterance, arctic_utterance, co
                      espeak_available, espeak_version, read_hts_labels, speak)
 from .video import FacePhoto, FaceWarper, drawn_face, face_photo, render_video
 
-__all__ = ["make_corpus", "make_real_corpus", "REAL_TRAIN", "REAL_TEST", "make_clip", "Corpus", "Clip", "speak", "articulate", "render_video",
-           "face_photo", "Utterance", "Phone", "Articulation", "FacePhoto", "SENTENCES",
+__all__ = ["make_corpus", "make_real_corpus", "REAL_TRAIN", "REAL_TEST", "make_clip", "Corpus", "Clip",
+           "speak", "articulate", "render_video", "face_photo", "Utterance", "Phone", "Articulation", "FacePhoto", "SENTENCES",
            "ARTICULATORS", "PARAM_NAMES", "phone_class", "lip_gap", "arctic_utterance",
            "espeak_available", "SAMPLE_RATE", "VOICES", "deform", "apply_pose",
            "articulator_tracks", "concatenate", "read_hts_labels", "FaceWarper", "load_clip",
@@ -264,9 +264,13 @@ def _corpus_dir(out_dir) -> str:
     return out_dir
 
 
+def _corpus_key(key_src: dict) -> str:
+    return hashlib.sha256(json.dumps(key_src, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def _cached_corpus(out_dir: str, key_src: dict, fps: float, size: tuple, seed: int):
     """The corpus in ``out_dir`` if its manifest has the key of ``key_src`` and its files exist."""
-    key = hashlib.sha256(json.dumps(key_src, sort_keys=True).encode()).hexdigest()[:16]
+    key = _corpus_key(key_src)
     manifest = os.path.join(out_dir, "corpus.json")
     if not os.path.exists(manifest):
         return None
@@ -286,7 +290,7 @@ def _cached_corpus(out_dir: str, key_src: dict, fps: float, size: tuple, seed: i
 
 def _render_corpus(out_dir, key_src, train_utt, tests, photo, rng, fps, size, seed, progress) -> Corpus:
     """Render the training utterance and the test utterances as clips, then the manifest."""
-    key = hashlib.sha256(json.dumps(key_src, sort_keys=True).encode()).hexdigest()[:16]
+    key = _corpus_key(key_src)
     train = make_clip(train_utt, photo, os.path.join(out_dir, "train"), fps=fps,
                       seed=int(rng.integers(2**31)), progress=progress)
     test_clips = []
