@@ -25,7 +25,7 @@ __all__ = [
     "TrackResult", "track_frames", "track_video", "delaunay_edges", "load_init_points",
     "auto_init", "save_landmarks", "load_landmarks", "lip_patch_sides", "DLIB_MODEL_PATHS",
     "face_size", "working_scale_factor", "points_to_working", "points_to_full",
-    "WORKING_IOD", "WORKING_RMS_RADIUS",
+    "LARGE_FACE_IOD", "WORKING_IOD", "LARGE_FACE_RMS_RADIUS", "WORKING_RMS_RADIUS",
 ]
 
 # Where Debian's libdlib-data puts dlib's 68-point model (override with VOICEPUPPET_DLIB_MODEL).
@@ -63,15 +63,20 @@ MOUTH_CORNERS = (48, 54, 60, 64)
 OUTER_MOUTH_CORNERS = (48, 54)
 OUTER_UPPER_LIP = (49, 50, 51, 52, 53)
 
-# The working scale: a first-frame face larger than these is tracked on frames resized down to
-# them (one factor for the whole video; the tracker's 13x13 patches, 3 levels and pixel floors
-# were tuned on the synthetic performer, whose outer eye corners are 123 px apart). WORKING_IOD:
-# the distance between the outer eye corners (36, 45) of a 68-point face, the performer's plus a
-# 4 % margin so that a detector's init on it stays at full resolution. WORKING_RMS_RADIUS: for
-# other layouts, the RMS distance of the init points from their centroid, the performer's 68
-# points' ratio to their IOD (78.25 / 123.29 = 0.635) times WORKING_IOD; a layout that covers
-# less of the face than the 68 points gives a smaller radius, so it is resized less (never more).
-WORKING_IOD = 128.0
+# The working scale: a first-frame face larger than LARGE_FACE_IOD is tracked on frames resized
+# down (one factor for the whole video) so that it is WORKING_IOD in size; the tracker's 13x13
+# patches, 3 levels and pixel floors were tuned on the synthetic performer, whose outer eye
+# corners are 123 px apart. Sizes: the distance between the outer eye corners (36, 45) of a
+# 68-point face. LARGE_FACE_IOD is the performer's plus a 4 % margin, so that it (and a
+# detector's init on it) stays at full resolution, bit for bit as before; WORKING_IOD = 112
+# tracked the performer's clips planted 1.5-2.8x larger better than 128 (lips, rest of the face
+# and lost points on 11-12 of 12 clips) and than 96 (lips; docs/tracking.md, "Large faces").
+# Other layouts: the RMS distance of the init points from their centroid, the performer's 68
+# points' ratio to their IOD (78.25 / 123.29 = 0.635) times those; a layout that covers less of
+# the face than the 68 points gives a smaller radius, so it is resized less (never more).
+LARGE_FACE_IOD = 128.0
+WORKING_IOD = 112.0
+LARGE_FACE_RMS_RADIUS = 0.635 * LARGE_FACE_IOD
 WORKING_RMS_RADIUS = 0.635 * WORKING_IOD
 
 _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
@@ -240,12 +245,13 @@ def _soften_opening(mesh, edges: np.ndarray, floor: float):
                             np.ascontiguousarray(prec.reshape(-1, 4)), np.asarray(mesh.offset_mean))
 
 
-def face_size(points: np.ndarray) -> tuple[float, float]:
-    """The size of the face marked by first-frame points, and the size it is tracked at.
+def face_size(points: np.ndarray) -> tuple[float, float, float]:
+    """The size of the face marked by first-frame points, the size above which it is tracked at
+    a working scale, and the size it is then tracked at.
 
     A 68-point (iBUG 300-W) face: the distance between the outer eye corners (36, 45), against
-    ``WORKING_IOD``; any other layout: the RMS distance of the points from their centroid,
-    against ``WORKING_RMS_RADIUS``.
+    ``LARGE_FACE_IOD`` and ``WORKING_IOD``; any other layout: the RMS distance of the points
+    from their centroid, against ``LARGE_FACE_RMS_RADIUS`` and ``WORKING_RMS_RADIUS``.
 
     Parameters
     ----------
@@ -253,13 +259,13 @@ def face_size(points: np.ndarray) -> tuple[float, float]:
 
     Returns
     -------
-    (size, reference) in pixels
+    (size, large, working) in pixels
     """
     p = _check_points(points, "points")
     if len(p) == 68:
-        return float(np.linalg.norm(p[45] - p[36])), WORKING_IOD
+        return float(np.linalg.norm(p[45] - p[36])), LARGE_FACE_IOD, WORKING_IOD
     c = p - p.mean(axis=0)
-    return float(np.sqrt(np.mean(np.sum(c * c, axis=1)))), WORKING_RMS_RADIUS
+    return float(np.sqrt(np.mean(np.sum(c * c, axis=1)))), LARGE_FACE_RMS_RADIUS, WORKING_RMS_RADIUS
 
 
 def working_scale_factor(points: np.ndarray, working_scale="auto") -> float:
@@ -268,10 +274,11 @@ def working_scale_factor(points: np.ndarray, working_scale="auto") -> float:
     Parameters
     ----------
     points : (P, 2) first-frame positions (x, y) in full-resolution pixels
-    working_scale : ``"auto"`` (default): ``reference / size`` of :func:`face_size` when the
-        face is larger than the reference, else 1 (faces at or below it are tracked at full
-        resolution, exactly as without a working scale); or a number in (0, 1]: that factor
-        (1: always full resolution)
+    working_scale : ``"auto"`` (default): ``working / size`` of :func:`face_size` when the
+        face is larger than ``large`` (a 68-point face: outer eye corners more than 128 px
+        apart, resized so that they are 112 px apart), else 1 (faces at or below it are tracked
+        at full resolution, exactly as without a working scale); or a number in (0, 1]: that
+        factor (1: always full resolution)
 
     Returns
     -------
@@ -281,8 +288,8 @@ def working_scale_factor(points: np.ndarray, working_scale="auto") -> float:
         if working_scale != "auto":
             raise ValueError(f"working_scale must be 'auto' or a number in (0, 1] (the factor the frames "
                              f"are resized by; 1 tracks at full resolution), got {working_scale!r}")
-        size, reference = face_size(points)
-        return reference / size if size > reference else 1.0
+        size, large, working = face_size(points)
+        return working / size if size > large else 1.0
     if isinstance(working_scale, (bool, np.bool_)) or not isinstance(working_scale, (int, float, np.integer,
                                                                                      np.floating)):
         raise ValueError(f"working_scale must be 'auto' or a number in (0, 1], got {working_scale!r} "
@@ -473,10 +480,10 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         re-estimated from the tracked distances (mean and variance), as in the paper
     progress : show a tqdm progress bar
     working_scale : ``"auto"`` (default) or a factor in (0, 1]: a face larger than the one the
-        tracker was tuned on (outer eye corners more than ``WORKING_IOD`` = 128 px apart; other
-        layouts: see :func:`face_size`) is tracked on frames resized down by one factor for the
-        whole sequence (area averaging), so that it is that size; faces at or below it are
-        tracked at full resolution. The points are returned in full-resolution pixels and the
+        tracker was tuned on (outer eye corners more than ``LARGE_FACE_IOD`` = 128 px apart;
+        other layouts: see :func:`face_size`) is tracked on frames resized down by one factor
+        for the whole sequence (area averaging), so that they are ``WORKING_IOD`` = 112 px
+        apart; faces at or below 128 px are tracked at full resolution, as before. The points are returned in full-resolution pixels and the
         factor as ``TrackResult.working_scale``; pixel-valued options (``patch_radius``,
         ``search_radius``, ``min_sigma``, ...) are pixels of the resized frames.
         See :func:`working_scale_factor`
@@ -762,10 +769,11 @@ def add_parser(sub) -> None:
     p.add_argument("--patch-radius", type=int, default=6, help="SSD patch radius in pixels (default 6: 13x13)")
     p.add_argument("--levels", type=int, default=3, help="image pyramid levels (default 3)")
     p.add_argument("--working-scale", default="auto", metavar="auto|F",
-                   help="track a large face on frames resized down by F in (0, 1]; auto (default): faces "
-                        f"with outer eye corners more than {WORKING_IOD:g} px apart (other layouts: an RMS "
-                        f"radius of the init points above {WORKING_RMS_RADIUS:g} px) are resized to that "
-                        "size, smaller ones tracked at full resolution. Points are written in "
-                        "full-resolution pixels; --patch-radius is in pixels of the resized frames")
+                   help="track a large face on frames resized down by F in (0, 1]; auto (default): a face "
+                        f"with outer eye corners more than {LARGE_FACE_IOD:g} px apart is resized so that they "
+                        f"are {WORKING_IOD:g} px apart (other layouts: the RMS radius of the init points, "
+                        f"{LARGE_FACE_RMS_RADIUS:.1f} and {WORKING_RMS_RADIUS:.1f} px), smaller faces are tracked "
+                        "at full resolution. Points are written in full-resolution pixels; --patch-radius is "
+                        "in pixels of the resized frames")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cli)
