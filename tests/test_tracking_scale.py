@@ -19,6 +19,15 @@ pytest.importorskip("skimage", reason="pip install scikit-image")
 from voicepuppet.bench.tracker import ASTRONAUT_POINTS, planted_face_sequence  # noqa: E402
 
 
+def _write_avi(path, frames: np.ndarray):
+    """(T, H, W) uint8 grey frames as an MJPG .avi at 30 fps; returns ``path``."""
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, frames.shape[2:0:-1], False)
+    for g in frames:
+        w.write(g)
+    w.release()
+    return path
+
+
 def _blob_centroid(img: np.ndarray) -> np.ndarray:
     w = img.astype(np.float64)
     yy, xx = np.mgrid[0:img.shape[0], 0:img.shape[1]]
@@ -104,12 +113,7 @@ def test_bad_working_scale_is_refused_clearly(bad):
 def test_cli_refuses_a_bad_working_scale(tmp_path, capsys):
     from voicepuppet.cli import main
 
-    frames, _, _ = planted_face_sequence(3, seed=0)
-    path = tmp_path / "clip.avi"
-    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, frames.shape[2:0:-1])
-    for f in frames:
-        w.write(cv2.cvtColor(f, cv2.COLOR_GRAY2BGR))
-    w.release()
+    path = _write_avi(tmp_path / "clip.avi", planted_face_sequence(3, seed=0)[0])
     init = tmp_path / "init.json"
     init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist()}))
     for bad in ("big", "2", "0"):
@@ -150,12 +154,7 @@ def test_tracking_at_a_working_scale_is_the_tracker_on_resized_frames():
 
 
 def test_track_video_caches_the_resized_frames(tmp_path, monkeypatch):
-    frames, _, _ = planted_face_sequence(12, seed=3)
-    path = tmp_path / "clip.avi"
-    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, frames.shape[2:0:-1])
-    for g in frames:
-        w.write(cv2.cvtColor(g, cv2.COLOR_GRAY2BGR))
-    w.release()
+    path = _write_avi(tmp_path / "clip.avi", planted_face_sequence(12, seed=3)[0])
     decoded, _ = video.read_grey_frames(path)
     want = tracking.track_frames(decoded, ASTRONAUT_POINTS, fps=30.0, working_scale=0.5)
     # The cache holds resized frames: 12 frames of 320x240 fit in 12 * 320 * 240 bytes (the
