@@ -125,6 +125,24 @@ def test_cli_refuses_a_bad_working_scale(tmp_path, capsys):
     assert not (tmp_path / "out.npz").exists()
 
 
+
+def test_cli_tracks_at_a_working_scale_and_draws_at_full_resolution(tmp_path, capsys):
+    from voicepuppet.cli import main
+
+    frames = planted_face_sequence(8, seed=4)[0]
+    path = _write_avi(tmp_path / "clip.avi", frames)
+    init = tmp_path / "init.json"
+    init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist()}))
+    out, overlay = tmp_path / "out.npz", tmp_path / "overlay.avi"
+    assert main(["track", str(path), "-o", str(out), "--init", str(init), "--working-scale", "0.5",
+                 "--overlay", str(overlay), "--quiet"]) == 0
+    assert "resized by 0.5000" in capsys.readouterr().out
+    decoded, _ = video.read_grey_frames(path)
+    want = tracking.track_frames(decoded, ASTRONAUT_POINTS, fps=30.0, working_scale=0.5)
+    np.testing.assert_allclose(tracking.load_landmarks(out)["points"], want.points, rtol=0, atol=1e-9)
+    drawn, _ = video.read_grey_frames(overlay)
+    assert drawn.shape == decoded.shape  # the overlay is drawn on the full-resolution frames
+
 def test_a_face_at_or_below_the_reference_is_tracked_exactly_as_before():
     frames, _, _ = planted_face_sequence(30, seed=1)
     auto = tracking.track_frames(frames, ASTRONAUT_POINTS)
