@@ -1,16 +1,17 @@
 """The performer's clips planted in HD frames, tracked at full resolution and at the working
-scale (docs/tracking.md, "A large face: tracking at a working scale"). Run as a script:
+scale (docs/tracking.md, "Large faces: the working scale"). Run as a script:
 
     PYTHONPATH=python python3 tests/tracking_scale_hd.py make DIR CLIP_DIR [CLIP_DIR ...]
-    PYTHONPATH=python python3 tests/tracking_scale_hd.py track DIR VIDEO WORKING_SCALE OUT.json
+    PYTHONPATH=python python3 tests/tracking_scale_hd.py track VIDEO WORKING_SCALE OUT.json
 
-``make`` writes, for each performer clip directory (``train.mp4`` + ``train.npz``), a copy of the
-clip and the clip upscaled 1.5x, 2x and 2.8125x (bicubic), with and without temporal noise (ffmpeg ``noise=alls=6:
-allf=t``), padded into 1920x1080 grey (H.264, crf 20), and the truth in HD pixels ((p + 0.5) s
-- 0.5 + pad); ``track`` tracks one of them from its true first-frame points with whichever
-``voicepuppet`` is imported (``WORKING_SCALE``: ``auto``, a factor, or ``none`` for a copy without
-the option) and writes the errors in pixels of the 320x320 clip (lips 48-67, rest 0-47, eyes
-36-47), the lost fraction, the factor and the wall time of ``track_video``.
+``make`` writes, for each performer clip directory (``train.mp4`` + ``train.npz``), a copy of
+the clip and the clip upscaled 1.5x, 2x and 2.8125x (bicubic), with and without temporal noise
+(ffmpeg ``noise=alls=6:allf=t``), padded into 1920x1080 grey (H.264, crf 20), and the truth in
+HD pixels ((p + 0.5) s - 0.5 + pad); ``track`` tracks one of them from its true first-frame
+points with whichever ``voicepuppet`` is imported (``WORKING_SCALE``: ``auto``, a factor, or
+``none`` for a copy without the option) and writes the errors in pixels of the 320x320 clip
+(lips 48-67, rest 0-47, eyes 36-47), the lost fraction, the factor and the wall time of
+``track_video``, and the points beside it (``OUT.points.npy``).
 """
 
 from __future__ import annotations
@@ -72,4 +73,4 @@ if __name__ == "__main__":
     if sys.argv[1] == "make":
         make(Path(sys.argv[2]), [Path(a) for a in sys.argv[3:]])
     else:
-        track(Path(sys.argv[3]), sys.argv[4], Path(sys.argv[5]))
+        track(Path(sys.argv[2]), sys.argv[3], Path(sys.argv[4]))
