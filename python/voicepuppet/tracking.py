@@ -24,6 +24,8 @@ from voicepuppet import _core
 __all__ = [
     "TrackResult", "track_frames", "track_video", "delaunay_edges", "load_init_points",
     "auto_init", "save_landmarks", "load_landmarks", "lip_patch_sides", "eye_corner_sides", "DLIB_MODEL_PATHS",
+    "face_size", "working_scale_factor", "points_to_working", "points_to_full",
+    "LARGE_FACE_IOD", "WORKING_IOD", "LARGE_FACE_RMS_RADIUS", "WORKING_RMS_RADIUS",
 ]
 
 # Where Debian's libdlib-data puts dlib's 68-point model (override with VOICEPUPPET_DLIB_MODEL).
@@ -68,6 +70,22 @@ OUTER_UPPER_LIP = (49, 50, 51, 52, 53)
 # first-frame half with the lids shut 0.98-0.99 at the truth, whole patches 0.51-0.76).
 EYE_CORNERS = (36, 39, 42, 45)
 
+# The working scale: a first-frame face larger than LARGE_FACE_IOD is tracked on frames resized
+# down (one factor for the whole video) so that it is WORKING_IOD in size; the tracker's 13x13
+# patches, 3 levels and pixel floors were tuned on the synthetic performer, whose outer eye
+# corners are 123 px apart. Sizes: the distance between the outer eye corners (36, 45) of a
+# 68-point face. LARGE_FACE_IOD is the performer's plus a 4 % margin, so that it (and a
+# detector's init on it) stays at full resolution, bit for bit as before; WORKING_IOD = 112
+# tracked the performer's clips planted 1.5-2.8x larger better than 128 (lips, rest of the face
+# and lost points on 11-12 of 12 clips) and than 96 (lips; docs/tracking.md, "Large faces").
+# Other layouts: the RMS distance of the init points from their centroid, the performer's 68
+# points' ratio to their IOD (78.25 / 123.29 = 0.635) times those; a layout that covers less of
+# the face than the 68 points gives a smaller radius, so it is resized less (never more).
+LARGE_FACE_IOD = 128.0
+WORKING_IOD = 112.0
+LARGE_FACE_RMS_RADIUS = 0.635 * LARGE_FACE_IOD
+WORKING_RMS_RADIUS = 0.635 * WORKING_IOD
+
 _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
                  "damping", "patch_sides", "search_radius", "frame_points", "spring_outlier", "outlier_edges",
@@ -91,6 +109,9 @@ class TrackResult:
         re-estimated), ``mean_point_change`` (px, mean displacement from the previous pass),
         ``lost_fraction``
     names : optional (P,) landmark names
+    working_scale : the factor f the frames were resized by for tracking (1: full resolution;
+        see :func:`working_scale_factor`); points, rest lengths (px) and stiffnesses (px^-2)
+        are reported in full-resolution pixels
     """
 
     points: np.ndarray
@@ -102,6 +123,7 @@ class TrackResult:
     stiffness: np.ndarray
     passes: list = field(default_factory=list)
     names: list | None = None
+    working_scale: float = 1.0
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:
@@ -261,6 +283,82 @@ def _soften_opening(mesh, edges: np.ndarray, floor: float):
                             np.ascontiguousarray(prec.reshape(-1, 4)), np.asarray(mesh.offset_mean))
 
 
+def face_size(points: np.ndarray) -> tuple[float, float, float]:
+    """The size of the face marked by first-frame points, the size above which it is tracked at
+    a working scale, and the size it is then tracked at.
+
+    A 68-point (iBUG 300-W) face: the distance between the outer eye corners (36, 45), against
+    ``LARGE_FACE_IOD`` and ``WORKING_IOD``; any other layout: the RMS distance of the points
+    from their centroid, against ``LARGE_FACE_RMS_RADIUS`` and ``WORKING_RMS_RADIUS``.
+
+    Parameters
+    ----------
+    points : (P, 2) first-frame positions (x, y), P >= 3
+
+    Returns
+    -------
+    (size, large, working) in pixels
+    """
+    p = _check_points(points, "points")
+    if len(p) == 68:
+        return float(np.linalg.norm(p[45] - p[36])), LARGE_FACE_IOD, WORKING_IOD
+    c = p - p.mean(axis=0)
+    return float(np.sqrt(np.mean(np.sum(c * c, axis=1)))), LARGE_FACE_RMS_RADIUS, WORKING_RMS_RADIUS
+
+
+def working_scale_factor(points: np.ndarray, working_scale="auto") -> float:
+    """The factor f by which the frames are resized for tracking.
+
+    Parameters
+    ----------
+    points : (P, 2) first-frame positions (x, y) in full-resolution pixels
+    working_scale : ``"auto"`` (default): ``working / size`` of :func:`face_size` when the
+        face is larger than ``large`` (a 68-point face: outer eye corners more than 128 px
+        apart, resized so that they are 112 px apart), else 1 (faces at or below it are tracked
+        at full resolution, exactly as without a working scale); or a number in (0, 1]: that
+        factor (1: always full resolution)
+
+    Returns
+    -------
+    float in (0, 1]
+    """
+    if isinstance(working_scale, str):
+        if working_scale != "auto":
+            raise ValueError(f"working_scale must be 'auto' or a number in (0, 1] (the factor the frames "
+                             f"are resized by; 1 tracks at full resolution), got {working_scale!r}")
+        size, large, working = face_size(points)
+        return working / size if size > large else 1.0
+    if isinstance(working_scale, (bool, np.bool_)) or not isinstance(working_scale, (int, float, np.integer,
+                                                                                     np.floating)):
+        raise ValueError(f"working_scale must be 'auto' or a number in (0, 1], got {working_scale!r} "
+                         f"of type {type(working_scale).__name__}")
+    f = float(working_scale)
+    if not 0.0 < f <= 1.0:
+        raise ValueError(f"working_scale must be 'auto' or a number in (0, 1] (a downscale factor; faces "
+                         f"are not upscaled), got {working_scale!r}")
+    return f
+
+
+def points_to_working(points: np.ndarray, f: float) -> np.ndarray:
+    """Full-resolution pixel positions (..., 2) in frames resized by ``f`` (pixel centres at
+    integers in both): ``(x + 0.5) * f - 0.5``."""
+    return (np.asarray(points, dtype=np.float64) + 0.5) * f - 0.5
+
+
+def points_to_full(points: np.ndarray, f: float) -> np.ndarray:
+    """The inverse of :func:`points_to_working`: ``(x + 0.5) / f - 0.5``."""
+    return (np.asarray(points, dtype=np.float64) + 0.5) / f - 0.5
+
+
+def _check_inside(init: np.ndarray, shape) -> None:
+    h, w = shape
+    outside = ~((init[:, 0] >= 0) & (init[:, 0] <= w - 1) & (init[:, 1] >= 0) & (init[:, 1] <= h - 1))
+    if np.any(outside):
+        i = int(np.flatnonzero(outside)[0])
+        raise ValueError(f"initial point {i} = ({init[i, 0]:g}, {init[i, 1]:g}) is outside the "
+                         f"{w}x{h} first frame; initial points must lie inside the image")
+
+
 def _check_points(points, name: str) -> np.ndarray:
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2:
@@ -308,12 +406,7 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
             g = _grey(frame, t, shape)
             if tracker is None:
                 shape = g.shape
-                h, w = shape
-                outside = ~((init[:, 0] >= 0) & (init[:, 0] <= w - 1) & (init[:, 1] >= 0) & (init[:, 1] <= h - 1))
-                if np.any(outside):
-                    i = int(np.flatnonzero(outside)[0])
-                    raise ValueError(f"initial point {i} = ({init[i, 0]:g}, {init[i, 1]:g}) is outside the "
-                                     f"{w}x{h} first frame; initial points must lie inside the image")
+                _check_inside(init, shape)
                 tracker = _core.SpringMeshTracker(g, init, mesh, options)
                 pts.append(init.copy())
                 conf.append(np.ones(len(init)))
@@ -332,8 +425,17 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
 def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: float, edges=None,
            passes: int = 2, relative_sigma: float = 0.05, min_sigma: float = 0.5,
            initial_min_sigma: float | None = None, lips: bool | None = None, eyes: bool | None = None,
-           n_hint: int | None = None, progress: bool = True, names=None, **options) -> TrackResult:
+           n_hint: int | None = None, progress: bool = True, names=None, scale: float = 1.0,
+           work_shape=None, **options) -> TrackResult:
+    """Tracks ``frames`` (already resized by ``scale``, of shape ``work_shape``) from the
+    full-resolution ``init_points``; the tracker runs in the resized frames, the result is
+    mapped back to full-resolution pixels."""
     init = _check_points(init_points, "init_points")
+    if scale != 1.0:
+        # A point on the last full-resolution pixel can map past the last resized one (the
+        # resized size is rounded): clamp into the resized image.
+        h, w = work_shape
+        init = np.clip(points_to_working(init, scale), 0.0, [w - 1.0, h - 1.0])
     if lips is None:
         lips = len(init) == 68
     if eyes is None:
@@ -396,13 +498,21 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
             mesh = _soften_opening(new, edges, lip_floor) if lips else new
         history.append(row)
         prev = pts
+    rest_length, stiffness = np.asarray(mesh.rest_length), np.asarray(mesh.stiffness)
+    if scale != 1.0:  # back to full-resolution pixels
+        pts = points_to_full(pts, scale)
+        rest_length, stiffness = rest_length / scale, stiffness * scale**2
+        for row in history:
+            if row["mean_point_change"] is not None:
+                row["mean_point_change"] /= scale
     return TrackResult(points=pts, confidence=conf, lost=lost, fps=float(fps), edges=edges,
-                       rest_length=np.asarray(mesh.rest_length), stiffness=np.asarray(mesh.stiffness),
-                       passes=history, names=list(names) if names is not None else None)
+                       rest_length=rest_length, stiffness=stiffness,
+                       passes=history, names=list(names) if names is not None else None, working_scale=scale)
 
 
 def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps: float = 29.97,
-                 edges=None, passes: int = 2, progress: bool = False, **options) -> TrackResult:
+                 edges=None, passes: int = 2, progress: bool = False, working_scale="auto",
+                 **options) -> TrackResult:
     """Tracks landmarks through frames held in memory.
 
     Parameters
@@ -414,6 +524,14 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
     passes : tracking passes; after each but the last, spring lengths and stiffnesses are
         re-estimated from the tracked distances (mean and variance), as in the paper
     progress : show a tqdm progress bar
+    working_scale : ``"auto"`` (default) or a factor in (0, 1]: a face larger than the one the
+        tracker was tuned on (outer eye corners more than ``LARGE_FACE_IOD`` = 128 px apart;
+        other layouts: see :func:`face_size`) is tracked on frames resized down by one factor
+        for the whole sequence (area averaging), so that they are ``WORKING_IOD`` = 112 px
+        apart; faces at or below 128 px are tracked at full resolution, as before. The points are returned in full-resolution pixels and the
+        factor as ``TrackResult.working_scale``; pixel-valued options (``patch_radius``,
+        ``search_radius``, ``min_sigma``, ...) are pixels of the resized frames.
+        See :func:`working_scale_factor`
     **options : fields of the C++ ``TrackerOptions`` (patch_radius, levels, ncc_floor, ...,
         ``patch_sides`` (P, 2) half-patch directions, ``search_radius`` px, ``frame_points``:
         the points whose similarity to frame 0 is the head pose that the first-frame templates,
@@ -436,7 +554,9 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         patches within the lip search radius and the outer upper lip against the upper half of
         theirs along the face's vertical (``reference_points``, ``reference_sides``,
         ``reference_search_radius``, ``reference_search_ncc``); default: on when there are 68
-        points; explicit options win)
+        points; explicit options win), ``eyes`` (the eye corners 36, 39, 42, 45 of a 68-point
+        layout tracked on the half of their patches away from their eye, so the lids do not
+        drag them in blinks: :func:`eye_corner_sides`; default: on when there are 68 points)
 
     Returns
     -------
@@ -444,13 +564,22 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
     """
     if len(frames) == 0:
         raise ValueError("frames is empty: the sequence holds no frames; nothing to track")
+    scale = working_scale_factor(init_points, working_scale)
+    work_shape = None
+    if scale != 1.0:
+        from voicepuppet import video
+
+        first = _grey(frames[0], 0, None)
+        _check_inside(_check_points(init_points, "init_points"), first.shape)
+        frames = [video.downscale(_grey(f, t, first.shape), scale) for t, f in enumerate(frames)]
+        work_shape = frames[0].shape
     return _track(lambda: iter(frames), init_points, fps=fps, edges=edges, passes=passes,
-                  n_hint=len(frames), progress=progress, **options)
+                  n_hint=len(frames), progress=progress, scale=scale, work_shape=work_shape, **options)
 
 
 def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = "auto", *,
                 edges=None, passes: int = 2, progress: bool = True, cache_bytes: int = 1 << 30,
-                **options) -> TrackResult:
+                working_scale="auto", **options) -> TrackResult:
     """Tracks landmarks through a video file.
 
     Parameters
@@ -458,9 +587,10 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     path : a video OpenCV can decode
     init : (P, 2) points on the first frame, a JSON/CSV file of them (see
         :func:`load_init_points`), or ``"auto"`` for a landmark detector (:func:`auto_init`)
-    edges, passes, progress, **options : as in :func:`track_frames`
-    cache_bytes : decoded grey frames are kept in memory up to this size when ``passes > 1``;
-        longer videos are decoded again for each pass
+    edges, passes, progress, working_scale, **options : as in :func:`track_frames`
+    cache_bytes : decoded grey frames (at the working scale: resized ones when the face is
+        large) are kept in memory up to this size when ``passes > 1``; longer videos are
+        decoded again for each pass
 
     Raises ``ValueError`` for a video that cannot be opened or holds no frames, bad points, or
     (with ``init="auto"``) no detector or no face.
@@ -481,16 +611,22 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     else:
         points = init
     fps = info.fps if info.fps > 0 else 29.97
+    scale = working_scale_factor(points, working_scale)
+    work_shape = None
+    if scale != 1.0:
+        _check_inside(_check_points(points, "init_points"), first.shape)
+        first = video.downscale(first, scale)
+        work_shape = first.shape
     need = info.frame_count * first.size
     if passes > 1 and 0 < need <= cache_bytes:
-        frames = np.stack(list(video.iter_frames(path)))
+        frames = np.stack(list(video.iter_frames(path, scale=scale)))
         source = lambda: iter(frames)  # noqa: E731
         n_hint = len(frames)
     else:
-        source = lambda: video.iter_frames(path)  # noqa: E731
+        source = lambda: video.iter_frames(path, scale=scale)  # noqa: E731
         n_hint = info.frame_count or None
     return _track(source, points, fps=fps, edges=edges, passes=passes, n_hint=n_hint,
-                  progress=progress, names=names, **options)
+                  progress=progress, names=names, scale=scale, work_shape=work_shape, **options)
 
 
 def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
@@ -635,8 +771,17 @@ def _cli(args) -> int:
     out = Path(args.output)
     if out.suffix.lower() != ".npz":
         raise ValueError(f"-o must name a .npz file, got {str(out)!r}")
+    working_scale = args.working_scale
+    if working_scale != "auto":
+        try:
+            working_scale = float(working_scale)
+        except ValueError:
+            working_scale = float("nan")
+        if not 0.0 < working_scale <= 1.0:
+            raise ValueError(f"--working-scale must be 'auto' or a number in (0, 1] (the factor the frames are "
+                             f"resized by; 1 tracks at full resolution), got {args.working_scale!r}")
     result = track_video(args.video, init, passes=args.passes, progress=not args.quiet,
-                         patch_radius=args.patch_radius, levels=args.levels)
+                         patch_radius=args.patch_radius, levels=args.levels, working_scale=working_scale)
     written = save_landmarks(out, result)
     if args.overlay:
         with tqdm(total=len(result.points), desc="overlay", unit="frame", disable=args.quiet, leave=False) as bar:
@@ -650,6 +795,9 @@ def _cli(args) -> int:
         print(f"pass {row['pass']}: lost {100 * row['lost_fraction']:.1f}% of point-frames"
               + (f", points moved {moved:.3f} px on average from the previous pass" if moved is not None else "")
               + (f", spring lengths re-estimated (largest change {100 * change:.1f}%)" if change is not None else ""))
+    if result.working_scale != 1.0:
+        print(f"large face: tracked on frames resized by {result.working_scale:.4f} "
+              f"(--working-scale; points written in full-resolution pixels)")
     print(f"tracked {P} points through {T} frames; wrote {', '.join(str(w) for w in written)}")
     return 0
 
@@ -667,5 +815,12 @@ def add_parser(sub) -> None:
     p.add_argument("--passes", type=int, default=2, help="tracking passes with spring re-estimation between them (default 2)")
     p.add_argument("--patch-radius", type=int, default=6, help="SSD patch radius in pixels (default 6: 13x13)")
     p.add_argument("--levels", type=int, default=3, help="image pyramid levels (default 3)")
+    p.add_argument("--working-scale", default="auto", metavar="auto|F",
+                   help="track a large face on frames resized down by F in (0, 1]; auto (default): a face "
+                        f"with outer eye corners more than {LARGE_FACE_IOD:g} px apart is resized so that they "
+                        f"are {WORKING_IOD:g} px apart (other layouts: the RMS radius of the init points, "
+                        f"{LARGE_FACE_RMS_RADIUS:.1f} and {WORKING_RMS_RADIUS:.1f} px), smaller faces are tracked "
+                        "at full resolution. Points are written in full-resolution pixels; --patch-radius is "
+                        "in pixels of the resized frames")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cli)

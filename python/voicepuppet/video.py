@@ -12,7 +12,7 @@ from typing import Iterator
 
 import numpy as np
 
-__all__ = ["VideoInfo", "probe_video", "iter_frames", "read_grey_frames", "write_overlay"]
+__all__ = ["VideoInfo", "probe_video", "iter_frames", "read_grey_frames", "downscale", "write_overlay"]
 
 
 def _cv2():
@@ -64,9 +64,28 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
         cap.release()
 
 
-def iter_frames(path: str | os.PathLike, grey: bool = True) -> Iterator[np.ndarray]:
-    """Yields the frames of a video in order: (H, W) uint8 grey, or (H, W, 3) BGR if not ``grey``."""
+def downscale(frame: np.ndarray, scale: float) -> np.ndarray:
+    """``frame`` resized by ``scale`` (0 < scale <= 1) with area averaging (``cv2.INTER_AREA``).
+
+    The output is ``round(W * scale)`` by ``round(H * scale)`` pixels, and a point (x, y) of
+    ``frame`` (pixel centres at integers) is at ``((x + 0.5) * scale - 0.5, (y + 0.5) * scale
+    - 0.5)`` in it, in both axes with the same ``scale`` (OpenCV's own factor, not the rounded
+    size's). ``scale == 1`` returns ``frame`` itself, untouched.
+    """
+    if not 0.0 < scale <= 1.0:
+        raise ValueError(f"scale must be in (0, 1] (a downscale factor), got {scale!r}")
+    if scale == 1.0:
+        return frame
     cv2 = _cv2()
+    return cv2.resize(frame, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+
+
+def iter_frames(path: str | os.PathLike, grey: bool = True, scale: float = 1.0) -> Iterator[np.ndarray]:
+    """Yields the frames of a video in order: (H, W) uint8 grey, or (H, W, 3) BGR if not ``grey``;
+    resized by ``scale`` (see :func:`downscale`) when it is below 1."""
+    cv2 = _cv2()
+    if not 0.0 < scale <= 1.0:
+        raise ValueError(f"scale must be in (0, 1] (a downscale factor), got {scale!r}")
     cap = _open(path)
     try:
         while True:
@@ -75,7 +94,7 @@ def iter_frames(path: str | os.PathLike, grey: bool = True) -> Iterator[np.ndarr
                 break
             if grey:
                 frame = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-            yield np.ascontiguousarray(frame)
+            yield np.ascontiguousarray(downscale(frame, scale))
     finally:
         cap.release()
 
