@@ -91,6 +91,33 @@ def test_cpp_example_animates_like_python(workdir):
     assert not (d / "x.csv").exists()
 
 
+def test_cpp_example_animates_a_tied_puppet_like_python(workdir, tmp_path):
+    # A tied vocal model is stored as N equal full covariances: the C++ program that knows
+    # nothing of the option animates it as Python does.
+    exe = Path(__file__).resolve().parents[1] / "build" / "example" / "voicepuppet_animate"
+    if not exe.exists():
+        pytest.skip("build examples/cpp first (bash .ci/test does): " + str(exe))
+    from voicepuppet.puppet import Puppet, load
+
+    d = workdir
+    with np.load(d / "train.npz") as z:
+        pts = z["points"]
+    tied = Puppet.train([pts], [str(d / "train.wav")], fps=FPS, n_states=6, n_iter=12,
+                        vocal_covariance="tied")
+    vc = tied.part_arrays(0)["vocal_covars"]
+    assert vc.ndim == 3 and np.array_equal(vc, np.repeat(vc[:1], len(vc), axis=0))
+    p = load(tied.save(tmp_path / "tied.vpp"))
+    assert p.metadata["training"]["options"]["vocal_covariance"] == "tied"
+    feats = p.audio_features(str(d / "test.wav"))
+    np.savetxt(tmp_path / "f.csv", feats, delimiter=",", header=",".join(f"c{i}" for i in range(feats.shape[1])))
+    out = subprocess.run([str(exe), str(tmp_path / "tied.vpp"), str(tmp_path / "f.csv"), str(tmp_path / "cpp.csv")],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    cpp = np.loadtxt(tmp_path / "cpp.csv", delimiter=",", skiprows=1)[:, 2:]
+    py = p.animate(features=feats).animation.points.reshape(len(feats), -1)
+    np.testing.assert_allclose(cpp, py, rtol=1e-9, atol=1e-9)
+
+
 def test_bad_input_is_reported_and_writes_nothing(workdir, tmp_path, capsys):
     d = workdir
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "a.txt")]) == 2

@@ -45,7 +45,7 @@ TRAIN_DEFAULTS = {
     "parts": None,           # or "upper_lower" (iBUG 68) / dict name -> points
     "feature_set": "puppet",
     "audio_deltas": 2,       # append regression deltas over +-2 frames to the audio features
-    "vocal_covariance": "full",
+    "vocal_covariance": "full",  # or "diag", "tied" (one for all states; not better: docs/results.md)
     "vocal_shrinkage": 1.0,  # evidence of the pooled Gaussian in each state's, in units of A frames
     "min_covar": 0.1,        # facial variance floor, x the mean data variance: chosen by CV (docs/results.md)
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
