@@ -186,3 +186,79 @@ def test_training_on_a_dask_cluster_equals_one_process():
     assert set(one.arrays) == set(many.arrays)
     for name, value in one.arrays.items():
         np.testing.assert_allclose(many.arrays[name], value, rtol=1e-10, atol=1e-10, err_msg=name)
+
+
+def test_remap_tied_is_the_pooled_within_state_covariance(rng):
+    T, N, A = 600, 4, 3
+    labels = rng.integers(0, N, T)
+    X = rng.normal(size=(N, A))[labels] * 3 + rng.normal(size=(T, A)) @ rng.normal(size=(A, A))
+    # Hard occupancies, no shrinkage, no floor: the within-class covariance of linear
+    # discriminant analysis (scikit-learn's, with the class frequencies as priors).
+    from sklearn.discriminant_analysis import LinearDiscriminantAnalysis
+
+    lda = LinearDiscriminantAnalysis(solver="lsqr", store_covariance=True).fit(X, labels)
+    means, covs = remap(np.eye(N)[labels], X, "tied", floor=0.0, shrinkage=0.0)
+    np.testing.assert_allclose(means, lda.means_, rtol=1e-12)
+    for i in range(N):
+        np.testing.assert_allclose(covs[i], lda.covariance_, rtol=1e-10)
+    # Soft occupancies with shrinkage: the means are those of "full", the covariance the
+    # occupancy-weighted scatter about them over all frames, plus the floor, in every state.
+    g = rng.dirichlet(np.ones(N), size=T)
+    full_means, _ = remap(g, X, "full")
+    means, covs = remap(g, X, "tied", floor=1e-3)
+    np.testing.assert_allclose(means, full_means, rtol=1e-12)
+    S = sum(((X - means[i]).T * g[:, i]) @ (X - means[i]) for i in range(N)) / T + 1e-3 * np.eye(A)
+    for i in range(N):
+        np.testing.assert_allclose(covs[i], S, rtol=1e-10)
+    with pytest.raises(ValueError, match="covariance must be one of"):
+        remap(g, X, "spherical")
+
+
+def _two_spreads(rng, spreads, T=900, P=12):
+    """The planted performer of ``_planted`` with a voice whose audio spread differs per state:
+    ``spreads[s]`` is the standard deviation of state s's features (a speaker's own spread)."""
+    pts, _, states = _planted(rng, T=T, P=P)
+    world = np.random.default_rng(1)
+    audio_means = world.normal(0, 3, (3, 5))
+    feats = audio_means[states] + rng.normal(0, 1.0, (T, 5)) * np.asarray(spreads)[states][:, None]
+    return pts, feats, states
+
+
+def test_tied_vocal_covariance_decodes_a_voice_it_never_heard():
+    # Trained on a voice that is tight in two states and loose in the third; a new voice spreads
+    # every state alike. A state's own covariance lets the loose state catch the new voice's
+    # frames of the other two; one covariance for all states decodes by the nearest mean.
+    pts, feats, _ = _two_spreads(np.random.default_rng(7), [0.3, 0.3, 2.0])
+    test_pts, test_feats, test_states = _two_spreads(np.random.default_rng(8), [1.2, 1.2, 1.2], T=600)
+    errs = {}
+    for cov in ("full", "tied"):
+        p = Puppet.train([pts], features_list=[feats], fps=30.0, n_states=6, n_iter=20, n_components=3,
+                         vocal_covariance=cov, audio_deltas=0)
+        r = p.animate(features=test_feats)
+        truth, _ = p.face_space.encode(test_pts)
+        errs[cov] = np.sum((r.face - truth) ** 2) / np.sum((truth - truth.mean(0)) ** 2)
+        if cov == "tied":
+            vc = p.part_arrays(0)["vocal_covars"]
+            np.testing.assert_array_equal(vc, np.repeat(vc[:1], len(vc), axis=0))
+            assert p.metadata["training"]["options"]["vocal_covariance"] == "tied"
+    assert errs["tied"] < 0.2 and errs["full"] > 2 * errs["tied"], errs
+
+
+def test_tied_puppet_file_round_trip_and_log_density(tmp_path):
+    from scipy.stats import multivariate_normal
+
+    pts, feats, _ = _planted(np.random.default_rng(7), T=600)
+    p = Puppet.train([pts], features_list=[feats], fps=30.0, n_states=5, n_iter=10, n_components=3,
+                     vocal_covariance="tied")
+    q = load(p.save(tmp_path / "tied.vpp"))
+    np.testing.assert_array_equal(q.animate(features=feats).animation.points,
+                                  p.animate(features=feats).animation.points)
+    # The C++ vocal densities of the loaded file against scipy's.
+    arr = q.part_arrays(0)
+    z = q._core.standardize(np.ascontiguousarray(feats))
+    ours = q._core.vocal_log_density(z, 0)
+    for i in range(len(arr["vocal_means"])):
+        np.testing.assert_allclose(ours[:, i], multivariate_normal(arr["vocal_means"][i], arr["vocal_covars"][i]).logpdf(z),
+                                   rtol=1e-10)
+    with pytest.raises(ValueError, match="vocal_covariance must be one of"):
+        Puppet.train([pts], features_list=[feats], fps=30.0, n_states=5, vocal_covariance="shared")

@@ -69,26 +69,54 @@ def test_train_and_animate(workdir, capsys):
     assert np.loadtxt(d / "c.csv", delimiter=",", skiprows=1).shape == (400, 22)
 
 
-def test_cpp_example_animates_like_python(workdir):
+def _example_exe() -> Path:
     exe = Path(__file__).resolve().parents[1] / "build" / "example" / "voicepuppet_animate"
     if not exe.exists():
         pytest.skip("build examples/cpp first (bash .ci/test does): " + str(exe))
+    return exe
+
+
+def _assert_cpp_animates_like_python(exe, puppet_path, wav, folder):
+    """The C++ example animates the features of ``wav`` as Python's ``Puppet.animate`` does."""
     from voicepuppet.puppet import load
 
-    d = workdir
-    p = load(d / "p.vpp")
-    feats = p.audio_features(str(d / "test.wav"))
-    np.savetxt(d / "f.csv", feats, delimiter=",", header=",".join(f"c{i}" for i in range(feats.shape[1])))
-    out = subprocess.run([str(exe), str(d / "p.vpp"), str(d / "f.csv"), str(d / "cpp.csv")],
+    p = load(puppet_path)
+    feats = p.audio_features(str(wav))
+    np.savetxt(folder / "f.csv", feats, delimiter=",", header=",".join(f"c{i}" for i in range(feats.shape[1])))
+    out = subprocess.run([str(exe), str(puppet_path), str(folder / "f.csv"), str(folder / "cpp.csv")],
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
-    cpp = np.loadtxt(d / "cpp.csv", delimiter=",", skiprows=1)[:, 2:]
+    cpp = np.loadtxt(folder / "cpp.csv", delimiter=",", skiprows=1)[:, 2:]
     py = p.animate(features=feats).animation.points.reshape(len(feats), -1)
     np.testing.assert_allclose(cpp, py, rtol=1e-9, atol=1e-9)
+
+
+def test_cpp_example_animates_like_python(workdir):
+    exe = _example_exe()
+    d = workdir
+    _assert_cpp_animates_like_python(exe, d / "p.vpp", d / "test.wav", d)
     bad = subprocess.run([str(exe), str(d / "f.csv"), str(d / "f.csv"), str(d / "x.csv")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "not a voicepuppet puppet file" in bad.stderr
     assert not (d / "x.csv").exists()
+
+
+def test_cpp_example_animates_a_tied_puppet_like_python(workdir, tmp_path):
+    # A tied vocal model is stored as N equal full covariances: the C++ program that knows
+    # nothing of the option animates it as Python does.
+    exe = _example_exe()
+    from voicepuppet.puppet import Puppet, load
+
+    d = workdir
+    with np.load(d / "train.npz") as z:
+        pts = z["points"]
+    tied = Puppet.train([pts], [str(d / "train.wav")], fps=FPS, n_states=6, n_iter=12,
+                        vocal_covariance="tied")
+    vc = tied.part_arrays(0)["vocal_covars"]
+    assert vc.ndim == 3 and np.array_equal(vc, np.repeat(vc[:1], len(vc), axis=0))
+    path = tied.save(tmp_path / "tied.vpp")
+    assert load(path).metadata["training"]["options"]["vocal_covariance"] == "tied"
+    _assert_cpp_animates_like_python(exe, path, d / "test.wav", tmp_path)
 
 
 def test_bad_input_is_reported_and_writes_nothing(workdir, tmp_path, capsys):

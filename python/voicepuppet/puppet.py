@@ -45,7 +45,7 @@ TRAIN_DEFAULTS = {
     "parts": None,           # or "upper_lower" (iBUG 68) / dict name -> points
     "feature_set": "puppet",
     "audio_deltas": 2,       # append regression deltas over +-2 frames to the audio features
-    "vocal_covariance": "full",
+    "vocal_covariance": "full",  # or "diag", "tied" (one for all states; not better: docs/results.md)
     "vocal_shrinkage": 1.0,  # evidence of the pooled Gaussian in each state's, in units of A frames
     "min_covar": 0.1,        # facial variance floor, x the mean data variance: chosen by CV (docs/results.md)
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
@@ -159,6 +159,9 @@ class Puppet:
         opt = {**TRAIN_DEFAULTS, **options}
         if opt["prior"] not in ("entropic", "ml"):
             raise ValueError(f"prior must be 'entropic' or 'ml', got {opt['prior']!r}")
+        if opt["vocal_covariance"] not in VOCAL_COVARIANCES:
+            raise ValueError(f"vocal_covariance must be one of {VOCAL_COVARIANCES}, got "
+                             f"{opt['vocal_covariance']!r}")
         if isinstance(points_list, np.ndarray) or not isinstance(points_list, (list, tuple)):
             points_list = [points_list]
         if (audio_list is None) == (features_list is None):
@@ -321,6 +324,10 @@ def load(path) -> Puppet:
     return Puppet(meta, arrays)
 
 
+#: Vocal covariance models of :func:`remap` (training option ``vocal_covariance``).
+VOCAL_COVARIANCES = ("full", "diag", "tied")
+
+
 def remap(gamma, features, covariance: str = "full", floor: float = 1e-3, shrinkage=None):
     """Vocal Gaussians per state from occupancies and synchronous features (§4.3).
 
@@ -330,7 +337,10 @@ def remap(gamma, features, covariance: str = "full", floor: float = 1e-3, shrink
         State occupancies of the training frames under the facial HMM.
     features : array (T, A)
         Standardised audio features of the same frames.
-    covariance : {"full", "diag"}
+    covariance : {"full", "diag", "tied"}
+        ``"tied"``: one full covariance for all states, the pooled within-state scatter
+        ``Σ_i S_i / Σ_i w_i`` (a linear-discriminant vocal model: the states differ by their
+        means only), returned as N equal copies so a puppet file stores it as "full".
     floor : float
         Added to every variance (the features are standardised, so this is relative).
     shrinkage : float, optional
@@ -339,18 +349,20 @@ def remap(gamma, features, covariance: str = "full", floor: float = 1e-3, shrink
     Returns
     -------
     means : (N, A)
-    covars : (N, A, A) for "full", (N, A) for "diag"
-        ``(S_i + κ Σ) / (w_i + κ)``: the weighted scatter ``S_i`` of state i shrunk towards the
-        pooled covariance ``Σ`` with κ frames of evidence, plus ``floor`` (the means likewise
-        towards the pooled mean).
+        ``(Σ_t γ_ti x_t + κ x̄) / (w_i + κ)``: each state's weighted mean shrunk towards the
+        pooled mean ``x̄`` with κ frames of evidence (``w_i = Σ_t γ_ti``).
+    covars : (N, A, A) for "full" and "tied", (N, A) for "diag"
+        "full" / "diag": ``(S_i + κ Σ) / (w_i + κ)``, the weighted scatter ``S_i`` of state i about
+        its mean shrunk towards the pooled covariance ``Σ`` with κ frames of evidence; "tied":
+        ``Σ_i S_i / Σ_i w_i`` for every state; each plus ``floor`` on the variances.
     """
     g = np.asarray(gamma, dtype=np.float64)
     X = np.asarray(features, dtype=np.float64)
     if g.ndim != 2 or X.ndim != 2 or len(g) != len(X):
         raise ValueError(f"gamma (T, N) and features (T, A) must have the same frames; got {g.shape} "
                          f"and {X.shape}")
-    if covariance not in ("full", "diag"):
-        raise ValueError(f"covariance must be 'full' or 'diag', got {covariance!r}")
+    if covariance not in VOCAL_COVARIANCES:
+        raise ValueError(f"covariance must be one of {VOCAL_COVARIANCES}, got {covariance!r}")
     A = X.shape[1]
     kappa = float(A) if shrinkage is None else float(shrinkage)
     if not (kappa >= 0 and np.isfinite(kappa)):
@@ -365,6 +377,14 @@ def remap(gamma, features, covariance: str = "full", floor: float = 1e-3, shrink
             d = X - means[i]
             covs[i] = (g[:, i] @ (d * d) + kappa * np.diag(pooled)) / (w[i] + kappa) + floor
         return means, covs
+    if covariance == "tied":
+        scatter = np.zeros((A, A))
+        for i in range(g.shape[1]):
+            d = X - means[i]
+            scatter += (d * g[:, i:i + 1]).T @ d
+        tied = scatter / w.sum() + floor * np.eye(A)
+        tied = 0.5 * (tied + tied.T)
+        return means, np.repeat(tied[None], g.shape[1], axis=0)
     covs = np.empty((g.shape[1], A, A))
     for i in range(g.shape[1]):
         d = X - means[i]

@@ -23,7 +23,8 @@
 ///   hmm/part{p}/face_means [N, 2K_p]  [pose, velocity] means
 ///   hmm/part{p}/face_covars [N, 2K_p, 2K_p]
 ///   hmm/part{p}/vocal_means [N, A]
-///   hmm/part{p}/vocal_covars [N, A, A] (full) or [N, A] (diagonal)
+///   hmm/part{p}/vocal_covars [N, A, A] (full; a tied model, Python's
+///                                     vocal_covariance="tied", is N equal copies) or [N, A] (diagonal)
 
 #include "voicepuppet/hmm_gaussian.hpp"
 #include "voicepuppet/puppet_io.hpp"
