@@ -86,6 +86,22 @@ WORKING_IOD = 112.0
 LARGE_FACE_RMS_RADIUS = 0.635 * LARGE_FACE_IOD
 WORKING_RMS_RADIUS = 0.635 * WORKING_IOD
 
+# Re-acquisition: when more than REACQUIRE_LOST_SHARE of the points have been lost for
+# REACQUIRE_FRAMES frames in a row (the face left the frame or was covered), every following
+# frame is searched for the first frame's face region (the bounding box of the first-frame
+# points, REACQUIRE_MARGIN of its size added on each side) by normalised cross-correlation
+# (cv2.matchTemplate, TM_CCOEFF_NORMED) at pyramid level REACQUIRE_LEVEL (1/4 size), refined at
+# full size within the coarse step; a peak of at least REACQUIRE_NCC restarts the mesh there
+# (the first-frame points moved by the found translation, SpringMeshTracker.relocate) and the
+# frame is tracked again from it. The share is puppet_cli's training cut (0.3) and more: a frame
+# a partial occlusion leaves mostly found never searches. The threshold is measured in
+# docs/tracking.md ("Re-acquiring a lost face").
+REACQUIRE_LOST_SHARE = 0.5
+REACQUIRE_FRAMES = 3
+REACQUIRE_NCC = 0.6
+REACQUIRE_LEVEL = 2
+REACQUIRE_MARGIN = 0.1
+
 _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
                  "damping", "patch_sides", "search_radius", "frame_points", "spring_outlier", "outlier_edges",
@@ -112,6 +128,9 @@ class TrackResult:
     working_scale : the factor f the frames were resized by for tracking (1: full resolution;
         see :func:`working_scale_factor`); points, rest lengths (px) and stiffnesses (px^-2)
         are reported in full-resolution pixels
+    reacquired : frames (indices, last pass) where the face, lost for
+        :data:`REACQUIRE_FRAMES` frames, was found again by the whole-frame search and the mesh
+        restarted there (each pass's list is in ``passes[k]["reacquired"]``)
     """
 
     points: np.ndarray
@@ -124,6 +143,7 @@ class TrackResult:
     passes: list = field(default_factory=list)
     names: list | None = None
     working_scale: float = 1.0
+    reacquired: list = field(default_factory=list)
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:
@@ -394,13 +414,66 @@ def _grey(frame: np.ndarray, t: int, shape) -> np.ndarray:
     return f
 
 
+class _FaceSearch:
+    """The whole-frame search for a lost face: the first frame's face region (bounding box of
+    the first-frame points plus :data:`REACQUIRE_MARGIN`) matched by normalised
+    cross-correlation over the frame at pyramid level :data:`REACQUIRE_LEVEL`, the peak refined
+    at full size within one coarse step. ``find`` returns the whole-pixel translation of the
+    region and its full-size correlation, or None when the coarse peak is below
+    :data:`REACQUIRE_NCC` (or the frame is smaller than the region)."""
+
+    def __init__(self, first: np.ndarray, init: np.ndarray):
+        import cv2
+
+        self._cv2 = cv2
+        h, w = first.shape
+        lo, hi = init.min(axis=0), init.max(axis=0)
+        pad = REACQUIRE_MARGIN * (hi - lo)
+        x0, y0 = np.floor(np.maximum(lo - pad, 0)).astype(int)
+        x1, y1 = np.ceil(np.minimum(hi + pad, [w - 1, h - 1])).astype(int)
+        self.origin = np.array([x0, y0])
+        self.template = np.ascontiguousarray(first[y0:y1 + 1, x0:x1 + 1])
+        self.coarse = self._down(self.template)
+
+    def _down(self, image: np.ndarray) -> np.ndarray:
+        for _ in range(REACQUIRE_LEVEL):
+            image = self._cv2.pyrDown(image)
+        return image
+
+    def peak(self, frame: np.ndarray) -> tuple[float, np.ndarray] | None:
+        """The coarse correlation peak: (value, top-left corner in level-0 pixels), or None."""
+        small = self._down(frame)
+        th, tw = self.coarse.shape
+        if small.shape[0] < th or small.shape[1] < tw or min(th, tw) < 4:
+            return None
+        score = self._cv2.matchTemplate(small, self.coarse, self._cv2.TM_CCOEFF_NORMED)
+        _, best, _, (bx, by) = self._cv2.minMaxLoc(score)
+        return float(best), np.array([bx, by]) * (1 << REACQUIRE_LEVEL)
+
+    def find(self, frame: np.ndarray) -> tuple[np.ndarray, float] | None:
+        found = self.peak(frame)
+        if found is None or not found[0] >= REACQUIRE_NCC:
+            return None
+        step = 1 << REACQUIRE_LEVEL
+        th, tw = self.template.shape
+        h, w = frame.shape
+        x0, y0 = np.clip(found[1] - step, 0, [w - tw, h - th])
+        x1, y1 = np.clip(found[1] + step, 0, [w - tw, h - th])
+        window = frame[y0:y1 + th, x0:x1 + tw]
+        score = self._cv2.matchTemplate(window, self.template, self._cv2.TM_CCOEFF_NORMED)
+        _, best, _, (bx, by) = self._cv2.minMaxLoc(score)
+        return np.array([x0 + bx, y0 + by], dtype=np.float64) - self.origin, float(best)
+
+
 def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh, options,
-              n_hint: int | None, progress: bool, desc: str):
+              n_hint: int | None, progress: bool, desc: str, reacquire: bool = True):
     from tqdm.auto import tqdm
 
     pts, conf, lost = [], [], []
-    tracker = None
+    reacquired = []
+    tracker = search = None
     shape = None
+    streak = 0  # frames in a row with more than REACQUIRE_LOST_SHARE of the points lost
     with tqdm(total=n_hint, desc=desc, unit="frame", disable=not progress, leave=False) as bar:
         for t, frame in enumerate(frames()):
             g = _grey(frame, t, shape)
@@ -408,25 +481,43 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
                 shape = g.shape
                 _check_inside(init, shape)
                 tracker = _core.SpringMeshTracker(g, init, mesh, options)
+                if reacquire:
+                    search = _FaceSearch(g, init)
                 pts.append(init.copy())
                 conf.append(np.ones(len(init)))
                 lost.append(np.zeros(len(init), dtype=bool))
             else:
                 r = tracker.track(g)
+                if search is not None and streak >= REACQUIRE_FRAMES:
+                    # Lost for long enough: look for the face over the whole frame, restart the
+                    # mesh where it is found and track this frame again from there.
+                    found = search.find(g)
+                    if found is not None:
+                        tracker.relocate(init + found[0])
+                        r = tracker.track(g)
+                        if np.mean(r.lost) <= REACQUIRE_LOST_SHARE:
+                            reacquired.append(t)
+                streak = streak + 1 if np.mean(r.lost) > REACQUIRE_LOST_SHARE else 0
                 pts.append(np.asarray(r.points))
                 conf.append(np.asarray(r.confidence))
                 lost.append(np.asarray(r.lost, dtype=bool))
+                if search is not None and streak >= REACQUIRE_FRAMES:
+                    # The face is gone: the few points that still match something (a hand's
+                    # texture, the background) are not on it, so every point of these frames is
+                    # lost (and the springs re-estimated from the pass do not learn from them).
+                    for q in range(1, min(streak, REACQUIRE_FRAMES) + 1):
+                        lost[-q] = np.ones(len(init), dtype=bool)
             bar.update(1)
     if tracker is None:
         raise ValueError("the sequence holds no frames; nothing to track")
-    return np.stack(pts), np.stack(conf), np.stack(lost)
+    return np.stack(pts), np.stack(conf), np.stack(lost), reacquired
 
 
 def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: float, edges=None,
            passes: int = 2, relative_sigma: float = 0.05, min_sigma: float = 0.5,
            initial_min_sigma: float | None = None, lips: bool | None = None, eyes: bool | None = None,
            n_hint: int | None = None, progress: bool = True, names=None, scale: float = 1.0,
-           work_shape=None, **options) -> TrackResult:
+           work_shape=None, reacquire: bool = True, **options) -> TrackResult:
     """Tracks ``frames`` (already resized by ``scale``, of shape ``work_shape``) from the
     full-resolution ``init_points``; the tracker runs in the resized frames, the result is
     mapped back to full-resolution pixels."""
@@ -486,9 +577,9 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
     history = []
     prev = None
     for k in range(passes):
-        pts, conf, lost = _one_pass(frames, init, mesh, first_opts if k == 0 else opts, n_hint, progress,
-                                    f"tracking pass {k + 1}/{passes}")
-        row = {"pass": k + 1, "lost_fraction": float(lost.mean()),
+        pts, conf, lost, reacquired = _one_pass(frames, init, mesh, first_opts if k == 0 else opts, n_hint,
+                                                progress, f"tracking pass {k + 1}/{passes}", reacquire)
+        row = {"pass": k + 1, "lost_fraction": float(lost.mean()), "reacquired": reacquired,
                "mean_point_change": None if prev is None else float(np.linalg.norm(pts - prev, axis=2).mean()),
                "max_rel_length_change": None}
         if k + 1 < passes:
@@ -507,7 +598,8 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
                 row["mean_point_change"] /= scale
     return TrackResult(points=pts, confidence=conf, lost=lost, fps=float(fps), edges=edges,
                        rest_length=rest_length, stiffness=stiffness,
-                       passes=history, names=list(names) if names is not None else None, working_scale=scale)
+                       passes=history, names=list(names) if names is not None else None, working_scale=scale,
+                       reacquired=list(reacquired))
 
 
 def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps: float = 29.97,
@@ -556,7 +648,11 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         ``reference_search_radius``, ``reference_search_ncc``); default: on when there are 68
         points; explicit options win), ``eyes`` (the eye corners 36, 39, 42, 45 of a 68-point
         layout tracked on the half of their patches away from their eye, so the lids do not
-        drag them in blinks: :func:`eye_corner_sides`; default: on when there are 68 points)
+        drag them in blinks: :func:`eye_corner_sides`; default: on when there are 68 points),
+        ``reacquire`` (default True: a face lost for :data:`REACQUIRE_FRAMES` frames, more than
+        :data:`REACQUIRE_LOST_SHARE` of its points lost, is searched for over the whole frame
+        each frame until found, the mesh restarted where it is (``TrackResult.reacquired``), and
+        the frames it is gone have every point lost; False: points stay where they were lost)
 
     Returns
     -------
@@ -795,6 +891,9 @@ def _cli(args) -> int:
         print(f"pass {row['pass']}: lost {100 * row['lost_fraction']:.1f}% of point-frames"
               + (f", points moved {moved:.3f} px on average from the previous pass" if moved is not None else "")
               + (f", spring lengths re-estimated (largest change {100 * change:.1f}%)" if change is not None else ""))
+    if result.reacquired:
+        print(f"face lost and found again (mesh restarted) at frame{'s' if len(result.reacquired) > 1 else ''} "
+              + ", ".join(f"{t} ({t / result.fps:.2f} s)" for t in result.reacquired))
     if result.working_scale != 1.0:
         print(f"large face: tracked on frames resized by {result.working_scale:.4f} "
               f"(--working-scale; points written in full-resolution pixels)")
