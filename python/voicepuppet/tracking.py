@@ -100,7 +100,7 @@ WORKING_RMS_RADIUS = 0.635 * WORKING_IOD
 # at most 0.12 and 0.37 of a frame's points lost). REACQUIRE_NCC lies between the highest
 # peak on faceless images (0.48 over 14 scikit-image pictures, 0.39 on a card of smooth noise,
 # 0.38 on another face, carphone's) and the lowest of the performer's face back in the frame
-# (0.86 over rotations to 20 degrees and scales 0.85-1.3; upright 0.905): docs/tracking.md,
+# (0.84 over rotations to 20 degrees and scales 0.85-1.3; upright 0.905): docs/tracking.md,
 # "Re-acquiring a lost face".
 REACQUIRE_LOST_SHARE = 0.5
 REACQUIRE_FRAMES = 3
