@@ -123,6 +123,10 @@ void bind_tracker(py::module_& m) {
              return self.track(g);
            },
            py::arg("frame"), "Track the next (height, width) uint8 frame.")
+      .def("relocate", &SpringMeshTracker::relocate, py::arg("points"),
+           "Restart the points at #P by 2 new positions (a face found again elsewhere): current "
+           "templates reset to the first-frame ones, per-point state cleared; first-frame "
+           "templates and springs kept.")
       .def_property_readonly("points", &SpringMeshTracker::points)
       .def_property_readonly("n_points", &SpringMeshTracker::n_points)
       .def_property_readonly("width", &SpringMeshTracker::width)

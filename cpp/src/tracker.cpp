@@ -1516,6 +1516,23 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
   return out;
 }
 
+void SpringMeshTracker::relocate(const MatrixRef& points) {
+  Impl& s = *impl_;
+  if (points.rows() != s.P || points.cols() != 2) {
+    fail_argument("points must have shape (", s.P, ", 2), one (x, y) row per tracked point, got ",
+                  shape_of(points), "; pass every point of the mesh at its new position");
+  }
+  require_finite(points, "points");
+  s.pts = points;
+  std::fill(s.prev_weight.begin(), s.prev_weight.end(), 1.0);
+  std::fill(s.prev_lost.begin(), s.prev_lost.end(), 0);
+  std::fill(s.muted.begin(), s.muted.end(), 0);
+  // The head pose of the new points (all of them found), and the first-frame templates seen
+  // through it; the current templates start from those.
+  s.update_pose();
+  s.current = s.first;
+}
+
 const RowMatrixXd& SpringMeshTracker::points() const { return impl_->pts; }
 Index SpringMeshTracker::n_points() const { return impl_->P; }
 Index SpringMeshTracker::width() const { return impl_->width; }

@@ -878,3 +878,66 @@ TEST_CASE("tracker: bad input is refused with a reason") {
   CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, broken), doctest::Contains("outside"),
                        std::invalid_argument);
 }
+
+TEST_CASE("tracker: relocate restarts lost points where the texture came back, as a fresh tracker") {
+  // The textured face leaves (a flat frame: every point lost), then comes back 60 px away,
+  // beyond the pyramid's reach. Relocated there, the tracker answers exactly as a tracker
+  // constructed on the first frame at the first-frame points answers the same shifted frame
+  // from the same start, with the image frame and with a face frame (frame_points).
+  const Texture tex(21);
+  const Index w = 260, h = 200;
+  const Frame f0 = render(tex, w, h, 0, 0);
+  const RowMatrixXd p0 = grid_points(3, 3, 50, 40, 30);
+  const SpringMesh mesh = springs_from_points(p0, delaunay_edges(p0));
+  Frame flat = f0;
+  std::fill(flat.pix.begin(), flat.pix.end(), std::uint8_t{100});
+  const double dx = 61.4, dy = 23.2;
+  const Frame back = render(tex, w, h, dx, dy);
+  RowMatrixXd moved = p0;
+  moved.col(0).array() += 57.0;  // a few pixels off (a coarse search's answer): the pyramid
+  moved.col(1).array() += 20.0;  // takes it from there
+  for (const bool with_frame : {false, true}) {
+    CAPTURE(with_frame);
+    TrackerOptions opt;
+    if (with_frame) opt.frame_points = (VectorXi(4) << 0, 2, 6, 8).finished();
+    SpringMeshTracker tracker(f0.view(), p0, mesh, opt);
+    TrackerFrame r;
+    // The face moves a little first (the current templates are re-cut where it went) ...
+    for (int t = 1; t <= 3; ++t) r = tracker.track(render(tex, w, h, 1.3 * t, -0.7 * t).view());
+    CHECK(r.lost.count() == 0);
+    // ... then leaves.
+    for (int t = 0; t < 3; ++t) r = tracker.track(flat.view());
+    CHECK(r.lost.count() == p0.rows());
+    // Without a restart the texture is not found again.
+    SpringMeshTracker stays = std::move(tracker);
+    SpringMeshTracker control(f0.view(), p0, mesh, opt);
+    for (int t = 0; t < 3; ++t) control.track(flat.view());
+    const TrackerFrame missed = control.track(back.view());
+    double missed_by = 0;
+    for (Index i = 0; i < p0.rows(); ++i) {
+      missed_by += std::hypot(missed.points(i, 0) - p0(i, 0) - dx, missed.points(i, 1) - p0(i, 1) - dy);
+    }
+    CHECK(missed_by / double(p0.rows()) > 40.0);
+    stays.relocate(moved);
+    CHECK(stays.points() == moved);
+    const TrackerFrame found = stays.track(back.view());
+    CHECK(found.lost.count() == 0);
+    for (Index i = 0; i < p0.rows(); ++i) {
+      CHECK(std::abs(found.points(i, 0) - p0(i, 0) - dx) < 0.05);
+      CHECK(std::abs(found.points(i, 1) - p0(i, 1) - dy) < 0.05);
+    }
+    // A fresh tracker on the first frame, restarted at the same points, answers bit for bit alike.
+    SpringMeshTracker fresh(f0.view(), p0, mesh, opt);
+    fresh.relocate(moved);
+    const TrackerFrame same = fresh.track(back.view());
+    CHECK(same.points == found.points);
+    CHECK(same.confidence == found.confidence);
+    CHECK(same.lost == found.lost);
+    // Bad input.
+    CHECK_THROWS_WITH_AS(stays.relocate(p0.topRows(2)), doctest::Contains("shape (9, 2)"),
+                         std::invalid_argument);
+    RowMatrixXd nan = p0;
+    nan(4, 1) = std::nan("");
+    CHECK_THROWS_WITH_AS(stays.relocate(nan), doctest::Contains("points"), std::invalid_argument);
+  }
+}

@@ -86,6 +86,30 @@ WORKING_IOD = 112.0
 LARGE_FACE_RMS_RADIUS = 0.635 * LARGE_FACE_IOD
 WORKING_RMS_RADIUS = 0.635 * WORKING_IOD
 
+# Re-acquisition: when more than REACQUIRE_LOST_SHARE of the points have been lost for
+# REACQUIRE_FRAMES frames in a row (the face left the frame or was covered), every following
+# frame is searched for the first frame's face region (the bounding box of the first-frame
+# points, REACQUIRE_MARGIN of its size added on each side), seen through 25 in-plane rotations
+# and scales (REACQUIRE_ANGLES x REACQUIRE_SCALES about the points' centroid), by normalised
+# cross-correlation (cv2.matchTemplate, TM_CCOEFF_NORMED) at pyramid level REACQUIRE_LEVEL
+# (1/4 size), the best peak refined at full size within one coarse step; a peak of at least
+# REACQUIRE_NCC restarts the mesh there (the first-frame points through the found similarity,
+# SpringMeshTracker.relocate) and the frame is tracked again from it. Until then every point of
+# the frames in the run is lost. The share is above puppet_cli's training cut (0.3): a partial
+# occlusion that leaves most points found never searches (the performer's clips and carphone:
+# at most 0.12 and 0.37 of a frame's points lost). REACQUIRE_NCC lies between the highest
+# peak on faceless images (0.48 over 14 scikit-image pictures, 0.39 on a card of smooth noise,
+# 0.38 on another face, carphone's) and the lowest of the performer's face back in the frame
+# (0.84 over rotations to 20 degrees and scales 0.85-1.3; upright 0.905): docs/tracking.md,
+# "Re-acquiring a lost face".
+REACQUIRE_LOST_SHARE = 0.5
+REACQUIRE_FRAMES = 3
+REACQUIRE_NCC = 0.65
+REACQUIRE_LEVEL = 2
+REACQUIRE_MARGIN = 0.1
+REACQUIRE_ANGLES = (0.0, -10.0, 10.0, -20.0, 20.0)
+REACQUIRE_SCALES = (1.0, 0.89, 1.12, 0.8, 1.25)
+
 _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "intensity_sigma",
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
                  "damping", "patch_sides", "search_radius", "frame_points", "spring_outlier", "outlier_edges",
@@ -112,6 +136,9 @@ class TrackResult:
     working_scale : the factor f the frames were resized by for tracking (1: full resolution;
         see :func:`working_scale_factor`); points, rest lengths (px) and stiffnesses (px^-2)
         are reported in full-resolution pixels
+    reacquired : frames (indices, last pass) where the face, lost for
+        :data:`REACQUIRE_FRAMES` frames, was found again by the whole-frame search and the mesh
+        restarted there (each pass's list is in ``passes[k]["reacquired"]``)
     """
 
     points: np.ndarray
@@ -124,6 +151,7 @@ class TrackResult:
     passes: list = field(default_factory=list)
     names: list | None = None
     working_scale: float = 1.0
+    reacquired: list = field(default_factory=list)
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:
@@ -394,13 +422,81 @@ def _grey(frame: np.ndarray, t: int, shape) -> np.ndarray:
     return f
 
 
+class _FaceSearch:
+    """The whole-frame search for a lost face: the first frame's face region (bounding box of
+    the first-frame points plus :data:`REACQUIRE_MARGIN`), seen through each in-plane rotation
+    of :data:`REACQUIRE_ANGLES` and scale of :data:`REACQUIRE_SCALES` about the points' centroid,
+    matched by normalised cross-correlation over the frame at pyramid level
+    :data:`REACQUIRE_LEVEL`; the best peak is refined at full size within one coarse step.
+    ``find`` returns the first-frame points mapped to where the face is, and the full-size
+    correlation, or None when the best coarse peak is below :data:`REACQUIRE_NCC`."""
+
+    def __init__(self, first: np.ndarray, init: np.ndarray):
+        import cv2
+
+        self._cv2 = cv2
+        h, w = first.shape
+        centre = init.mean(axis=0)
+        self.hypotheses = []  # (2x3 map of the first frame, template, coarse template, origin)
+        for scale in REACQUIRE_SCALES:
+            for angle in REACQUIRE_ANGLES:
+                M = cv2.getRotationMatrix2D((float(centre[0]), float(centre[1])), float(angle), float(scale))
+                seen = first if angle == 0 and scale == 1 else cv2.warpAffine(
+                    first, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                pts = init @ M[:, :2].T + M[:, 2]
+                lo, hi = pts.min(axis=0), pts.max(axis=0)
+                pad = REACQUIRE_MARGIN * (hi - lo)
+                x0, y0 = np.floor(np.maximum(lo - pad, 0)).astype(int)
+                x1, y1 = np.ceil(np.minimum(hi + pad, [w - 1, h - 1])).astype(int)
+                template = np.ascontiguousarray(seen[y0:y1 + 1, x0:x1 + 1])
+                self.hypotheses.append((M, template, self._down(template), np.array([x0, y0])))
+
+    def _down(self, image: np.ndarray) -> np.ndarray:
+        for _ in range(REACQUIRE_LEVEL):
+            image = self._cv2.pyrDown(image)
+        return image
+
+    def peak(self, frame: np.ndarray) -> tuple[float, int, np.ndarray] | None:
+        """The best coarse correlation peak: (value, hypothesis, top-left corner in level-0
+        pixels), or None when the frame is smaller than every template."""
+        small = self._down(frame)
+        best = None
+        for k, (_, _, coarse, _) in enumerate(self.hypotheses):
+            th, tw = coarse.shape
+            if small.shape[0] < th or small.shape[1] < tw or min(th, tw) < 4:
+                continue
+            score = self._cv2.matchTemplate(small, coarse, self._cv2.TM_CCOEFF_NORMED)
+            _, value, _, (bx, by) = self._cv2.minMaxLoc(score)
+            if best is None or value > best[0]:
+                best = (float(value), k, np.array([bx, by]) * (1 << REACQUIRE_LEVEL))
+        return best
+
+    def find(self, frame: np.ndarray, init: np.ndarray) -> tuple[np.ndarray, float] | None:
+        found = self.peak(frame)
+        if found is None or not found[0] >= REACQUIRE_NCC:
+            return None
+        M, template, _, origin = self.hypotheses[found[1]]
+        step = 1 << REACQUIRE_LEVEL
+        th, tw = template.shape
+        h, w = frame.shape
+        x0, y0 = np.clip(found[2] - step, 0, [w - tw, h - th])
+        x1, y1 = np.clip(found[2] + step, 0, [w - tw, h - th])
+        window = frame[y0:y1 + th, x0:x1 + tw]
+        score = self._cv2.matchTemplate(window, template, self._cv2.TM_CCOEFF_NORMED)
+        _, value, _, (bx, by) = self._cv2.minMaxLoc(score)
+        shift = np.array([x0 + bx, y0 + by], dtype=np.float64) - origin
+        return init @ M[:, :2].T + M[:, 2] + shift, float(value)
+
+
 def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh, options,
-              n_hint: int | None, progress: bool, desc: str):
+              n_hint: int | None, progress: bool, desc: str, reacquire: bool = True):
     from tqdm.auto import tqdm
 
     pts, conf, lost = [], [], []
-    tracker = None
+    reacquired = []
+    tracker = search = None
     shape = None
+    streak = 0  # frames in a row with more than REACQUIRE_LOST_SHARE of the points lost
     with tqdm(total=n_hint, desc=desc, unit="frame", disable=not progress, leave=False) as bar:
         for t, frame in enumerate(frames()):
             g = _grey(frame, t, shape)
@@ -408,25 +504,43 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
                 shape = g.shape
                 _check_inside(init, shape)
                 tracker = _core.SpringMeshTracker(g, init, mesh, options)
+                if reacquire:
+                    search = _FaceSearch(g, init)
                 pts.append(init.copy())
                 conf.append(np.ones(len(init)))
                 lost.append(np.zeros(len(init), dtype=bool))
             else:
                 r = tracker.track(g)
+                if search is not None and streak >= REACQUIRE_FRAMES:
+                    # Lost for long enough: look for the face over the whole frame, restart the
+                    # mesh where it is found and track this frame again from there.
+                    found = search.find(g, init)
+                    if found is not None:
+                        tracker.relocate(found[0])
+                        r = tracker.track(g)
+                        if np.mean(r.lost) <= REACQUIRE_LOST_SHARE:
+                            reacquired.append(t)
+                streak = streak + 1 if np.mean(r.lost) > REACQUIRE_LOST_SHARE else 0
                 pts.append(np.asarray(r.points))
                 conf.append(np.asarray(r.confidence))
                 lost.append(np.asarray(r.lost, dtype=bool))
+                if search is not None and streak >= REACQUIRE_FRAMES:
+                    # The face is gone: the few points that still match something (a hand's
+                    # texture, the background) are not on it, so every point of these frames is
+                    # lost (and the springs re-estimated from the pass do not learn from them).
+                    for q in range(1, min(streak, REACQUIRE_FRAMES) + 1):
+                        lost[-q] = np.ones(len(init), dtype=bool)
             bar.update(1)
     if tracker is None:
         raise ValueError("the sequence holds no frames; nothing to track")
-    return np.stack(pts), np.stack(conf), np.stack(lost)
+    return np.stack(pts), np.stack(conf), np.stack(lost), reacquired
 
 
 def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: float, edges=None,
            passes: int = 2, relative_sigma: float = 0.05, min_sigma: float = 0.5,
            initial_min_sigma: float | None = None, lips: bool | None = None, eyes: bool | None = None,
            n_hint: int | None = None, progress: bool = True, names=None, scale: float = 1.0,
-           work_shape=None, **options) -> TrackResult:
+           work_shape=None, reacquire: bool = True, **options) -> TrackResult:
     """Tracks ``frames`` (already resized by ``scale``, of shape ``work_shape``) from the
     full-resolution ``init_points``; the tracker runs in the resized frames, the result is
     mapped back to full-resolution pixels."""
@@ -486,9 +600,9 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
     history = []
     prev = None
     for k in range(passes):
-        pts, conf, lost = _one_pass(frames, init, mesh, first_opts if k == 0 else opts, n_hint, progress,
-                                    f"tracking pass {k + 1}/{passes}")
-        row = {"pass": k + 1, "lost_fraction": float(lost.mean()),
+        pts, conf, lost, reacquired = _one_pass(frames, init, mesh, first_opts if k == 0 else opts, n_hint,
+                                                progress, f"tracking pass {k + 1}/{passes}", reacquire)
+        row = {"pass": k + 1, "lost_fraction": float(lost.mean()), "reacquired": reacquired,
                "mean_point_change": None if prev is None else float(np.linalg.norm(pts - prev, axis=2).mean()),
                "max_rel_length_change": None}
         if k + 1 < passes:
@@ -507,7 +621,8 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
                 row["mean_point_change"] /= scale
     return TrackResult(points=pts, confidence=conf, lost=lost, fps=float(fps), edges=edges,
                        rest_length=rest_length, stiffness=stiffness,
-                       passes=history, names=list(names) if names is not None else None, working_scale=scale)
+                       passes=history, names=list(names) if names is not None else None, working_scale=scale,
+                       reacquired=list(reacquired))
 
 
 def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps: float = 29.97,
@@ -556,7 +671,11 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         ``reference_search_radius``, ``reference_search_ncc``); default: on when there are 68
         points; explicit options win), ``eyes`` (the eye corners 36, 39, 42, 45 of a 68-point
         layout tracked on the half of their patches away from their eye, so the lids do not
-        drag them in blinks: :func:`eye_corner_sides`; default: on when there are 68 points)
+        drag them in blinks: :func:`eye_corner_sides`; default: on when there are 68 points),
+        ``reacquire`` (default True: a face lost for :data:`REACQUIRE_FRAMES` frames, more than
+        :data:`REACQUIRE_LOST_SHARE` of its points lost, is searched for over the whole frame
+        each frame until found, the mesh restarted where it is (``TrackResult.reacquired``), and
+        the frames it is gone have every point lost; False: points stay where they were lost)
 
     Returns
     -------
@@ -795,6 +914,9 @@ def _cli(args) -> int:
         print(f"pass {row['pass']}: lost {100 * row['lost_fraction']:.1f}% of point-frames"
               + (f", points moved {moved:.3f} px on average from the previous pass" if moved is not None else "")
               + (f", spring lengths re-estimated (largest change {100 * change:.1f}%)" if change is not None else ""))
+    if result.reacquired:
+        print(f"face lost and found again (mesh restarted) at frame{'s' if len(result.reacquired) > 1 else ''} "
+              + ", ".join(f"{t} ({t / result.fps:.2f} s)" for t in result.reacquired))
     if result.working_scale != 1.0:
         print(f"large face: tracked on frames resized by {result.working_scale:.4f} "
               f"(--working-scale; points written in full-resolution pixels)")

@@ -230,6 +230,17 @@ class SpringMeshTracker {
   /// @throws std::invalid_argument when the frame is empty or its size differs from the first.
   TrackerFrame track(const GreyImage& frame);
 
+  /// Restarts the points mid-sequence at `points` (a face found again elsewhere in the frame,
+  /// e.g. after it left the frame or was covered): the current templates are reset to the
+  /// first-frame ones (as the head pose currently sees them), and the per-point state of the
+  /// last frame (data weights, lost flags, muted points) is cleared as on construction, so the
+  /// next `track` call locks from `points` and fits the head pose to them. The first-frame
+  /// templates, the springs and the options are kept. Points may lie outside the image (they
+  /// are then reported lost).
+  /// @param[in] points  #P by 2 finite positions (x, y) in pixels of the current frame size
+  /// @throws std::invalid_argument when `points` is not #P by 2 or holds a non-finite value.
+  void relocate(const MatrixRef& points);
+
   /// Current positions (#P by 2).
   const RowMatrixXd& points() const;
   /// Number of points, frame width and height.
