@@ -154,3 +154,8 @@ def test_cli_prints_the_frames_where_the_face_was_found_again(tmp_path, returnin
     assert rc == 0
     assert f"face lost and found again (mesh restarted) at frame {ABSENT[1]} ({ABSENT[1] / 25:.2f} s)" \
         in capsys.readouterr().out
+    rc = main(["track", str(vid), "-o", str(tmp_path / "landmarks.npz"), "--init", str(init), "--quiet",
+               "--passes", "1", "--no-reacquire"])
+    assert rc == 0
+    assert "found again" not in capsys.readouterr().out
+    assert np.load(tmp_path / "landmarks.npz")["lost"][-1].mean() > 0.5  # left where the face was lost

@@ -900,7 +900,8 @@ def _cli(args) -> int:
             raise ValueError(f"--working-scale must be 'auto' or a number in (0, 1] (the factor the frames are "
                              f"resized by; 1 tracks at full resolution), got {args.working_scale!r}")
     result = track_video(args.video, init, passes=args.passes, progress=not args.quiet,
-                         patch_radius=args.patch_radius, levels=args.levels, working_scale=working_scale)
+                         patch_radius=args.patch_radius, levels=args.levels, working_scale=working_scale,
+                         reacquire=not args.no_reacquire)
     written = save_landmarks(out, result)
     if args.overlay:
         with tqdm(total=len(result.points), desc="overlay", unit="frame", disable=args.quiet, leave=False) as bar:
@@ -944,5 +945,8 @@ def add_parser(sub) -> None:
                         f"{LARGE_FACE_RMS_RADIUS:.1f} and {WORKING_RMS_RADIUS:.1f} px), smaller faces are tracked "
                         "at full resolution. Points are written in full-resolution pixels; --patch-radius is "
                         "in pixels of the resized frames")
+    p.add_argument("--no-reacquire", action="store_true",
+                   help="do not search the whole frame for a face lost for a few frames (by default the "
+                        "mesh is restarted where the face is found again)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cli)
