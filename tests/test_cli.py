@@ -59,6 +59,25 @@ def test_commands_run_blas_on_one_thread_unless_told(capsys, monkeypatch):
     assert "VOICEPUPPET_BLAS_THREADS must be a whole number >= 1, got 'many'" in capsys.readouterr().err
 
 
+def test_a_command_prints_warnings_as_one_line_for_the_user(capsys, monkeypatch):
+    import warnings
+
+    from voicepuppet import info
+
+    def collect():
+        warnings.warn("the face was lost in 30 of 629 frames", UserWarning)
+        return {"voicepuppet": __version__}
+
+    monkeypatch.setattr(info, "collect", collect)
+    before = warnings.showwarning
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")  # pytest turns warnings into errors; a user's Python does not
+        assert main(["info"]) == 0
+    err = capsys.readouterr().err
+    assert err == "voicepuppet info: warning: the face was lost in 30 of 629 frames\n"
+    assert warnings.showwarning is before  # restored when the command returns
+
+
 def test_bench_hmm_quick_writes_the_documented_schema(tmp_path):
     out = tmp_path / "bench.json"
     assert main(["bench", "hmm", "--quick", "--repeats", "1", "--json", str(out)]) == 0

@@ -12,6 +12,7 @@ import contextlib
 import importlib
 import os
 import sys
+import warnings
 
 # Order is the order shown in --help.
 VERB_MODULES = [
@@ -80,7 +81,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        with blas_threads():
+        with blas_threads(), warnings.catch_warnings():
+            # Warnings are news for the user (a dropped stretch of video, a fallback), not for a
+            # developer: one line each, without the source line of the code that raised them.
+            def show(message, category, filename, lineno, file=None, line=None):
+                print(f"voicepuppet {args.verb}: warning: {message}", file=sys.stderr)
+
+            warnings.showwarning = show
             return int(args.func(args) or 0)
     except (UserError, ValueError, FileNotFoundError) as exc:
         print(f"voicepuppet {args.verb}: error: {exc}", file=sys.stderr)
