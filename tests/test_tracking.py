@@ -533,28 +533,35 @@ def test_eye_corner_sides_point_away_from_the_eye(performer):
 
 
 def test_eye_corners_do_not_slide_into_the_eye_in_blinks(tmp_path):
-    # The performer blinking while it hums, 6 s, seed 4 (two blinks). With whole patches the lids
-    # sweep across the eye side of the inner corner 42's patch and pull it into the eye (main:
-    # 42 off by 1.02 px on average and 4.77 px at worst, the outer corners up to 1.58 px, eyes
-    # 0.313 px); the eye corners' half patches away from their eye (eye_corner_sides) keep it
-    # (0.32 px, worst 0.99 px; every corner within 0.99 px; eyes 0.248 px; lips unchanged).
-    frames, truth, blink = _blinking_performer(6.0, 4, tmp_path)
-    assert blink.max() > 0.99 and int(((blink[1:] > 0.3) & (blink[:-1] <= 0.3)).sum()) == 2
-    result = tracking.track_frames(frames, truth[0])
-    err = np.linalg.norm(result.points - truth, axis=2)
-    corners = [36, 39, 42, 45]  # tracking.EYE_CORNERS
-    print(f"eye corners mean {err[:, corners].mean():.3f} px, worst {err[:, corners].max():.2f} px; 42 mean "
-          f"{err[:, 42].mean():.3f}, worst {err[:, 42].max():.2f}; eyes {err[:, 36:48].mean():.3f} px; lips "
-          f"{err[:, 48:].mean():.3f}")
-    assert err[:, 42].max() < 1.5
-    assert err[:, 42].mean() < 0.5
-    assert err[:, corners].max() < 1.3
-    # The control: whole patches (eyes=False, as before) on the same clip.
-    whole = tracking.track_frames(frames, truth[0], eyes=False)
-    err0 = np.linalg.norm(whole.points - truth, axis=2)
-    print(f"whole patches: corners worst {err0[:, corners].max():.2f} px, 42 mean {err0[:, 42].mean():.3f}, "
-          f"worst {err0[:, 42].max():.2f}, eyes {err0[:, 36:48].mean():.3f}, lips {err0[:, 48:].mean():.3f}")
-    assert err0[:, 42].max() > 3.0  # the defect, measured
-    assert err[:, 36:48].mean() < err0[:, 36:48].mean()
-    assert err[:, 48:].mean() < err0[:, 48:].mean() + 0.03  # the lips as before
-    assert err[:, :36].mean() < err0[:, :36].mean() + 0.03  # the rest of the face as before
+    # The performer blinking while it hums, 6 s, seeds 2, 4 and 5 (2-3 blinks each). With whole
+    # patches the lids sweep across the eye side of the inner corner 42's patch and pull it into
+    # the eye (main, 2026-12-02: 42 worst 3.79 / 4.77 / 4.06 px; over seeds 2-7 it slides in four
+    # of six, and whether it does on a given clip is chaotic: the H.264 rendering of a clip is not
+    # bit-identical from run to run, and in one CI run seed 4's control stayed at 1.02 px). The eye
+    # corners' half patches away from their eye (eye_corner_sides) keep it on every seed (worst
+    # 0.86 / 0.99 / 0.92 px; every corner within 1.01 px; lips unchanged). So the fix is asserted
+    # on each clip and the defect on at least two of the three.
+    slid, eyes, eyes0 = 0, [], []
+    for seed in (2, 4, 5):
+        frames, truth, blink = _blinking_performer(6.0, seed, tmp_path)
+        assert blink.max() > 0.99 and int(((blink[1:] > 0.3) & (blink[:-1] <= 0.3)).sum()) >= 2
+        result = tracking.track_frames(frames, truth[0])
+        err = np.linalg.norm(result.points - truth, axis=2)
+        corners = [36, 39, 42, 45]  # tracking.EYE_CORNERS
+        # The control: whole patches (eyes=False, as before) on the same clip.
+        whole = tracking.track_frames(frames, truth[0], eyes=False)
+        err0 = np.linalg.norm(whole.points - truth, axis=2)
+        print(f"seed {seed}: eye corners mean {err[:, corners].mean():.3f} px, worst {err[:, corners].max():.2f} px; "
+              f"42 mean {err[:, 42].mean():.3f}, worst {err[:, 42].max():.2f}; whole patches 42 worst "
+              f"{err0[:, 42].max():.2f}; eyes {err[:, 36:48].mean():.3f} / {err0[:, 36:48].mean():.3f}; lips "
+              f"{err[:, 48:].mean():.3f} / {err0[:, 48:].mean():.3f}")
+        assert err[:, 42].max() < 1.5
+        assert err[:, 42].mean() < 0.5
+        assert err[:, corners].max() < 1.3
+        slid += err0[:, 42].max() > 3.0  # the defect
+        eyes.append(err[:, 36:48].mean())
+        eyes0.append(err0[:, 36:48].mean())
+        assert err[:, 48:].mean() < err0[:, 48:].mean() + 0.03  # the lips as before
+        assert err[:, :36].mean() < err0[:, :36].mean() + 0.03  # the rest of the face as before
+    assert slid >= 2
+    assert np.mean(eyes) < np.mean(eyes0)
