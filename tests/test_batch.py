@@ -29,23 +29,15 @@ def client():
         yield c
 
 
-def write_video(path: Path, frames) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (640, 480), False)
-    for f in frames:
-        w.write(f)
-    w.release()
-
-
 @pytest.fixture(scope="module")
-def videos(tmp_path_factory):
+def videos(tmp_path_factory, write_avi):
     """Three short videos (one in a sub-folder), a file that is not a video, a dangling link,
     and the first-frame points."""
     root = tmp_path_factory.mktemp("videos")
     frames, _, _ = planted_face_sequence(3 * N_FRAMES, seed=1, occlusion=None, blur=None)
-    write_video(root / "a.avi", frames[:N_FRAMES])
-    write_video(root / "b.avi", frames[N_FRAMES:2 * N_FRAMES])
-    write_video(root / "sub" / "c.avi", frames[2 * N_FRAMES:])
+    write_avi(root / "a.avi", frames[:N_FRAMES])
+    write_avi(root / "b.avi", frames[N_FRAMES:2 * N_FRAMES])
+    write_avi(root / "sub" / "c.avi", frames[2 * N_FRAMES:])
     (root / "broken.mp4").write_bytes(b"this is not a video\n" * 10)
     os.symlink(root / "missing.avi", root / "gone.avi")
     init = tmp_path_factory.mktemp("init") / "points.json"
@@ -225,7 +217,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_real_cluster_with_a_worker_killed_mid_run(tmp_path):
+def test_real_cluster_with_a_worker_killed_mid_run(tmp_path, write_avi):
     """A real `dask scheduler` and two `dask worker` processes on loopback; one worker is killed
     (SIGKILL) while it holds tasks. Every output is produced exactly once and equals the
     one-by-one output."""
@@ -239,7 +231,7 @@ def test_real_cluster_with_a_worker_killed_mid_run(tmp_path):
     frames, _, _ = planted_face_sequence(8 * 16, seed=2, occlusion=None, blur=None)
     names = [f"v{i}.avi" for i in range(8)]
     for i, n in enumerate(names):
-        write_video(root / n, frames[16 * i:16 * (i + 1)])
+        write_avi(root / n, frames[16 * i:16 * (i + 1)])
     init = tmp_path / "points.json"
     init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist()}))
     env = dict(os.environ)

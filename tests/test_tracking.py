@@ -136,15 +136,11 @@ def test_carphone_against_dlib_reference():
     assert nme < nme_lk
 
 
-def test_cli_writes_npz_csv_and_overlay(tmp_path, planted):
+def test_cli_writes_npz_csv_and_overlay(tmp_path, planted, write_avi):
     from voicepuppet.cli import main
 
     frames = planted[0][:12]
-    vid = tmp_path / "face.avi"
-    w = cv2.VideoWriter(str(vid), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (640, 480), False)
-    for f in frames:
-        w.write(f)
-    w.release()
+    vid = write_avi(tmp_path / "face.avi", frames)
     init = tmp_path / "points.json"
     init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist(),
                                 "names": [f"p{i}" for i in range(len(ASTRONAUT_POINTS))]}))
@@ -249,7 +245,7 @@ def test_cli_auto_init_on_carphone(tmp_path):
     assert float(z["fps"]) == pytest.approx(29.97, abs=0.01)
 
 
-def test_failed_runs_leave_no_output(tmp_path, planted):
+def test_failed_runs_leave_no_output(tmp_path, planted, write_avi):
     from voicepuppet.cli import main
 
     vid = tmp_path / "empty.avi"
@@ -261,11 +257,7 @@ def test_failed_runs_leave_no_output(tmp_path, planted):
     assert main(["track", str(vid), "-o", str(out), "--init", str(init), "--quiet"]) == 2
     # Points outside the frame: refused before anything is written.
     frames = planted[0][:3]
-    good = tmp_path / "face.avi"
-    w = cv2.VideoWriter(str(good), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (640, 480), False)
-    for f in frames:
-        w.write(f)
-    w.release()
+    good = write_avi(tmp_path / "face.avi", frames)
     init.write_text(json.dumps({"points": [[10, 10], [900, 12], [20, 30]]}))
     assert main(["track", str(good), "-o", str(out), "--init", str(init), "--quiet"]) == 2
     assert not out.exists() and not out.with_suffix(".csv").exists()

@@ -24,22 +24,14 @@ def _returning(cover: str):
     in a plain canvas: there, then absent (``cover="plain"``: the plain canvas; ``"card"``: a
     textured card, seeded smooth noise, where the face was), then back SHIFT px away. Returns
     frames, truth."""
+    from tracking_reacquire_clips import planted
+
     frames, truth, _ = planted_face_sequence(48, seed=0, occlusion=None, blur=None)
     x0, y0, x1, y1 = 170, 60, 400, 270  # the face with > 30 px around its points at all times
     crop = frames[:, y0:y1, x0:x1]
     bg = int(np.median(np.concatenate([crop[0, 0], crop[0, -1]])))
-    h, w = crop.shape[1:]
-    canvas = np.full((len(frames), h + START[1] + SHIFT[1] + 10, w + START[0] + SHIFT[0] + 10), bg, np.uint8)
-    moved = np.empty_like(truth)
-    for t in range(len(frames)):
-        ox, oy = START if t < ABSENT[1] else (START[0] + SHIFT[0], START[1] + SHIFT[1])
-        if not ABSENT[0] <= t < ABSENT[1]:
-            canvas[t, oy:oy + h, ox:ox + w] = crop[t]
-        elif cover == "card":
-            noise = np.random.default_rng(t).normal(130.0, 40.0, (h, w))
-            canvas[t, oy:oy + h, ox:ox + w] = np.clip(cv2.GaussianBlur(noise, (0, 0), 3.0), 0, 255).astype(np.uint8)
-        moved[t] = truth[t] - [x0, y0] + [ox, oy]
-    return canvas, moved
+    return planted(crop, truth - [x0, y0], ABSENT, SHIFT, cover, start=START,
+                   margin=(SHIFT[0] + 10, SHIFT[1] + 10), bg=bg)
 
 
 @pytest.fixture(scope="module")
@@ -135,18 +127,13 @@ def test_relocate_refuses_a_wrong_shape():
     np.testing.assert_array_equal(tracker.points, pts + 3.0)
 
 
-def test_cli_prints_the_frames_where_the_face_was_found_again(tmp_path, returning, capsys):
+def test_cli_prints_the_frames_where_the_face_was_found_again(tmp_path, returning, capsys, write_avi):
     import json
 
     from voicepuppet.cli import main
 
     frames, truth = returning
-    vid = tmp_path / "returning.avi"
-    h, w = frames.shape[1:]
-    out = cv2.VideoWriter(str(vid), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (w, h), False)
-    for f in frames:
-        out.write(f)
-    out.release()
+    vid = write_avi(tmp_path / "returning.avi", frames)
     init = tmp_path / "points.json"
     init.write_text(json.dumps({"points": truth[0].tolist()}))
     rc = main(["track", str(vid), "-o", str(tmp_path / "landmarks.npz"), "--init", str(init), "--quiet",

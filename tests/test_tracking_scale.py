@@ -19,15 +19,6 @@ pytest.importorskip("skimage", reason="pip install scikit-image")
 from voicepuppet.bench.tracker import ASTRONAUT_POINTS, planted_face_sequence  # noqa: E402
 
 
-def _write_avi(path, frames: np.ndarray):
-    """(T, H, W) uint8 grey frames as an MJPG .avi at 30 fps; returns ``path``."""
-    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, frames.shape[2:0:-1], False)
-    for g in frames:
-        w.write(g)
-    w.release()
-    return path
-
-
 def _blob_centroid(img: np.ndarray) -> np.ndarray:
     w = img.astype(np.float64)
     yy, xx = np.mgrid[0:img.shape[0], 0:img.shape[1]]
@@ -110,10 +101,10 @@ def test_bad_working_scale_is_refused_clearly(bad):
         tracking.track_frames(frames, ASTRONAUT_POINTS, working_scale=bad)
 
 
-def test_cli_refuses_a_bad_working_scale(tmp_path, capsys):
+def test_cli_refuses_a_bad_working_scale(tmp_path, capsys, write_avi):
     from voicepuppet.cli import main
 
-    path = _write_avi(tmp_path / "clip.avi", planted_face_sequence(3, seed=0)[0])
+    path = write_avi(tmp_path / "clip.avi", planted_face_sequence(3, seed=0)[0], fps=30.0)
     init = tmp_path / "init.json"
     init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist()}))
     for bad in ("big", "2", "0"):
@@ -126,11 +117,11 @@ def test_cli_refuses_a_bad_working_scale(tmp_path, capsys):
 
 
 
-def test_cli_tracks_at_a_working_scale_and_draws_at_full_resolution(tmp_path, capsys):
+def test_cli_tracks_at_a_working_scale_and_draws_at_full_resolution(tmp_path, capsys, write_avi):
     from voicepuppet.cli import main
 
     frames = planted_face_sequence(8, seed=4)[0]
-    path = _write_avi(tmp_path / "clip.avi", frames)
+    path = write_avi(tmp_path / "clip.avi", frames, fps=30.0)
     init = tmp_path / "init.json"
     init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist()}))
     out, overlay = tmp_path / "out.npz", tmp_path / "overlay.avi"
@@ -171,8 +162,8 @@ def test_tracking_at_a_working_scale_is_the_tracker_on_resized_frames():
     assert np.linalg.norm(ours.points - truth, axis=2)[:, :20].mean() < 1.5
 
 
-def test_track_video_caches_the_resized_frames(tmp_path, monkeypatch):
-    path = _write_avi(tmp_path / "clip.avi", planted_face_sequence(12, seed=3)[0])
+def test_track_video_caches_the_resized_frames(tmp_path, monkeypatch, write_avi):
+    path = write_avi(tmp_path / "clip.avi", planted_face_sequence(12, seed=3)[0], fps=30.0)
     decoded, _ = video.read_grey_frames(path)
     want = tracking.track_frames(decoded, ASTRONAUT_POINTS, fps=30.0, working_scale=0.5)
     # The cache holds resized frames: 12 frames of 320x240 fit in 12 * 320 * 240 bytes (the

@@ -29,14 +29,21 @@ START = (20, 20)
 MARGIN = (110, 90)  # canvas beyond the clip's frame: room for the largest shift
 
 
-def planted(frames: np.ndarray, truth: np.ndarray, absent, shift, cover: str):
+def planted(frames: np.ndarray, truth: np.ndarray, absent, shift, cover: str, *, start=START,
+            margin=MARGIN, bg: int | None = None):
+    """``frames`` (T, h, w) at ``start`` in a plain canvas ``margin`` px larger than start + frame,
+    gone for frames ``absent`` = [a, b) (``cover="plain"``: the canvas; ``"card"``: seeded smooth
+    noise where the face was), back ``shift`` px further from frame b on; ``bg``: the canvas grey
+    (default the median of the first frame's outer columns). Returns the canvas frames and
+    ``truth`` moved with them. Also used by tests/test_tracking_reacquire.py."""
     n, h, w = frames.shape
-    H, W = h + START[1] + MARGIN[1], w + START[0] + MARGIN[0]
-    bg = int(np.median(np.concatenate([frames[0][:, :4].ravel(), frames[0][:, -4:].ravel()])))
+    H, W = h + start[1] + margin[1], w + start[0] + margin[0]
+    if bg is None:
+        bg = int(np.median(np.concatenate([frames[0][:, :4].ravel(), frames[0][:, -4:].ravel()])))
     out = np.full((n, H, W), bg, np.uint8)
     moved = np.empty_like(truth)
     for t in range(n):
-        ox, oy = (START[0] + shift[0], START[1] + shift[1]) if t >= absent[1] else START
+        ox, oy = (start[0] + shift[0], start[1] + shift[1]) if t >= absent[1] else start
         if not absent[0] <= t < absent[1]:
             out[t, oy:oy + h, ox:ox + w] = frames[t]
         elif cover == "card":

@@ -494,7 +494,7 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
 
     pts, conf, lost = [], [], []
     reacquired = []
-    tracker = search = None
+    tracker = search = first = None
     shape = None
     streak = 0  # frames in a row with more than REACQUIRE_LOST_SHARE of the points lost
     with tqdm(total=n_hint, desc=desc, unit="frame", disable=not progress, leave=False) as bar:
@@ -504,16 +504,17 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
                 shape = g.shape
                 _check_inside(init, shape)
                 tracker = _core.SpringMeshTracker(g, init, mesh, options)
-                if reacquire:
-                    search = _FaceSearch(g, init)
+                first = g
                 pts.append(init.copy())
                 conf.append(np.ones(len(init)))
                 lost.append(np.zeros(len(init), dtype=bool))
             else:
                 r = tracker.track(g)
-                if search is not None and streak >= REACQUIRE_FRAMES:
+                if reacquire and streak >= REACQUIRE_FRAMES:
                     # Lost for long enough: look for the face over the whole frame, restart the
-                    # mesh where it is found and track this frame again from there.
+                    # mesh where it is found and track this frame again from there (the search's
+                    # templates are cut from the first frame when it is first needed).
+                    search = search or _FaceSearch(first, init)
                     found = search.find(g, init)
                     if found is not None:
                         tracker.relocate(found[0])
@@ -524,11 +525,12 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
                 pts.append(np.asarray(r.points))
                 conf.append(np.asarray(r.confidence))
                 lost.append(np.asarray(r.lost, dtype=bool))
-                if search is not None and streak >= REACQUIRE_FRAMES:
+                if reacquire and streak >= REACQUIRE_FRAMES:
                     # The face is gone: the few points that still match something (a hand's
                     # texture, the background) are not on it, so every point of these frames is
-                    # lost (and the springs re-estimated from the pass do not learn from them).
-                    for q in range(1, min(streak, REACQUIRE_FRAMES) + 1):
+                    # lost (and the springs re-estimated from the pass do not learn from them):
+                    # the run's first frames when it is recognised, then each frame of it.
+                    for q in range(1, (REACQUIRE_FRAMES if streak == REACQUIRE_FRAMES else 1) + 1):
                         lost[-q] = np.ones(len(init), dtype=bool)
             bar.update(1)
     if tracker is None:
