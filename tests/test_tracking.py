@@ -152,6 +152,7 @@ def test_cli_writes_npz_csv_and_overlay(tmp_path, planted, write_avi):
     assert z["points"].shape == (12, 26, 2) and z["confidence"].shape == (12, 26)
     assert float(z["fps"]) == pytest.approx(25.0)
     assert list(z["names"][:2]) == ["p0", "p1"]
+    assert z["reacquired"].shape == (0,) and float(z["working_scale"]) == 1.0
     table = np.loadtxt(tmp_path / "landmarks.csv", delimiter=",", skiprows=1)
     assert table.shape == (12, 2 + 52)
     np.testing.assert_allclose(table[:, 2:], z["points"].reshape(12, -1), atol=1e-4)

@@ -115,6 +115,16 @@ def test_a_face_that_comes_back_turned_or_scaled_is_found_again(returning, angle
     assert err.mean() < 0.6 and not result.lost[b:].any()
 
 
+def test_the_landmarks_file_records_where_the_face_was_found_again(returning, tmp_path):
+    frames, truth = returning
+    result = tracking.track_frames(frames, truth[0], passes=1)
+    tracking.save_landmarks(tmp_path / "marks.npz", result, csv=False)
+    z = tracking.load_landmarks(tmp_path / "marks.npz")
+    assert z["reacquired"].dtype == np.int64 and z["reacquired"].tolist() == [ABSENT[1]]
+    assert float(z["working_scale"]) == 1.0
+    np.testing.assert_array_equal(z["lost"], result.lost)
+
+
 def test_relocate_refuses_a_wrong_shape():
     frames, truth = planted_face_sequence(2, seed=0, occlusion=None, blur=None)[:2]
     pts = np.ascontiguousarray(truth[0])

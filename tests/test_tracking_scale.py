@@ -130,7 +130,9 @@ def test_cli_tracks_at_a_working_scale_and_draws_at_full_resolution(tmp_path, ca
     assert "resized by 0.5000" in capsys.readouterr().out
     decoded, _ = video.read_grey_frames(path)
     want = tracking.track_frames(decoded, ASTRONAUT_POINTS, fps=30.0, working_scale=0.5)
-    np.testing.assert_allclose(tracking.load_landmarks(out)["points"], want.points, rtol=0, atol=1e-9)
+    marks = tracking.load_landmarks(out)
+    np.testing.assert_allclose(marks["points"], want.points, rtol=0, atol=1e-9)
+    assert float(marks["working_scale"]) == 0.5
     drawn, _ = video.read_grey_frames(overlay)
     assert drawn.shape == decoded.shape  # the overlay is drawn on the full-resolution frames
 

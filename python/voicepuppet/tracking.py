@@ -837,8 +837,9 @@ def _atomic(path: Path, write: Callable[[Path], None]) -> None:
 
 def save_landmarks(path: str | os.PathLike, result: TrackResult, csv: bool = True) -> list[Path]:
     """Writes ``result`` as ``.npz`` (``points`` [T, P, 2], ``fps``, ``confidence`` [T, P],
-    ``lost`` [T, P], ``edges``, optional ``names``) and a ``.csv`` twin (``frame, time, x0, y0,
-    ...``), each through a temporary file and a rename. Returns the paths written."""
+    ``lost`` [T, P], ``edges``, ``reacquired`` [R] (frames where a lost face was found again and
+    the mesh restarted), ``working_scale``, optional ``names``) and a ``.csv`` twin (``frame,
+    time, x0, y0, ...``), each through a temporary file and a rename. Returns the paths written."""
     path = Path(path)
     if path.suffix.lower() != ".npz":
         raise ValueError(f"landmarks path must end in .npz, got {str(path)!r}")
@@ -846,7 +847,9 @@ def save_landmarks(path: str | os.PathLike, result: TrackResult, csv: bool = Tru
         raise ValueError(f"output directory {str(path.parent)!r} does not exist; create it first")
     arrays = {"points": result.points.astype(np.float64), "fps": np.float64(result.fps),
               "confidence": result.confidence.astype(np.float64), "lost": result.lost.astype(bool),
-              "edges": result.edges.astype(np.int64)}
+              "edges": result.edges.astype(np.int64),
+              "reacquired": np.asarray(result.reacquired, dtype=np.int64).reshape(-1),
+              "working_scale": np.float64(result.working_scale)}
     if result.names is not None:
         arrays["names"] = np.asarray(result.names, dtype=str)
 
