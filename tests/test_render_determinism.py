@@ -1,7 +1,8 @@
 """The performer's video is the same bytes from render to render: in one process with tracking
 and allocations between renders and the inputs in other memory layouts, and whatever CPUs the
 process may use; the encoder runs on one thread without slices; the colour conversion to
-yuv420p against PyAV's (libswscale), OpenCV's and the BT.601 closed form."""
+yuv420p against PyAV's (libswscale), OpenCV's and the BT.601 closed form; voicepuppet render's
+mp4 writer whatever CPUs the process may use."""
 
 import hashlib
 import os
@@ -174,3 +175,22 @@ def test_rgb_to_yuv420p_rejects_bad_input():
     with pytest.raises(ValueError, match=r"\(H, W, 3\)"):
         rgb_to_yuv420p(np.zeros((4, 4), np.uint8))
 
+
+def test_write_video_does_not_depend_on_the_cpus_it_may_use(tmp_path):
+    # voicepuppet render's mp4 writer (imageio-ffmpeg's ffmpeg): x264 chose 3 frame threads on
+    # 2 cores and 1 under one CPU, and wrote another bitstream (measured).
+    import cv2
+
+    from voicepuppet.render import write_video
+
+    rng = np.random.default_rng(SEED)
+    base = cv2.GaussianBlur(rng.integers(0, 256, (240, 320, 3), dtype=np.uint8), (0, 0), 2)
+    frames = [np.roll(base, 2 * k, axis=1) for k in range(30)]
+    cpus = os.sched_getaffinity(0)
+    write_video(frames, tmp_path / "all.mp4", FPS)
+    os.sched_setaffinity(0, {min(cpus)})
+    try:
+        write_video(frames, tmp_path / "one.mp4", FPS)
+    finally:
+        os.sched_setaffinity(0, cpus)
+    assert (tmp_path / "all.mp4").read_bytes() == (tmp_path / "one.mp4").read_bytes()
