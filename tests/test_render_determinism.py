@@ -6,13 +6,15 @@ mp4 writer whatever CPUs the process may use."""
 
 import hashlib
 import os
+import subprocess
+import sys
 
 import av
 import numpy as np
 import pytest
 
 from voicepuppet import synth, tracking, video
-from voicepuppet.synth.video import rgb_to_yuv420p
+from voicepuppet.synth.video import _pose_matrices, rgb_to_yuv420p
 
 FPS, RATE, SEED = 30000 / 1001, 16000, 4
 
@@ -22,14 +24,18 @@ def photo():
     return synth.face_photo((320, 320))
 
 
+def _hum(seconds):
+    """A hum (no espeak-ng needed), as tests/test_tracking.py's blinking performer hums."""
+    t = np.arange(int(seconds * RATE)) / RATE
+    return (0.3 * np.sin(2 * np.pi * (140 + 30 * np.sin(2 * np.pi * 0.7 * t)) * t)
+            * (0.5 + 0.5 * np.sin(2 * np.pi * 1.3 * t))).astype(np.float32)
+
+
 @pytest.fixture(scope="module")
 def clip(photo):
-    """2 s of the performer humming (no espeak-ng needed): seeded blinks and head motion."""
-    t = np.arange(int(2.0 * RATE)) / RATE
-    hum = (0.3 * np.sin(2 * np.pi * (140 + 30 * np.sin(2 * np.pi * 0.7 * t)) * t)
-           * (0.5 + 0.5 * np.sin(2 * np.pi * 1.3 * t))).astype(np.float32)
-    art = synth.articulate([], hum, RATE, photo.points, fps=FPS, seed=SEED)
-    return art, hum
+    """2 s of the performer humming: seeded blinks and head motion."""
+    hum = _hum(2.0)
+    return synth.articulate([], hum, RATE, photo.points, fps=FPS, seed=SEED), hum
 
 
 def _render(path, photo, art, hum, points=None):
@@ -106,6 +112,49 @@ def test_x264_runs_on_one_thread_without_slices(photo, clip, tmp_path):
     assert settings["threads"] == "1" and settings["sliced_threads"] == "0", settings
     assert settings["lookahead_threads"] == "1" and settings["rc_lookahead"] == "10", settings
     assert settings["rc"] == "crf" and settings["crf"] == "20.0", settings
+    assert settings["bframes"] == "0" and settings["mbtree"] == "1", settings
+
+
+# A child process rendering the 6 s clip of the blink test (seed 4), whose heap glibc fills:
+# MALLOC_PERTURB_=p hands out every heap block filled with the byte p ^ 0xff (no mmap below 1 GB).
+_CHILD = """
+import sys
+import numpy as np
+from voicepuppet import synth
+photo = synth.face_photo((320, 320))
+rate, fps = 16000, 30000 / 1001
+t = np.arange(int(6.0 * rate)) / rate
+hum = (0.3 * np.sin(2 * np.pi * (140 + 30 * np.sin(2 * np.pi * 0.7 * t)) * t)
+       * (0.5 + 0.5 * np.sin(2 * np.pi * 1.3 * t))).astype(np.float32)
+art = synth.articulate([], hum, rate, photo.points, fps=fps, seed=4)
+iod = float(np.linalg.norm(photo.points[36] - photo.points[45]))
+synth.render_video(sys.argv[1], photo, art.points, fps, hum, rate, pose=art.pose, centre=art.centre,
+                   gap=art.param("gap"), inter_ocular=iod, progress=False)
+"""
+
+
+def _with_heap(byte, args, **kw):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    env.pop("MALLOC_PERTURB_", None)
+    if byte is not None:
+        env.update(MALLOC_PERTURB_=str(byte ^ 0xFF), MALLOC_MMAP_THRESHOLD_=str(1 << 30))
+    subprocess.run(args, env=env, check=True, timeout=300, **kw)
+
+
+def test_render_does_not_depend_on_what_the_heap_held(tmp_path):
+    # The cause of stop 17's second variant: x264's macroblock tree with B-frames reads heap
+    # memory it has not written. Before, blocks handed out holding 0xa5 or 0xde (negative as
+    # signed bytes) gave another bitstream than fresh (zero) or 0x5a-filled ones (measured:
+    # two variants over 20 fill bytes, the same YUV in); a process that had tracked between
+    # renders sometimes held such bytes where x264 allocated.
+    outs = {}
+    for byte in (None, 0x5A, 0xA5):
+        path = tmp_path / f"heap_{byte}.mp4"
+        _with_heap(byte, [sys.executable, "-c", _CHILD, str(path)])
+        outs[byte] = path.read_bytes()
+    for byte, data in outs.items():
+        assert data == outs[None], (f"heap filled with {byte:#04x}: first differing video packet "
+                                    f"{_first_difference(tmp_path / 'heap_None.mp4', tmp_path / f'heap_{byte}.mp4')}")
 
 
 def _frames_to_convert(photo, clip):
@@ -176,16 +225,16 @@ def test_rgb_to_yuv420p_rejects_bad_input():
         rgb_to_yuv420p(np.zeros((4, 4), np.uint8))
 
 
-def test_write_video_does_not_depend_on_the_cpus_it_may_use(tmp_path):
-    # voicepuppet render's mp4 writer (imageio-ffmpeg's ffmpeg): x264 chose 3 frame threads on
-    # 2 cores and 1 under one CPU, and wrote another bitstream (measured).
-    import cv2
-
+def test_write_video_does_not_depend_on_the_cpus_or_the_heap(photo, tmp_path, monkeypatch):
+    # voicepuppet render's mp4 writer (imageio-ffmpeg's ffmpeg process): x264 chose 3 frame
+    # threads on 2 cores and 1 under one CPU, and wrote another bitstream; and with B-frames the
+    # bytes in its heap changed it (MALLOC_PERTURB_, inherited by ffmpeg). Measured, both.
     from voicepuppet.render import write_video
 
-    rng = np.random.default_rng(SEED)
-    base = cv2.GaussianBlur(rng.integers(0, 256, (240, 320, 3), dtype=np.uint8), (0, 0), 2)
-    frames = [np.roll(base, 2 * k, axis=1) for k in range(30)]
+    art = synth.articulate([], _hum(6.0), RATE, photo.points, fps=FPS, seed=SEED)
+    warper = synth.FaceWarper(photo.image, photo.points)
+    frames = [warper.warp(warper.mesh_points(p, m))
+              for p, m in zip(art.points, _pose_matrices(art.pose, art.centre))]
     cpus = os.sched_getaffinity(0)
     write_video(frames, tmp_path / "all.mp4", FPS)
     os.sched_setaffinity(0, {min(cpus)})
@@ -194,3 +243,8 @@ def test_write_video_does_not_depend_on_the_cpus_it_may_use(tmp_path):
     finally:
         os.sched_setaffinity(0, cpus)
     assert (tmp_path / "all.mp4").read_bytes() == (tmp_path / "one.mp4").read_bytes()
+    monkeypatch.setenv("MALLOC_MMAP_THRESHOLD_", str(1 << 30))
+    for byte in (0x5A, 0xA5):
+        monkeypatch.setenv("MALLOC_PERTURB_", str(byte ^ 0xFF))
+        write_video(frames, tmp_path / f"heap{byte}.mp4", FPS)
+        assert (tmp_path / f"heap{byte}.mp4").read_bytes() == (tmp_path / "all.mp4").read_bytes(), hex(byte)

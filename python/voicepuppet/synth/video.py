@@ -369,13 +369,16 @@ def render_video(path, photo: FacePhoto, points: np.ndarray, fps: float, samples
         with av.open(tmp, "w", format="mp4") as out:
             vs = out.add_stream("libx264", rate=rate_q)
             vs.width, vs.height, vs.pix_fmt = W, H, "yuv420p"
-            # One thread, no slices: the bitstream is a function of the frames alone. x264's
+            # The bitstream a function of the frames alone. One thread, no slices: x264's
             # automatic count follows the CPUs the process may use (2 slices here, 1 on a
-            # one-core runner or under taskset), and PyAV's conversion to yuv420p inside
-            # encode() is replaced by rgb_to_yuv420p's integer arithmetic.
+            # one-core runner or under taskset). No B-frames: with them, x264's macroblock
+            # tree reads heap memory it has not written (the output changes with the sign of
+            # the bytes malloc hands it: MALLOC_PERTURB_=90 vs 165), so a process whose heap
+            # held other data (tracking between renders) got another bitstream. PyAV's
+            # conversion to yuv420p inside encode() is replaced by rgb_to_yuv420p's integers.
             vs.codec_context.thread_count = 1
             vs.codec_context.thread_type = "NONE"
-            vs.options = {"crf": str(int(crf)), "preset": "veryfast"}
+            vs.options = {"crf": str(int(crf)), "preset": "veryfast", "x264-params": "bframes=0"}
             aus = out.add_stream("aac", rate=int(rate), layout="mono")
             a_sent = 0
             chunk = 1024
