@@ -526,16 +526,17 @@ def test_eye_corner_sides_point_away_from_the_eye(performer):
 
 
 def test_eye_corners_do_not_slide_into_the_eye_in_blinks(tmp_path):
-    # The performer blinking while it hums, 6 s, seeds 2, 4 and 5 (2-3 blinks each). With whole
+    # The performer blinking while it hums, 6 s, seeds 2, 5 and 6 (2-3 blinks each). With whole
     # patches the lids sweep across the eye side of the inner corner 42's patch and pull it into
-    # the eye (main, 2026-12-02: 42 worst 3.79 / 4.77 / 4.06 px; over seeds 2-7 it slides in four
-    # of six, and whether it does on a given clip is chaotic: the H.264 rendering of a clip is not
-    # bit-identical from run to run, and in one CI run seed 4's control stayed at 1.02 px). The eye
-    # corners' half patches away from their eye (eye_corner_sides) keep it on every seed (worst
-    # 0.86 / 0.99 / 0.92 px; every corner within 1.01 px; lips unchanged). So the fix is asserted
-    # on each clip and the defect on at least two of the three.
-    slid, eyes, eyes0 = 0, [], []
-    for seed in (2, 4, 5):
+    # the eye. Measured 2026-12-02 on the deterministic rendering (x264 without B-frames; before
+    # it a clip's H.264 bytes varied from run to run, and so did whether 42 slid): over seeds 1-9
+    # whole patches let 42 slide on seven (worst 3.0-10.8 px; seeds 2 / 5 / 6: 10.77 / 5.51 /
+    # 7.47) and not on seeds 4 and 7 (1.15 / 1.16). The eye corners' half patches away from their
+    # eye (eye_corner_sides) keep it on every seed (worst 0.81-1.28 px; 2 / 5 / 6: 0.87 / 0.98 /
+    # 1.05, mean 0.22-0.34; lips and the rest of the face unchanged). So the test takes three
+    # clips where the defect is there and asserts it and the fix on each.
+    eyes, eyes0 = [], []
+    for seed in (2, 5, 6):
         frames, truth, blink = _blinking_performer(6.0, seed, tmp_path)
         assert blink.max() > 0.99 and int(((blink[1:] > 0.3) & (blink[:-1] <= 0.3)).sum()) >= 2
         result = tracking.track_frames(frames, truth[0])
@@ -551,10 +552,9 @@ def test_eye_corners_do_not_slide_into_the_eye_in_blinks(tmp_path):
         assert err[:, 42].max() < 1.5
         assert err[:, 42].mean() < 0.5
         assert err[:, corners].max() < 1.3
-        slid += err0[:, 42].max() > 3.0  # the defect
+        assert err0[:, 42].max() > 3.0  # the defect
         eyes.append(err[:, 36:48].mean())
         eyes0.append(err0[:, 36:48].mean())
         assert err[:, 48:].mean() < err0[:, 48:].mean() + 0.03  # the lips as before
         assert err[:, :36].mean() < err0[:, :36].mean() + 0.03  # the rest of the face as before
-    assert slid >= 2
     assert np.mean(eyes) < np.mean(eyes0)

@@ -41,7 +41,7 @@ __all__ = ["make_corpus", "make_real_corpus", "REAL_TRAIN", "REAL_TEST", "make_c
            "drawn_face"]
 
 #: bump when the output of make_corpus changes for the same parameters (invalidates caches)
-SYNTH_VERSION = 1
+SYNTH_VERSION = 2
 
 #: the performer's built-in sentences (written for this project; varied consonants and vowels)
 SENTENCES = (
