@@ -52,6 +52,7 @@ TRAIN_DEFAULTS = {
     "vocal_covariance": "full",  # or "diag", "tied" (one for all states; not better: docs/results.md)
     "vocal_shrinkage": 1.0,  # evidence of the pooled Gaussian in each state's, in units of A frames
     "vocal_features": "audio",  # or "projected": remap on the ridge's cross-fitted face prediction
+                                # (with "tied": better across real voices, worse on espeak: docs/results.md)
     "vocal_context": 5,      # +-frames of audio the projection reads (projected only; latency)
     "min_covar": 0.1,        # facial variance floor, x the mean data variance: chosen by CV (docs/results.md)
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
