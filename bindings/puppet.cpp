@@ -107,6 +107,10 @@ void bind_puppet(py::module_& m) {
       .def("startprob", [](const Puppet& p, Index part) { return p.part(part).startprob; }, py::arg("part") = 0)
       .def("transmat", [](const Puppet& p, Index part) { return p.part(part).transmat; }, py::arg("part") = 0)
       .def("standardize", &Puppet::standardize, py::arg("raw"))
+      .def_property_readonly("projected", &Puppet::projected)
+      .def_property_readonly("projection_context", &Puppet::projection_context)
+      .def_property_readonly("n_vocal", &Puppet::n_vocal)
+      .def("project", &Puppet::project, py::arg("standardized"))
       .def("vocal_log_density", &Puppet::vocal_log_density, py::arg("standardized"), py::arg("part") = 0,
            py::call_guard<py::gil_scoped_release>())
       .def("trajectory_model", &Puppet::trajectory_model, py::arg("out_fps") = 0.0, py::arg("part") = 0)

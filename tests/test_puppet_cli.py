@@ -119,6 +119,21 @@ def test_cpp_example_animates_a_tied_puppet_like_python(workdir, tmp_path):
     _assert_cpp_animates_like_python(exe, path, d / "test.wav", tmp_path)
 
 
+def test_cpp_example_animates_a_projected_puppet_like_python(workdir, tmp_path):
+    # vocal_features="projected": the C++ program applies the stored projection of +-5 frames
+    # from the raw feature frames, as Python does.
+    exe = _example_exe()
+    from voicepuppet.puppet import Puppet
+
+    d = workdir
+    with np.load(d / "train.npz") as z:
+        pts = z["points"]
+    proj = Puppet.train([pts], [str(d / "train.wav")], fps=FPS, n_states=6, n_iter=12,
+                        vocal_features="projected", vocal_covariance="tied")
+    assert proj._core.projected and proj._core.projection_context == 5
+    _assert_cpp_animates_like_python(exe, proj.save(tmp_path / "projected.vpp"), d / "test.wav", tmp_path)
+
+
 def test_bad_input_is_reported_and_writes_nothing(workdir, tmp_path, capsys):
     d = workdir
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "a.txt")]) == 2

@@ -81,6 +81,20 @@ Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
   if (A < 1 || (audio_std_.array() <= 0).any()) {
     fail_argument("puppet audio standardisation needs at least one column and positive std");
   }
+  if (f.arrays.count("audio/projection")) {
+    projection_context_ = array(f, "audio/projection_context", {1}, PuppetArray::DType::Int64).i64[0];
+    projection_columns_ = array(f, "audio/projection_columns", {1}, PuppetArray::DType::Int64).i64[0];
+    if (projection_context_ < 0 || projection_context_ > 100) {
+      fail_argument("puppet audio/projection_context must be in [0, 100], got ", projection_context_);
+    }
+    if (projection_columns_ < 1 || projection_columns_ > A) {
+      fail_argument("puppet audio/projection_columns must be in [1, ", A, "], got ", projection_columns_);
+    }
+    projection_ = array(f, "audio/projection", {projection_columns_ * (2 * projection_context_ + 1), -1}).matrix();
+    if (projection_.cols() < 1) fail_argument("puppet audio/projection must have at least one column");
+    projection_offset_ = array(f, "audio/projection_offset", {projection_.cols()}).matrix().row(0).transpose();
+  }
+  const Index V = n_vocal();
   mean_shape_ = array(f, "face/mean_shape", {-1, 2}).matrix();
   const Index P = mean_shape_.rows();
   mean_pose_ = array(f, "face/mean_pose", {4}).matrix().row(0).transpose();
@@ -107,16 +121,16 @@ Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
     make_transitions(part.startprob, part.transmat);  // validates the probabilities
     part.face_means = array(f, hp + "face_means", {N, 2 * K}).matrix();
     part.face_covars = array(f, hp + "face_covars", {N, 2 * K, 2 * K}).matrix();
-    part.vocal_means = array(f, hp + "vocal_means", {N, A}).matrix();
+    part.vocal_means = array(f, hp + "vocal_means", {N, V}).matrix();
     const PuppetArray& vc = f.at(hp + "vocal_covars");
     if (vc.shape.size() == 3) {
-      part.vocal_covars = array(f, hp + "vocal_covars", {N, A, A}).matrix();
+      part.vocal_covars = array(f, hp + "vocal_covars", {N, V, V}).matrix();
       part.vocal_type = CovarianceType::Full;
     } else {
-      part.vocal_covars = array(f, hp + "vocal_covars", {N, A}).matrix();
+      part.vocal_covars = array(f, hp + "vocal_covars", {N, V}).matrix();
       part.vocal_type = CovarianceType::Diagonal;
     }
-    check_covariances(part.vocal_covars, N, A, part.vocal_type);
+    check_covariances(part.vocal_covars, N, V, part.vocal_type);
     native_.emplace_back(part.face_means.leftCols(K), part.face_means.rightCols(K), part.face_covars,
                          CovarianceType::Full, 1.0);
     parts_.push_back(std::move(part));
@@ -164,9 +178,29 @@ RowMatrixXd Puppet::standardize(const MatrixRef& raw) const {
   return z;
 }
 
+RowMatrixXd Puppet::project(const MatrixRef& standardized) const {
+  if (standardized.cols() != audio_mean_.size()) {
+    fail_argument("standardised features must have ", audio_mean_.size(), " columns (Puppet::standardize), got ",
+                  standardized.cols());
+  }
+  if (!projected()) return standardized;
+  const Index T = standardized.rows(), C = projection_columns_, k = projection_context_;
+  RowMatrixXd x(T, C * (2 * k + 1));
+  for (Index t = 0; t < T; ++t) {
+    for (Index j = -k; j <= k; ++j) {
+      const Index s = std::clamp<Index>(t + j, 0, T - 1);
+      x.row(t).segment((j + k) * C, C) = standardized.row(s).head(C);
+    }
+  }
+  RowMatrixXd v = x * projection_;
+  v.rowwise() += projection_offset_.transpose();
+  return v;
+}
+
 RowMatrixXd Puppet::vocal_log_density(const MatrixRef& standardized, Index p) const {
   const PuppetPart& pt = part(p);
-  return gaussian_log_density(standardized, pt.vocal_means, pt.vocal_covars, pt.vocal_type);
+  if (!projected()) return gaussian_log_density(standardized, pt.vocal_means, pt.vocal_covars, pt.vocal_type);
+  return gaussian_log_density(project(standardized), pt.vocal_means, pt.vocal_covars, pt.vocal_type);
 }
 
 double Puppet::out_rate(double fps) const {

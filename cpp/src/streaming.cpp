@@ -234,6 +234,11 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
     fail_argument("fps must be 0 (the puppet's rate) or a positive frame rate, got ", options.fps);
   }
   out_fps_ = options.fps == 0 ? puppet_.fps() : options.fps;
+  if (puppet_.projected()) {
+    fail_argument("the puppet's vocal features are a projection of +-", puppet_.projection_context(),
+                  " audio frames (trained with vocal_features=\"projected\"), which streaming does not "
+                  "compute; animate it offline, or train with vocal_features=\"audio\" for live use");
+  }
   const Index w = puppet_.delta_width();
   if (options.delta_lag < -1 || options.delta_lag > w) {
     fail_argument("delta_lag must be -1 (the puppet's delta width, ", w, ") or 0 .. ", w,

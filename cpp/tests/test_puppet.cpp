@@ -187,3 +187,63 @@ TEST_CASE("regression deltas: a ramp has unit slope inside, edges repeat the end
   CHECK(p.standardize(x).cols() == 4);
   CHECK(p.standardize(x)(4, 2) == doctest::Approx(1.0));
 }
+
+TEST_CASE("a projected puppet's vocal densities are those of the projection of ±k standardised frames") {
+  // Projection of the first column (C = 1) over ±1 frames to one vocal feature:
+  // v_t = 0.5·z_{t−1} + 1·z_t − 0.25·z_{t+1} + 0.1, edge frames repeated.
+  PuppetFile f = tiny_puppet();
+  PuppetArray k, c;
+  k.dtype = c.dtype = PuppetArray::DType::Int64;
+  k.shape = c.shape = {1};
+  k.i64 = {1};
+  c.i64 = {1};
+  f.arrays["audio/projection_context"] = k;
+  f.arrays["audio/projection_columns"] = c;
+  f.arrays["audio/projection"] = arr({3, 1}, {0.5, 1, -0.25});
+  f.arrays["audio/projection_offset"] = arr({1}, {0.1});
+  f.arrays["hmm/part0/vocal_means"] = arr({2, 1}, {-1, 1});
+  f.arrays["hmm/part0/vocal_covars"] = arr({2, 1, 1}, {0.3, 0.3});
+  const Puppet p(f);
+  CHECK(p.projected());
+  CHECK(p.projection_context() == 1);
+  CHECK(p.n_vocal() == 1);
+  CHECK(p.n_features() == 2);
+  RowMatrixXd raw(4, 2);
+  raw << 3, 0, 1, 5, -1, 2, 5, -3;  // standardised first column: 1, 0, -1, 2
+  const RowMatrixXd z = p.standardize(raw);
+  const RowMatrixXd v = p.project(z);
+  REQUIRE(v.rows() == 4);
+  REQUIRE(v.cols() == 1);
+  const double want[4] = {0.5 * 1 + 1 - 0.25 * 0 + 0.1, 0.5 * 1 + 0 + 0.25 + 0.1, 0 - 1 - 0.5 + 0.1,
+                          -0.5 + 2 - 0.5 + 0.1};
+  const RowMatrixXd lb = p.vocal_log_density(z);
+  for (Index t = 0; t < 4; ++t) {
+    CHECK(v(t, 0) == doctest::Approx(want[t]).epsilon(1e-14));
+    for (Index n = 0; n < 2; ++n) {
+      const double d = want[t] - (n == 0 ? -1.0 : 1.0);
+      CHECK(lb(t, n) == doctest::Approx(-0.5 * (std::log(2 * M_PI * 0.3) + d * d / 0.3)).epsilon(1e-12));
+    }
+  }
+  CHECK(p.animate(raw).states.rows() == 4);
+  // Unprojected puppets: project is the identity; a wrong width is named.
+  const Puppet plain(tiny_puppet());
+  CHECK(!plain.projected());
+  CHECK((plain.project(plain.standardize(raw)) - plain.standardize(raw)).cwiseAbs().maxCoeff() == 0.0);
+  CHECK(throws_with([&] { p.project(z.leftCols(1)); }, "columns"));
+  // Inconsistent projection arrays are refused with their names.
+  PuppetFile g = f;
+  g.arrays["audio/projection"] = arr({2, 1}, {0.5, 1});
+  CHECK(throws_with([&] { Puppet q(g); }, "audio/projection"));
+  g = f;
+  g.arrays["audio/projection_columns"].i64 = {3};
+  CHECK(throws_with([&] { Puppet q(g); }, "projection_columns"));
+  g = f;
+  g.arrays["audio/projection_context"].i64 = {-1};
+  CHECK(throws_with([&] { Puppet q(g); }, "projection_context"));
+  g = f;
+  g.arrays.erase("audio/projection_offset");
+  CHECK(throws_with([&] { Puppet q(g); }, "projection_offset"));
+  g = f;
+  g.arrays["hmm/part0/vocal_means"] = arr({2, 2}, {-1, 0, 1, 0});
+  CHECK(throws_with([&] { Puppet q(g); }, "vocal_means"));
+}

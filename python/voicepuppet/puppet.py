@@ -12,10 +12,13 @@ Training (:meth:`Puppet.train`), one pass, no back and forth:
    synchronous, standardised audio features (with their regression deltas over ±2 frames, so
    each frame carries its local dynamics); the vocal HMM shares the facial state machine.
    Means and covariances are shrunk towards the pooled ones by ``A`` frames' worth of evidence
-   (A = audio dimensions), so a rarely visited state still has a usable Gaussian.
+   (A = audio dimensions), so a rarely visited state still has a usable Gaussian. With
+   ``vocal_features="projected"`` the vocal Gaussians live instead on a learned projection of
+   the audio, the ridge's cross-fitted prediction of the face coordinates from ±``vocal_context``
+   frames (:mod:`voicepuppet.projection`), stored in the file and applied by C++.
 
 Animation runs in C++ (:class:`voicepuppet._core.Puppet`, ``cpp/include/voicepuppet/puppet.hpp``):
-features → standardise → vocal log densities → Viterbi (or posteriors) → closed-form trajectory at
+features → standardise (→ projection) → vocal log densities → Viterbi (or posteriors) → closed-form trajectory at
 the output rate → landmarks at the training mean pose. The puppet file (``.vpp``) is written and
 read by C++ too (magic number, format version, CRC-32), so a C++ program animates without Python.
 """
@@ -32,6 +35,7 @@ import numpy as np
 from voicepuppet import _core
 from voicepuppet.animation import Animation, check_output_path
 from voicepuppet.face import FaceSpace, check_landmarks, observations
+from voicepuppet.projection import VOCAL_FEATURES, fit_projection
 
 #: What ``Puppet.train`` uses unless told otherwise (recorded in each puppet's metadata).
 TRAIN_DEFAULTS = {
@@ -47,6 +51,9 @@ TRAIN_DEFAULTS = {
     "audio_deltas": 2,       # append regression deltas over +-2 frames to the audio features
     "vocal_covariance": "full",  # or "diag", "tied" (one for all states; not better: docs/results.md)
     "vocal_shrinkage": 1.0,  # evidence of the pooled Gaussian in each state's, in units of A frames
+    "vocal_features": "audio",  # or "projected": remap on the ridge's cross-fitted face prediction
+                                # (with "tied": better across real voices, worse on espeak: docs/results.md)
+    "vocal_context": 5,      # +-frames of audio the projection reads (projected only; latency)
     "min_covar": 0.1,        # facial variance floor, x the mean data variance: chosen by CV (docs/results.md)
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
     "seed": 0,
@@ -162,6 +169,12 @@ class Puppet:
         if opt["vocal_covariance"] not in VOCAL_COVARIANCES:
             raise ValueError(f"vocal_covariance must be one of {VOCAL_COVARIANCES}, got "
                              f"{opt['vocal_covariance']!r}")
+        if opt["vocal_features"] not in VOCAL_FEATURES:
+            raise ValueError(f"vocal_features must be one of {VOCAL_FEATURES}, got {opt['vocal_features']!r}")
+        k = opt["vocal_context"]
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= 100:
+            raise ValueError(f"vocal_context must be an integer in [0, 100] (frames of audio on each side "
+                             f"the projection reads), got {k!r}")
         if isinstance(points_list, np.ndarray) or not isinstance(points_list, (list, tuple)):
             points_list = [points_list]
         if (audio_list is None) == (features_list is None):
@@ -204,6 +217,11 @@ class Puppet:
         arrays = {"fps": np.array([float(fps)]), "audio/mean": std.mean, "audio/std": std.std,
                   "audio/delta_width": np.array([w], dtype=np.int64)}
         arrays.update(fs.to_arrays())
+        if opt["vocal_features"] == "projected":
+            # With context the map reads the features alone (its context can form their deltas).
+            cols = raw[0].shape[1] if k != 0 else A.shape[1]
+            A, proj, proj_info = fit_projection(A, Y, lengths, context=k, columns=cols)
+            arrays.update(proj)
         report = []
         z = anneal_schedule(opt["n_iter"]) * opt["z"] if opt["anneal"] else opt["z"]
         prior = dict(prior="entropic", z=z, trim=True) if opt["prior"] == "entropic" else {}
@@ -236,6 +254,8 @@ class Puppet:
                     "feature_names": names, "training": {
                         "frames": int(lengths.sum()), "sequences": int(len(lengths)),
                         "options": _jsonable(opt), "parts": report}}
+        if opt["vocal_features"] == "projected":
+            metadata["training"]["projection"] = proj_info
         return cls(metadata, arrays)
 
     # -------------------------------------------------------------------------- animation

@@ -4,7 +4,8 @@
 /// into facial landmarks, read from a puppet file (puppet_io.hpp), with no Python involved.
 ///
 /// Analysis and synthesis, per face part (one part, or upper and lower face, §5.1):
-///   raw features [T, A] ─ standardise ─► vocal log densities [T, N] ─ Viterbi (or forward-
+///   raw features [T, A] ─ standardise ─► vocal log densities [T, N] (of the projection
+///   of the standardised features, if the file has one) ─ Viterbi (or forward-
 ///   backward posteriors) ─► facial states ─ resample to the output rate ─► closed-form
 ///   trajectory (trajectory.hpp) ─► face coordinates [T', K_p] ─► shape (mean + basis) ─► pose
 ///   (the training mean pose) ─► pixel landmarks [T', 2P] (x0, y0, x1, y1, ...).
@@ -15,6 +16,11 @@
 ///   audio/delta_width [1] (int)       w: append regression deltas over ±w frames (0: none;
 ///                                     absent in older files means 0)
 ///   audio/mean [A'], audio/std [A']   standardisation of [features, deltas] (A' = A or 2A)
+///   audio/projection [C·(2k+1), V]    optional (Python's vocal_features="projected"): the vocal
+///   audio/projection_offset [V]       features are v_t = [z_{t−k}, …, z_{t+k}] · projection +
+///   audio/projection_context [1] (int) offset, z the first C = audio/projection_columns [1] (int)
+///   audio/projection_columns [1] (int) standardised columns, edge frames repeated (k ≤ 100);
+///                                     absent: v = the standardised features (V = A')
 ///   face/mean_shape [P, 2]            normalised mean shape
 ///   face/mean_pose [4]                (log s, θ, tx, ty): pixel = s·R(θ)·shape + t
 ///   face/part{p}/points [P_p] (int)   the part's point indices (the parts partition the points)
@@ -22,9 +28,9 @@
 ///   hmm/part{p}/startprob [N], hmm/part{p}/transmat [N, N]
 ///   hmm/part{p}/face_means [N, 2K_p]  [pose, velocity] means
 ///   hmm/part{p}/face_covars [N, 2K_p, 2K_p]
-///   hmm/part{p}/vocal_means [N, A]
-///   hmm/part{p}/vocal_covars [N, A, A] (full; a tied model, Python's
-///                                     vocal_covariance="tied", is N equal copies) or [N, A] (diagonal)
+///   hmm/part{p}/vocal_means [N, V]
+///   hmm/part{p}/vocal_covars [N, V, V] (full; a tied model, Python's
+///                                     vocal_covariance="tied", is N equal copies) or [N, V] (diagonal)
 
 #include "voicepuppet/hmm_gaussian.hpp"
 #include "voicepuppet/puppet_io.hpp"
@@ -47,8 +53,8 @@ struct PuppetPart {
   RowMatrixXd transmat;       ///< #N by #N
   RowMatrixXd face_means;     ///< #N by 2·K_p
   RowMatrixXd face_covars;    ///< #N·2K_p by 2K_p
-  RowMatrixXd vocal_means;    ///< #N by #A
-  RowMatrixXd vocal_covars;   ///< full: #N·A by A; diagonal: #N by A
+  RowMatrixXd vocal_means;    ///< #N by #V
+  RowMatrixXd vocal_covars;   ///< full: #N·V by V; diagonal: #N by V
   CovarianceType vocal_type = CovarianceType::Full;
   Index n_states() const { return startprob.size(); }
   Index n_dims() const { return basis.rows(); }
@@ -92,7 +98,18 @@ class Puppet {
   /// ([raw, deltas] − mean) / std; #T by #A'. @throws std::invalid_argument on a column
   /// mismatch or NaN.
   RowMatrixXd standardize(const MatrixRef& raw) const;
-  /// log N(a_t; vocal Gaussian of state n) of part p; #T by #N.
+  /// Whether the vocal features are a projection of the standardised ones (audio/projection).
+  bool projected() const { return projection_.size() > 0; }
+  /// k: frames of audio on each side the projection reads (0 without a projection).
+  Index projection_context() const { return projection_context_; }
+  /// V, the vocal features' dimension.
+  Index n_vocal() const { return projected() ? projection_.cols() : audio_mean_.size(); }
+  /// The vocal features of standardised frames #T by #A' (one whole sequence: the context
+  /// repeats its first and last frame): the projection if there is one, else a copy; #T by #V.
+  /// @throws std::invalid_argument on a column mismatch.
+  RowMatrixXd project(const MatrixRef& standardized) const;
+  /// log N(v_t; vocal Gaussian of state n) of part p, v = project(standardized) for standardised
+  /// frames #T by #A' of one sequence; #T by #N.
   RowMatrixXd vocal_log_density(const MatrixRef& standardized, Index p = 0) const;
   /// The trajectory blocks of part p for synthesis at `out_fps` (0: the puppet's rate).
   TrajectoryModel trajectory_model(double out_fps = 0, Index p = 0) const;
@@ -111,6 +128,9 @@ class Puppet {
   double fps_ = 0;
   Index delta_width_ = 0;
   VectorXd audio_mean_, audio_std_, mean_pose_;
+  RowMatrixXd projection_;     ///< #C·(2k+1) by #V, empty without a projection
+  VectorXd projection_offset_;
+  Index projection_context_ = 0, projection_columns_ = 0;
   RowMatrixXd mean_shape_;
   std::vector<PuppetPart> parts_;
   std::vector<TrajectoryModel> native_;  ///< trajectory blocks at the puppet's own rate

@@ -1,0 +1,114 @@
+"""A learned projection of the audio for the vocal model (training option ``vocal_features``).
+
+The vocal Gaussians of Brand's remap (§4.3) may live in any audio-feature space. With
+``vocal_features="projected"`` they live on ŷ_t, the ridge regression's prediction of the face
+coordinates y_t from the standardised audio features of frames t−k .. t+k (the map of the ridge
+baseline, :class:`voicepuppet.evaluation.RidgeBaseline`): K ≤ 12 dimensions that carry what the
+face needs and little of the voice, instead of 48 that carry the voice too (docs/results.md,
+"vocal Gaussians on a learned projection of the audio").
+
+The training ŷ are **cross-fitted**: each training fold's ŷ is predicted by a map fitted without
+it, so the vocal Gaussians see ŷ as noisy as novel audio gives them. The map stored in the
+puppet file is fitted on all training frames and standardised by the cross-fitted ŷ's mean and
+standard deviation, folded into one affine map (arrays ``audio/projection*``, applied by C++
+``Puppet::vocal_features``):
+
+    v_t = [z_{t−k}, …, z_{t+k}] · P + c,   z = the first ``columns`` standardised feature columns,
+    frames beyond the ends repeating the first or last frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from voicepuppet.audio import Standardizer
+from voicepuppet.evaluation import RidgeBaseline, context_stack
+
+#: Vocal feature spaces of :meth:`voicepuppet.puppet.Puppet.train` (option ``vocal_features``).
+VOCAL_FEATURES = ("audio", "projected")
+
+
+def cross_fit_folds(lengths, n_folds: int = 5) -> list:
+    """Frame indices of the cross-fitting folds over sequences of ``lengths`` (concatenated).
+
+    With at least ``n_folds`` sequences a fold is a run of whole consecutive sequences; with
+    fewer, every sequence is cut into ``n_folds`` consecutive blocks and fold j holds block j of
+    each (so one long training video is cross-fitted too).
+    """
+    lengths = np.asarray(lengths, dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    seq_frames = [np.arange(s, s + n) for s, n in zip(starts, lengths)]
+    if len(lengths) >= n_folds:
+        return [np.concatenate([seq_frames[i] for i in g]) for g in np.array_split(np.arange(len(lengths)), n_folds)]
+    blocks = [np.array_split(f, n_folds) for f in seq_frames]
+    return [np.concatenate([b[j] for b in blocks]) for j in range(n_folds)]
+
+
+def cross_fit(X, Y, lengths, n_folds: int = 5) -> np.ndarray:
+    """Cross-fitted ridge predictions (T, K) of ``Y`` from the rows of ``X`` (T, C): the frames
+    of each fold of :func:`cross_fit_folds` predicted by a :class:`RidgeBaseline` (its own α
+    choice) fitted on the other folds, so no frame's prediction has seen its own target."""
+    yhat = np.empty(np.shape(Y), dtype=np.float64)
+    for fold in cross_fit_folds(lengths, n_folds):
+        rest = np.setdiff1d(np.arange(len(X)), fold)
+        yhat[fold] = RidgeBaseline(0).fit([X[rest]], [Y[rest]]).predict(X[fold])
+    return yhat
+
+
+def fit_projection(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5):
+    """Fit the projection and the cross-fitted training features it gives.
+
+    Parameters
+    ----------
+    standardized : array (T, A')
+        Standardised training features (as the puppet standardises them), sequences concatenated.
+    face : array (T, K)
+        The training face coordinates (the regression's target).
+    lengths : array of int
+        Frames per training sequence (they add up to T).
+    context : int
+        k: frames of context on each side (0: the frame alone).
+    columns : int
+        How many leading columns of ``standardized`` the map reads (A' for all of them; A for the
+        features without their deltas).
+    n_folds : int
+        Cross-fitting folds (:func:`cross_fit_folds`).
+
+    Returns
+    -------
+    train_features : array (T, K)
+        Cross-fitted ŷ of the training frames, standardised: what the vocal Gaussians are fitted on.
+    arrays : dict
+        ``audio/projection`` [columns·(2k+1), K], ``audio/projection_offset`` [K],
+        ``audio/projection_context`` [1] (int k), ``audio/projection_columns`` [1] (int).
+    info : dict
+        The ridge's α (of the map on all frames), folds, context, columns (for the metadata).
+    """
+    Z = np.asarray(standardized, dtype=np.float64)
+    Y = np.asarray(face, dtype=np.float64)
+    lengths = np.asarray(lengths, dtype=np.int64)
+    if int(context) != context or context < 0:
+        raise ValueError(f"vocal_context must be an integer >= 0, got {context!r}")
+    if not 1 <= columns <= Z.shape[1]:
+        raise ValueError(f"columns must be in [1, {Z.shape[1]}], got {columns!r}")
+    if len(Z) != len(Y) or lengths.sum() != len(Z):
+        raise ValueError(f"standardized {Z.shape} and face {Y.shape} must have the frames of lengths "
+                         f"(adding up to {int(lengths.sum())})")
+    if len(Z) < 2 * n_folds:
+        raise ValueError(f"{len(Z)} training frames are too few to cross-fit the projection over "
+                         f"{n_folds} folds; give more training audio")
+    k = int(context)
+    Z = Z[:, :columns]
+    bounds = np.concatenate([[0], np.cumsum(lengths)])
+    # Context is stacked per sequence (edges repeated), then frames go to folds.
+    X = np.vstack([context_stack(Z[a:b], k) for a, b in zip(bounds[:-1], bounds[1:])])
+    yhat = cross_fit(X, Y, lengths, n_folds)
+    std = Standardizer.fit(yhat)
+    full = RidgeBaseline(0).fit([X], [Y])
+    P = full.W / std.std
+    c = (full.y_mean - full.x_mean @ full.W - std.mean) / std.std
+    arrays = {"audio/projection": np.ascontiguousarray(P), "audio/projection_offset": c,
+              "audio/projection_context": np.array([k], dtype=np.int64),
+              "audio/projection_columns": np.array([int(columns)], dtype=np.int64)}
+    info = {"alpha": float(full.alpha), "folds": int(n_folds), "context": k, "columns": int(columns)}
+    return std.transform(yhat), arrays, info
