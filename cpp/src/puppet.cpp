@@ -220,9 +220,20 @@ AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOption
   AnimateResult r;
   r.states.resize(T, n_parts());
   std::vector<RowMatrixXd> faces;
+  const bool adapt = options.adapt.kind != AdaptKind::None;
+  if (adapt) check_adapt_options(options.adapt);
   for (Index p = 0; p < n_parts(); ++p) {
     const PuppetPart& pt = parts_[static_cast<size_t>(p)];
-    const RowMatrixXd log_b = vocal_log_density(z, p);
+    RowMatrixXd log_b;
+    if (adapt) {
+      r.transforms.push_back(adapt_features(z, no_lengths, pt.vocal_means, pt.vocal_covars, pt.vocal_type,
+                                            pt.startprob, pt.transmat, options.adapt));
+      const FeatureTransform& tr = r.transforms.back();
+      log_b = vocal_log_density(tr.apply(z), p);
+      r.log_likelihood += tr.log_jacobian(T);
+    } else {
+      log_b = vocal_log_density(z, p);
+    }
     const ViterbiResult vit = viterbi(log_b, pt.startprob, pt.transmat, no_lengths);
     r.states.col(p) = vit.path;
     const TrajectoryModel model = trajectory_model(out, p);

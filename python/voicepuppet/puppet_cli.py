@@ -160,13 +160,20 @@ def _animate(args) -> int:
 
     out = check_output_path(args.output, (".npz", ".csv"), "animation file")
     puppet = load(palette_puppet(args.palette, args.puppet) if args.palette else args.puppet)
+    adapt = {k: v for k, v in (("adapt", args.adapt), ("adapt_tau", args.adapt_tau),
+                                ("adapt_iter", args.adapt_iter)) if v is not None}
+    if adapt and args.adapt is None:
+        raise ValueError("--adapt-tau and --adapt-iter set the adaptation: give --adapt bias|diag|full too")
     if args.states_in:
+        if adapt:
+            raise ValueError("--adapt adapts the audio's features; with --states-in there is no audio: drop --adapt")
         states, sfps = load_states(args.states_in)
         result = puppet.animate(states=states, states_fps=sfps, fps=args.fps)
     else:
         if args.audio is None:
             raise ValueError("give the AUDIO to animate (or --states-in)")
-        result = puppet.animate(args.audio, fps=args.fps, posterior=args.posterior, progress=not args.quiet)
+        result = puppet.animate(args.audio, fps=args.fps, posterior=args.posterior, progress=not args.quiet,
+                                **adapt)
     anim = result.animation
     if args.exaggerate is not None:
         anim = exaggerate(anim, args.exaggerate)
@@ -211,6 +218,14 @@ def add_parser(sub) -> None:
     a.add_argument("--fps", type=float, help="output frame rate (default: the puppet's)")
     a.add_argument("--posterior", action="store_true", help="posterior-weighted synthesis instead of the Viterbi path")
     a.add_argument("--exaggerate", type=float, help="scale the motion about the mean face (1: as is)")
+    a.add_argument("--adapt", choices=["bias", "diag", "full"],
+                   help="adapt the audio features to the puppet's vocal model before decoding (test-time "
+                        "fMLLR-style EM: a bias, a scale per feature and bias, or a full affine transform; "
+                        "docs/puppet.md)")
+    a.add_argument("--adapt-tau", type=float, metavar="FRAMES",
+                   help="the adaptation prior's weight in frames (default: puppet.ADAPT_DEFAULTS, 30)")
+    a.add_argument("--adapt-iter", type=int, metavar="N",
+                   help="adaptation EM iterations (default: puppet.ADAPT_DEFAULTS, 1)")
     a.add_argument("--states-out", metavar="S.csv", help="also write the facial state sequence (for editing)")
     a.add_argument("--states-in", metavar="S.csv", help="synthesise from this (edited) state sequence instead of audio")
     a.add_argument("--quiet", action="store_true", help="no progress bars")
