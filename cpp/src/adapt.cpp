@@ -64,16 +64,12 @@ double prior_term(const RowMatrixXd& A, const VectorXd& b, const MatrixRef& mean
 
 AdaptKind parse_adapt_kind(const std::string& name) {
   if (name == "none") return AdaptKind::None;
-  if (name == "bias") return AdaptKind::Bias;
-  if (name == "diag") return AdaptKind::Diagonal;
   if (name == "full") return AdaptKind::Full;
-  fail_argument("adaptation must be 'none', 'bias', 'diag' or 'full', got '", name, "'");
+  fail_argument("adaptation must be 'none' or 'full', got '", name, "'");
 }
 
 std::string adapt_kind_name(AdaptKind kind) {
   switch (kind) {
-    case AdaptKind::Bias: return "bias";
-    case AdaptKind::Diagonal: return "diag";
     case AdaptKind::Full: return "full";
     case AdaptKind::None: break;
   }
@@ -166,22 +162,9 @@ FeatureTransform adapt_features(const MatrixRef& z, const IndexVectorRef& length
     }
     const double beta = n.sum();
 
-    if (options.kind == AdaptKind::Bias) {
-      RowMatrixXd H = RowMatrixXd::Zero(D, D);
-      VectorXd r = VectorXd::Zero(D);
-      for (Index i = 0; i < N; ++i) {
-        const RowMatrixXd& P = g.prec[static_cast<size_t>(i)];
-        H += n(i) * P;
-        r += P * (n(i) * means.row(i).transpose() - S.row(i).tail(D).transpose());
-      }
-      W.col(0) = Eigen::LLT<RowMatrixXd>(H).solve(r);
-      continue;
-    }
-
-    const bool diagonal = options.kind == AdaptKind::Diagonal;
     for (Index sweep = 0; sweep < options.sweeps; ++sweep) {
       for (Index r = 0; r < D; ++r) {
-        // The row's quadratic: -½ wᵀ Gr w + kᵀ w, with the other rows fixed.
+        // Row r of W maximises -½ wᵀ Gr w + kᵀ w + β log|c·w|, the other rows fixed.
         RowMatrixXd Gr = RowMatrixXd::Zero(D + 1, D + 1);
         VectorXd k = VectorXd::Zero(D + 1);
         for (Index i = 0; i < N; ++i) {
@@ -192,40 +175,25 @@ FeatureTransform adapt_features(const MatrixRef& z, const IndexVectorRef& length
           v -= P(r, r) * W.row(r).transpose();                // ... over s ≠ r
           k += pm(i, r) * S.row(i).transpose() - Gi * v;
         }
-        // Free entries: the bias and the diagonal (Diagonal; the others stay 0 and add nothing)
-        // or all columns (Full).
-        std::vector<Index> free = {0};
-        if (diagonal) {
-          free.push_back(r + 1);
-        } else {
-          for (Index s = 0; s < D; ++s) free.push_back(s + 1);
-        }
-        const Index F = static_cast<Index>(free.size());
-        RowMatrixXd GF(F, F);
-        VectorXd kF(F), cF(F);
-        // Cofactors of row r ∝ column r of A⁻¹.
-        const VectorXd col = Eigen::PartialPivLU<RowMatrixXd>(W.rightCols(D)).solve(VectorXd::Unit(D, r));
-        for (Index a = 0; a < F; ++a) {
-          const Index fa = free[static_cast<size_t>(a)];
-          kF(a) = k(fa);
-          cF(a) = fa == 0 ? 0.0 : col(fa - 1);
-          for (Index c = 0; c < F; ++c) GF(a, c) = Gr(fa, free[static_cast<size_t>(c)]);
-        }
-        const Eigen::LLT<RowMatrixXd> llt(GF);
-        const VectorXd gk = llt.solve(kF), gc = llt.solve(cF);
-        const double e1 = cF.dot(gc), e2 = cF.dot(gk);
+        // c: the cofactors of row r (∝ column r of A⁻¹); the bias has none.
+        VectorXd c(D + 1);
+        c(0) = 0.0;
+        c.tail(D) = Eigen::PartialPivLU<RowMatrixXd>(W.rightCols(D)).solve(VectorXd::Unit(D, r));
+        const Eigen::LLT<RowMatrixXd> llt(Gr);
+        const VectorXd gk = llt.solve(k), gc = llt.solve(c);
+        const double e1 = c.dot(gc), e2 = c.dot(gk);
         const double disc = std::sqrt(e2 * e2 + 4.0 * e1 * beta);
         double best = -std::numeric_limits<double>::infinity();
         VectorXd best_w;
         for (const double alpha : {(-e2 + disc) / (2.0 * e1), (-e2 - disc) / (2.0 * e1)}) {
           const VectorXd w = alpha * gc + gk;
-          const double f = beta * std::log(std::abs(cF.dot(w))) - 0.5 * w.dot(GF * w) + kF.dot(w);
+          const double f = beta * std::log(std::abs(c.dot(w))) - 0.5 * w.dot(Gr * w) + k.dot(w);
           if (f > best) {
             best = f;
             best_w = w;
           }
         }
-        for (Index a = 0; a < F; ++a) W(r, free[static_cast<size_t>(a)]) = best_w(a);
+        W.row(r) = best_w.transpose();
       }
     }
   }

@@ -53,7 +53,7 @@ TRAIN_DEFAULTS = {
 }
 #: Test-time adaptation (``Puppet.animate(adapt=...)``): the kinds and the prior / iterations
 #: used unless told otherwise (chosen on the leave-one-reader-out protocol, docs/results.md).
-ADAPT_KINDS = ("bias", "diag", "full")
+ADAPT_KINDS = ("full",)
 ADAPT_DEFAULTS = {"tau": 30.0, "n_iter": 1}
 
 
@@ -277,13 +277,12 @@ class Puppet:
             A (possibly edited) state sequence to synthesise from, instead of analysing audio.
         states_fps : float, optional
             Rate of ``states`` (default: the puppet's).
-        adapt : {None, "bias", "diag", "full"}
-            Unsupervised test-time adaptation of the input's standardised features to each
-            part's vocal HMM before decoding (``cpp/include/voicepuppet/adapt.hpp``): an affine
-            transform (b only, a scale per column and b, or full A and b) found by EM with the
-            puppet's own state posteriors, against a prior of ``adapt_tau`` frames of the
-            puppet's voice. None (default): the features as they are. Measured in
-            docs/results.md ("test-time adaptation").
+        adapt : {None, "full"}
+            ``"full"``: unsupervised test-time adaptation of the input's standardised features
+            to each part's vocal HMM before decoding (``cpp/include/voicepuppet/adapt.hpp``): an
+            affine transform A z + b found by EM with the puppet's own state posteriors, against
+            a prior of ``adapt_tau`` frames of the puppet's voice. None (default): the features as
+            they are. Measured in docs/results.md ("test-time adaptation"): not the default.
         adapt_tau : float
             The prior's weight in frames (> 0; ``inf``: no adaptation, bit-identical to None).
         adapt_iter : int
@@ -297,8 +296,7 @@ class Puppet:
             raise ValueError("give exactly one of audio, features or states")
         if adapt is not None:
             if adapt not in ADAPT_KINDS:
-                raise ValueError(f"adapt must be None or one of {', '.join(map(repr, ADAPT_KINDS))}, "
-                                 f"got {adapt!r}")
+                raise ValueError(f"adapt must be None or {' or '.join(map(repr, ADAPT_KINDS))}, got {adapt!r}")
             if states is not None:
                 raise ValueError("adapt applies to audio or features, not to given states; drop adapt")
         if states is not None:

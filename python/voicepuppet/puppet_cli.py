@@ -163,7 +163,7 @@ def _animate(args) -> int:
     adapt = {k: v for k, v in (("adapt", args.adapt), ("adapt_tau", args.adapt_tau),
                                 ("adapt_iter", args.adapt_iter)) if v is not None}
     if adapt and args.adapt is None:
-        raise ValueError("--adapt-tau and --adapt-iter set the adaptation: give --adapt bias|diag|full too")
+        raise ValueError("--adapt-tau and --adapt-iter set the adaptation: give --adapt full too")
     if args.states_in:
         if adapt:
             raise ValueError("--adapt adapts the audio's features; with --states-in there is no audio: drop --adapt")
@@ -218,9 +218,9 @@ def add_parser(sub) -> None:
     a.add_argument("--fps", type=float, help="output frame rate (default: the puppet's)")
     a.add_argument("--posterior", action="store_true", help="posterior-weighted synthesis instead of the Viterbi path")
     a.add_argument("--exaggerate", type=float, help="scale the motion about the mean face (1: as is)")
-    a.add_argument("--adapt", choices=["bias", "diag", "full"],
+    a.add_argument("--adapt", choices=["full"],
                    help="adapt the audio features to the puppet's vocal model before decoding (test-time "
-                        "fMLLR-style EM: a bias, a scale per feature and bias, or a full affine transform; "
+                        "fMLLR-style EM, a full affine transform; for a voice far from the performer's, "
                         "docs/puppet.md)")
     a.add_argument("--adapt-tau", type=float, metavar="FRAMES",
                    help="the adaptation prior's weight in frames (default: puppet.ADAPT_DEFAULTS, 30)")

@@ -17,9 +17,8 @@
 /// row plus β log|c·w| with c the row's cofactors, Gales' two roots), `sweeps` times; each row
 /// update raises the auxiliary function, so L never decreases over iterations.
 ///
-/// Kinds: Bias (A = I, b in closed form: b = (Σ_i n_i Σ_i⁻¹)⁻¹ Σ_i Σ_i⁻¹ (n_i μ_i − Σ_t γ_ti z_t)),
-/// Diagonal (a scale per column and b), Full (A and b). Precisions through Cholesky factors;
-/// deterministic.
+/// Full A and b (a bias alone, or a scale per column and b, were measured and lost:
+/// docs/results.md). Precisions through Cholesky factors; deterministic.
 
 #include "voicepuppet/hmm_gaussian.hpp"
 #include "voicepuppet/types.hpp"
@@ -29,9 +28,9 @@
 
 namespace voicepuppet {
 
-enum class AdaptKind { None, Bias, Diagonal, Full };
+enum class AdaptKind { None, Full };
 
-/// Parses "none", "bias", "diag" or "full" (throws std::invalid_argument naming the choices).
+/// Parses "none" or "full" (throws std::invalid_argument naming the choices).
 AdaptKind parse_adapt_kind(const std::string& name);
 std::string adapt_kind_name(AdaptKind kind);
 
@@ -39,7 +38,7 @@ struct AdaptOptions {
   AdaptKind kind = AdaptKind::None;
   double tau = 30;    ///< prior evidence in frames (> 0; +inf: the identity, no adaptation)
   Index n_iter = 1;   ///< EM iterations (>= 1)
-  Index sweeps = 3;   ///< row sweeps per M-step (Diagonal, Full)
+  Index sweeps = 3;   ///< row sweeps per M-step
 };
 
 /// Throws std::invalid_argument naming the bad option.
