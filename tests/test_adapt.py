@@ -198,6 +198,23 @@ def test_infinite_tau_is_no_adaptation_bit_for_bit(puppet):
         np.testing.assert_array_equal(inf.transforms[0]["A"], np.eye(5))
 
 
+def test_log_likelihood_is_the_inputs_under_the_adapted_model(puppet):
+    # Posterior synthesis reports log p(z) under the adapted model: the forward pass on A z + b
+    # plus T log|det A|, i.e. the EM's last penalised value less its prior term.
+    _, heard, _ = _performer(np.random.default_rng(10), 240, VOICE)
+    r = puppet.animate(features=heard, posterior=True, adapt="full", adapt_tau=15.0, adapt_iter=3)
+    arr = puppet.part_arrays(0)
+    means, covs, sp, tm = arr["vocal_means"], arr["vocal_covars"], arr["startprob"], arr["transmat"]
+    z = puppet._core.standardize(heard)
+    _, g = _forward_backward(_log_density(z, means, covs), sp, tm)
+    (t,) = r.transforms
+    W = np.hstack([t["b"][:, None], t["A"]])
+    ll, _ = _forward_backward(_log_density(z @ t["A"].T + t["b"], means, covs), sp, tm)
+    want = ll + len(z) * np.log(abs(np.linalg.det(t["A"])))
+    assert r.log_likelihood == pytest.approx(want, rel=1e-10)
+    assert t["log_likelihood"][-1] == pytest.approx(want + _prior(W, means, covs, g.mean(0), 15.0), rel=1e-10)
+
+
 def test_defaults_and_bad_values(puppet):
     _, heard, _ = _performer(np.random.default_rng(9), 60)
     r = puppet.animate(features=heard, adapt="full")

@@ -60,20 +60,20 @@ double prior_term(const RowMatrixXd& A, const VectorXd& b, const MatrixRef& mean
   return total;
 }
 
+/// The identity transform of #D columns.
+FeatureTransform identity_transform(Index n_dims) {
+  FeatureTransform t;
+  t.A = RowMatrixXd::Identity(n_dims, n_dims);
+  t.b = VectorXd::Zero(n_dims);
+  return t;
+}
+
 }  // namespace
 
 AdaptKind parse_adapt_kind(const std::string& name) {
   if (name == "none") return AdaptKind::None;
   if (name == "full") return AdaptKind::Full;
   fail_argument("adaptation must be 'none' or 'full', got '", name, "'");
-}
-
-std::string adapt_kind_name(AdaptKind kind) {
-  switch (kind) {
-    case AdaptKind::Full: return "full";
-    case AdaptKind::None: break;
-  }
-  return "none";
 }
 
 void check_adapt_options(const AdaptOptions& o) {
@@ -94,13 +94,6 @@ RowMatrixXd FeatureTransform::apply(const MatrixRef& z) const {
 
 double FeatureTransform::log_jacobian(Index n_frames) const {
   return static_cast<double>(n_frames) * log_abs_det(A);
-}
-
-FeatureTransform identity_transform(Index n_dims) {
-  FeatureTransform t;
-  t.A = RowMatrixXd::Identity(n_dims, n_dims);
-  t.b = VectorXd::Zero(n_dims);
-  return t;
 }
 
 FeatureTransform adapt_features(const MatrixRef& z, const IndexVectorRef& lengths,

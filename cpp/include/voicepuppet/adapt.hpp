@@ -32,7 +32,6 @@ enum class AdaptKind { None, Full };
 
 /// Parses "none" or "full" (throws std::invalid_argument naming the choices).
 AdaptKind parse_adapt_kind(const std::string& name);
-std::string adapt_kind_name(AdaptKind kind);
 
 struct AdaptOptions {
   AdaptKind kind = AdaptKind::None;
@@ -54,9 +53,6 @@ struct FeatureTransform {
   /// T log|det A|: what the transform adds to a log-likelihood of T transformed frames.
   double log_jacobian(Index n_frames) const;
 };
-
-/// The identity transform of #D columns.
-FeatureTransform identity_transform(Index n_dims);
 
 /// Adapt features `z` (#T by #D, one or more sequences by `lengths`, empty: one) to the
 /// Gaussian HMM (means #N by #D, covars full #N·D by D or diagonal #N by D, startprob,
