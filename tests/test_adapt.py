@@ -215,6 +215,26 @@ def test_log_likelihood_is_the_inputs_under_the_adapted_model(puppet):
     assert t["log_likelihood"][-1] == pytest.approx(want + _prior(W, means, covs, g.mean(0), 15.0), rel=1e-10)
 
 
+def test_each_face_part_adapts_to_its_own_vocal_model():
+    pts, x, _ = _performer(np.random.default_rng(7), 900)
+    p = Puppet.train([pts], features_list=[x], fps=30.0, n_states=5, n_iter=10, n_components=2,
+                     audio_deltas=0, parts={"upper": range(0, 6), "lower": range(6, 12)})
+    _, heard, _ = _performer(np.random.default_rng(8), 300, VOICE)
+    r = p.animate(features=heard, adapt="full", adapt_tau=10.0, adapt_iter=2)
+    assert len(r.transforms) == 2
+    z = p._core.standardize(heard)
+    for k, t in enumerate(r.transforms):
+        arr = p.part_arrays(k)
+        ref = _core.adapt_features(z, np.zeros(0, np.int64), arr["vocal_means"],
+                                   arr["vocal_covars"].reshape(-1, z.shape[1]), "full", arr["startprob"],
+                                   arr["transmat"], "full", 10.0, 2)
+        np.testing.assert_array_equal(t["A"], ref["A"])
+        lb = _core.gaussian_log_density(z @ t["A"].T + t["b"], arr["vocal_means"],
+                                        arr["vocal_covars"].reshape(-1, z.shape[1]), "full")
+        np.testing.assert_array_equal(r.states[:, k], _core.viterbi(lb, arr["startprob"], arr["transmat"],
+                                                                    np.zeros(0, np.int64))[1])
+
+
 def test_defaults_and_bad_values(puppet):
     _, heard, _ = _performer(np.random.default_rng(9), 60)
     r = puppet.animate(features=heard, adapt="full")
