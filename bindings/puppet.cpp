@@ -58,13 +58,33 @@ py::tuple from_file(const PuppetFile& f) {
   return py::make_tuple(f.metadata, arrays);
 }
 
+py::dict transform_dict(const FeatureTransform& t) {
+  py::dict d;
+  d["A"] = t.A;
+  d["b"] = t.b;
+  d["log_likelihood"] = t.log_likelihood;
+  return d;
+}
+
 py::dict result(const AnimateResult& r) {
   py::dict d;
   d["points"] = r.points;
   d["face"] = r.face;
   d["states"] = r.states;
   d["log_likelihood"] = r.log_likelihood;
+  py::list transforms;
+  for (const auto& t : r.transforms) transforms.append(transform_dict(t));
+  d["transforms"] = transforms;
   return d;
+}
+
+AdaptOptions adapt_options(const std::string& kind, double tau, Index n_iter, Index sweeps) {
+  AdaptOptions o;
+  o.kind = parse_adapt_kind(kind);
+  o.tau = tau;
+  o.n_iter = n_iter;
+  o.sweeps = sweeps;
+  return o;
 }
 
 }  // namespace
@@ -89,6 +109,23 @@ void bind_puppet(py::module_& m) {
   m.def("read_puppet_file", [](const std::string& path) { return from_file(read_puppet_file(path)); },
         py::arg("path"), "(metadata, arrays) of a puppet file, validated.");
 
+  m.def("adapt_features",
+        [](const MatrixRef& z, const IndexVectorRef& lengths, const MatrixRef& means, const MatrixRef& covars,
+           const std::string& covariance_type, const VectorRef& startprob, const MatrixRef& transmat,
+           const std::string& kind, double tau, Index n_iter, Index sweeps) {
+          const AdaptOptions o = adapt_options(kind, tau, n_iter, sweeps);
+          const CovarianceType ct = parse_covariance_type(covariance_type);
+          FeatureTransform t;
+          {
+            py::gil_scoped_release release;
+            t = adapt_features(z, lengths, means, covars, ct, startprob, transmat, o);
+          }
+          return transform_dict(t);
+        },
+        py::arg("z"), py::arg("lengths"), py::arg("means"), py::arg("covars"), py::arg("covariance_type"),
+        py::arg("startprob"), py::arg("transmat"), py::arg("kind"), py::arg("tau") = AdaptOptions{}.tau,
+        py::arg("n_iter") = AdaptOptions{}.n_iter, py::arg("sweeps") = AdaptOptions{}.sweeps,
+        "Test-time adaptation of features z [T, D] to a Gaussian HMM (adapt.hpp): {A, b, log_likelihood}.");
   m.def("append_deltas", &append_deltas, py::arg("x"), py::arg("width"),
         "[x, regression deltas over +-width frames] (puppet.hpp).");
   py::class_<Puppet>(m, "Puppet", "The C++ voice puppet (puppet.hpp).")
@@ -115,17 +152,21 @@ void bind_puppet(py::module_& m) {
            py::call_guard<py::gil_scoped_release>())
       .def("trajectory_model", &Puppet::trajectory_model, py::arg("out_fps") = 0.0, py::arg("part") = 0)
       .def("to_points", &Puppet::to_points, py::arg("face"))
-      .def("animate", [](const Puppet& p, const MatrixRef& raw, double fps, bool posterior) {
+      .def("animate", [](const Puppet& p, const MatrixRef& raw, double fps, bool posterior,
+                         const std::string& adapt, double tau, Index n_iter) {
              AnimateOptions o;
              o.fps = fps;
              o.posterior = posterior;
+             o.adapt = adapt_options(adapt, tau, n_iter, AdaptOptions{}.sweeps);
              AnimateResult r;
              {
                py::gil_scoped_release release;
                r = p.animate(raw, o);
              }
              return result(r);
-           }, py::arg("raw_features"), py::arg("fps") = 0.0, py::arg("posterior") = false)
+           }, py::arg("raw_features"), py::arg("fps") = 0.0, py::arg("posterior") = false,
+           py::arg("adapt") = "none", py::arg("tau") = AdaptOptions{}.tau,
+           py::arg("n_iter") = AdaptOptions{}.n_iter)
       .def("animate_states", [](const Puppet& p, const Eigen::Ref<const IndexMatrix>& states, double states_fps,
                                 double fps) {
              AnimateResult r;

@@ -170,3 +170,24 @@ def test_bad_projection_options_and_streaming_refused(projected, voices):
         Puppet(projected.metadata, {**projected.arrays, "audio/projection_columns": np.array([11])})
     with pytest.raises(ValueError, match="streaming does not compute"):
         _core.StreamingPuppet(projected._core, 5, 5, 0.0, False, -1)
+
+
+def test_a_projected_puppet_is_adapted_in_its_projected_space(projected, voices):
+    # Test-time adaptation (animate(adapt="full")) acts on the vocal features the Gaussians live
+    # in: for a projected puppet the projection of the standardised frames (3 dims here, not the
+    # 10 standardised columns). The kernel's transform is the numpy reference's on them.
+    from test_adapt import reference_adapt
+
+    p = projected
+    _, (_, feats, _) = voices
+    r = p.animate(features=feats, adapt="full", adapt_tau=20.0, adapt_iter=2)
+    (tr,) = r.transforms
+    assert tr["A"].shape == (3, 3) and tr["b"].shape == (3,)
+    v = p._core.project(p._core.standardize(np.ascontiguousarray(feats)))
+    part = p.part_arrays(0)
+    A, b, hist = reference_adapt(v, part["vocal_means"], part["vocal_covars"], part["startprob"],
+                                 part["transmat"], 20.0, 2)
+    np.testing.assert_allclose(tr["A"], A, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(tr["b"], b, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(tr["log_likelihood"], hist, rtol=1e-9)
+    assert not np.allclose(A, np.eye(3))  # the other voice is adapted to

@@ -10,6 +10,7 @@ import pytest
 import soundfile as sf
 
 from voicepuppet.cli import main
+from voicepuppet.puppet import load
 
 FPS = 25.0
 RATE = 16000
@@ -67,6 +68,21 @@ def test_train_and_animate(workdir, capsys):
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "c.csv"), "--fps", "50",
                  "--posterior", "--quiet"]) == 0
     assert np.loadtxt(d / "c.csv", delimiter=",", skiprows=1).shape == (400, 22)
+
+
+def test_train_switches_for_voices_never_heard(workdir):
+    d = workdir
+    assert main(["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"),
+                 "-o", str(d / "other.vpp"), "--states", "6", "--iterations", "12", "--quiet",
+                 "--vocal-features", "projected", "--vocal-covariance", "tied"]) == 0
+    puppet = load(d / "other.vpp")
+    opts = puppet.metadata["training"]["options"]
+    assert (opts["vocal_features"], opts["vocal_covariance"]) == ("projected", "tied")
+    assert puppet._core.projected and puppet._core.n_vocal == puppet.face_space.n_dims
+    assert main(["animate", str(d / "other.vpp"), str(d / "test.wav"), "-o", str(d / "o.npz"), "--quiet",
+                 "--adapt", "full"]) == 0
+    with np.load(d / "o.npz") as z:
+        assert z["points"].shape == (200, 10, 2)
 
 
 def _example_exe() -> Path:

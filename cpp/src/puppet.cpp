@@ -248,15 +248,28 @@ RowMatrixXd Puppet::to_points(const MatrixRef& face) const {
 
 AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOptions& options) const {
   const double out = out_rate(options.fps);
-  const RowMatrixXd z = standardize(raw_features);
-  const Index T = z.rows();
+  const bool adapt = options.adapt.kind != AdaptKind::None;
+  if (adapt) check_adapt_options(options.adapt);
+  // The vocal features (the projection of the standardised frames, if the puppet has one), once
+  // for all parts; adaptation transforms them, in the space the vocal Gaussians live in.
+  const RowMatrixXd v = project(standardize(raw_features));
+  const Index T = v.rows();
   const VectorXi no_lengths;
   AnimateResult r;
   r.states.resize(T, n_parts());
   std::vector<RowMatrixXd> faces;
   for (Index p = 0; p < n_parts(); ++p) {
     const PuppetPart& pt = parts_[static_cast<size_t>(p)];
-    const RowMatrixXd log_b = vocal_log_density(z, p);
+    RowMatrixXd log_b;
+    if (adapt) {
+      r.transforms.push_back(adapt_features(v, no_lengths, pt.vocal_means, pt.vocal_covars, pt.vocal_type,
+                                            pt.startprob, pt.transmat, options.adapt));
+      const FeatureTransform& tr = r.transforms.back();
+      log_b = gaussian_log_density(tr.apply(v), pt.vocal_means, pt.vocal_covars, pt.vocal_type);
+      r.log_likelihood += tr.log_jacobian(T);
+    } else {
+      log_b = gaussian_log_density(v, pt.vocal_means, pt.vocal_covars, pt.vocal_type);
+    }
     const ViterbiResult vit = viterbi(log_b, pt.startprob, pt.transmat, no_lengths);
     r.states.col(p) = vit.path;
     const TrajectoryModel model = trajectory_model(out, p);

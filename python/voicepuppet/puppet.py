@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +58,10 @@ TRAIN_DEFAULTS = {
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
     "seed": 0,
 }
+#: Test-time adaptation (``Puppet.animate(adapt=...)``): the kinds and the prior / iterations
+#: used unless told otherwise (chosen on the leave-one-reader-out protocol, docs/results.md).
+ADAPT_KINDS = ("full",)
+ADAPT_DEFAULTS = {"tau": 30.0, "n_iter": 1}
 
 
 @dataclass
@@ -75,7 +79,12 @@ class Animated:
     states_fps : float
         Rate of ``states`` (the puppet's rate).
     log_likelihood : float
-        Viterbi log p(path, audio), or log p(audio) for posterior synthesis.
+        Viterbi log p(path, audio), or log p(audio) for posterior synthesis (with adaptation, of
+        the input under the adapted model: including T log|det A|).
+    transforms : list of dict
+        With ``adapt``: per face part, the feature transform found (``A`` [A', A'], ``b`` [A'],
+        ``log_likelihood``: the penalised log-likelihood before each EM iteration and after the
+        last); empty without.
     """
 
     animation: Animation
@@ -83,6 +92,7 @@ class Animated:
     states: np.ndarray
     states_fps: float
     log_likelihood: float
+    transforms: list = field(default_factory=list)
 
 
 class Puppet:
@@ -269,7 +279,8 @@ class Puppet:
 
     def animate(self, audio=None, *, fps: float | None = None, posterior: bool = False,
                 features=None, states=None, states_fps: float | None = None,
-                progress: bool = False) -> Animated:
+                adapt: str | None = None, adapt_tau: float = ADAPT_DEFAULTS["tau"],
+                adapt_iter: int = ADAPT_DEFAULTS["n_iter"], progress: bool = False) -> Animated:
         """Facial animation for novel audio (any voice, any language).
 
         Parameters
@@ -286,6 +297,16 @@ class Puppet:
             A (possibly edited) state sequence to synthesise from, instead of analysing audio.
         states_fps : float, optional
             Rate of ``states`` (default: the puppet's).
+        adapt : {None, "full"}
+            ``"full"``: unsupervised test-time adaptation of the input's standardised features
+            to each part's vocal HMM before decoding (``cpp/include/voicepuppet/adapt.hpp``): an
+            affine transform A z + b found by EM with the puppet's own state posteriors, against
+            a prior of ``adapt_tau`` frames of the puppet's voice. None (default): the features as
+            they are. Measured in docs/results.md ("test-time adaptation"): not the default.
+        adapt_tau : float
+            The prior's weight in frames (> 0; ``inf``: no adaptation, bit-identical to None).
+        adapt_iter : int
+            EM iterations (>= 1).
         """
         out_fps = float(fps) if fps is not None else self.fps
         if out_fps <= 0 or not np.isfinite(out_fps):
@@ -293,6 +314,11 @@ class Puppet:
         given = sum(x is not None for x in (audio, features, states))
         if given != 1:
             raise ValueError("give exactly one of audio, features or states")
+        if adapt is not None:
+            if adapt not in ADAPT_KINDS:
+                raise ValueError(f"adapt must be None or {' or '.join(map(repr, ADAPT_KINDS))}, got {adapt!r}")
+            if states is not None:
+                raise ValueError("adapt applies to audio or features, not to given states; drop adapt")
         if states is not None:
             s = np.asarray(states)
             if s.ndim == 1:
@@ -304,10 +330,12 @@ class Puppet:
         else:
             if features is None:
                 features = self.audio_features(audio, progress=progress)
-            r = self._core.animate(np.ascontiguousarray(features, dtype=np.float64), out_fps, posterior)
+            r = self._core.animate(np.ascontiguousarray(features, dtype=np.float64), out_fps, posterior,
+                                   adapt or "none", float(adapt_tau), _count(adapt_iter, "adapt_iter"))
             sf = self.fps
         pts = r["points"].reshape(len(r["points"]), -1, 2)
-        return Animated(Animation(pts, out_fps), r["face"], r["states"], sf, float(r["log_likelihood"]))
+        return Animated(Animation(pts, out_fps), r["face"], r["states"], sf, float(r["log_likelihood"]),
+                        list(r.get("transforms", [])))
 
     # ---------------------------------------------------------------------------- storage
     def save(self, path) -> Path:
@@ -315,6 +343,12 @@ class Puppet:
         p = check_output_path(path, (".vpp",), "puppet file")
         _core.write_puppet_file(os.fspath(p), json.dumps(self.metadata), self.arrays)
         return p
+
+
+def _count(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    return int(value)
 
 
 def _jsonable(value):

@@ -92,6 +92,8 @@ def _train(args) -> int:
             audio_list.append(seg[1])
     options = {k: v for k, v in {"n_states": args.states, "n_iter": args.iterations, "parts": args.parts,
                                   "prior": args.prior, "feature_set": args.feature_set,
+                                  "vocal_features": args.vocal_features,
+                                  "vocal_covariance": args.vocal_covariance,
                                   "seed": args.seed}.items() if v is not None}
     if args.scheduler or args.workers:
         from voicepuppet import distributed
@@ -160,13 +162,20 @@ def _animate(args) -> int:
 
     out = check_output_path(args.output, (".npz", ".csv"), "animation file")
     puppet = load(palette_puppet(args.palette, args.puppet) if args.palette else args.puppet)
+    adapt = {k: v for k, v in (("adapt", args.adapt), ("adapt_tau", args.adapt_tau),
+                                ("adapt_iter", args.adapt_iter)) if v is not None}
+    if adapt and args.adapt is None:
+        raise ValueError("--adapt-tau and --adapt-iter set the adaptation: give --adapt full too")
     if args.states_in:
+        if adapt:
+            raise ValueError("--adapt adapts the audio's features; with --states-in there is no audio: drop --adapt")
         states, sfps = load_states(args.states_in)
         result = puppet.animate(states=states, states_fps=sfps, fps=args.fps)
     else:
         if args.audio is None:
             raise ValueError("give the AUDIO to animate (or --states-in)")
-        result = puppet.animate(args.audio, fps=args.fps, posterior=args.posterior, progress=not args.quiet)
+        result = puppet.animate(args.audio, fps=args.fps, posterior=args.posterior, progress=not args.quiet,
+                                **adapt)
     anim = result.animation
     if args.exaggerate is not None:
         anim = exaggerate(anim, args.exaggerate)
@@ -194,6 +203,12 @@ def add_parser(sub) -> None:
     p.add_argument("--parts", choices=["upper_lower"], help="separate upper- and lower-face models (§5.1; 68-point landmarks)")
     p.add_argument("--prior", choices=["entropic", "ml"], help="entropic MAP (default) or conventional Baum-Welch")
     p.add_argument("--feature-set", help="audio feature set (default: puppet)")
+    p.add_argument("--vocal-features", choices=["audio", "projected"],
+                   help="what the vocal Gaussians are fitted on: the audio features (default) or their learned "
+                        "projection onto the face (with --vocal-covariance tied: better on voices the puppet "
+                        "never heard, worse on the training voice; not for live; docs/puppet.md)")
+    p.add_argument("--vocal-covariance", choices=["full", "diag", "tied"],
+                   help="each state's vocal covariance: its own (full, default; or diag) or one for all (tied)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run the HMM's E-steps on this Dask scheduler "
                    "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process")
@@ -211,6 +226,14 @@ def add_parser(sub) -> None:
     a.add_argument("--fps", type=float, help="output frame rate (default: the puppet's)")
     a.add_argument("--posterior", action="store_true", help="posterior-weighted synthesis instead of the Viterbi path")
     a.add_argument("--exaggerate", type=float, help="scale the motion about the mean face (1: as is)")
+    a.add_argument("--adapt", choices=["full"],
+                   help="adapt the audio features to the puppet's vocal model before decoding (test-time "
+                        "fMLLR-style EM, a full affine transform; for a voice far from the performer's, "
+                        "docs/puppet.md)")
+    a.add_argument("--adapt-tau", type=float, metavar="FRAMES",
+                   help="the adaptation prior's weight in frames (default: puppet.ADAPT_DEFAULTS, 30)")
+    a.add_argument("--adapt-iter", type=int, metavar="N",
+                   help="adaptation EM iterations (default: puppet.ADAPT_DEFAULTS, 1)")
     a.add_argument("--states-out", metavar="S.csv", help="also write the facial state sequence (for editing)")
     a.add_argument("--states-in", metavar="S.csv", help="synthesise from this (edited) state sequence instead of audio")
     a.add_argument("--quiet", action="store_true", help="no progress bars")

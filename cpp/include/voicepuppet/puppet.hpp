@@ -32,6 +32,7 @@
 ///   hmm/part{p}/vocal_covars [N, V, V] (full; a tied model, Python's
 ///                                     vocal_covariance="tied", is N equal copies) or [N, V] (diagonal)
 
+#include "voicepuppet/adapt.hpp"
 #include "voicepuppet/hmm_gaussian.hpp"
 #include "voicepuppet/puppet_io.hpp"
 #include "voicepuppet/trajectory.hpp"
@@ -67,6 +68,10 @@ RowMatrixXd append_deltas(const MatrixRef& x, Index width);
 struct AnimateOptions {
   double fps = 0;          ///< output frame rate; 0: the puppet's own rate
   bool posterior = false;  ///< posterior-weighted synthesis (§5) instead of the Viterbi path
+  /// Test-time adaptation of the vocal features (the standardised features, or their projection
+  /// if the puppet has one) to each part's vocal HMM (adapt.hpp)
+  /// before decoding; kind None (the default) decodes them as they are.
+  AdaptOptions adapt;
 };
 
 struct AnimateResult {
@@ -74,6 +79,8 @@ struct AnimateResult {
   RowMatrixXd face;        ///< #T' by K face coordinates (parts side by side)
   IndexMatrix states;      ///< #T by #parts Viterbi states at the analysis rate
   double log_likelihood = 0;  ///< Viterbi log p(path, audio), or log p(audio) with posterior
+                              ///< (with adaptation: of the adapted features, plus T log|det A|)
+  std::vector<FeatureTransform> transforms;  ///< per part, with adaptation (empty without)
 };
 
 class Puppet {
