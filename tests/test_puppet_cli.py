@@ -117,37 +117,29 @@ def test_cpp_example_animates_like_python(workdir):
     assert not (d / "x.csv").exists()
 
 
-def test_cpp_example_animates_a_tied_puppet_like_python(workdir, tmp_path):
-    # A tied vocal model is stored as N equal full covariances: the C++ program that knows
-    # nothing of the option animates it as Python does.
-    exe = _example_exe()
-    from voicepuppet.puppet import Puppet, load
-
-    d = workdir
-    with np.load(d / "train.npz") as z:
-        pts = z["points"]
-    tied = Puppet.train([pts], [str(d / "train.wav")], fps=FPS, n_states=6, n_iter=12,
-                        vocal_covariance="tied")
-    vc = tied.part_arrays(0)["vocal_covars"]
-    assert vc.ndim == 3 and np.array_equal(vc, np.repeat(vc[:1], len(vc), axis=0))
-    path = tied.save(tmp_path / "tied.vpp")
-    assert load(path).metadata["training"]["options"]["vocal_covariance"] == "tied"
-    _assert_cpp_animates_like_python(exe, path, d / "test.wav", tmp_path)
-
-
-def test_cpp_example_animates_a_projected_puppet_like_python(workdir, tmp_path):
-    # vocal_features="projected": the C++ program applies the stored projection of +-5 frames
-    # from the raw feature frames, as Python does.
+@pytest.mark.parametrize("options", [dict(vocal_covariance="tied"),
+                                     dict(vocal_features="projected", vocal_covariance="tied")],
+                         ids=["tied", "projected"])
+def test_cpp_example_animates_a_non_default_vocal_model_like_python(workdir, tmp_path, options):
+    # A tied vocal model is stored as N equal full covariances, a projected one (vocal_features=
+    # "projected") as the projection of +-5 frames the C++ puppet applies to the raw feature
+    # frames: the C++ program animates both as Python does.
     exe = _example_exe()
     from voicepuppet.puppet import Puppet
 
     d = workdir
     with np.load(d / "train.npz") as z:
         pts = z["points"]
-    proj = Puppet.train([pts], [str(d / "train.wav")], fps=FPS, n_states=6, n_iter=12,
-                        vocal_features="projected", vocal_covariance="tied")
-    assert proj._core.projected and proj._core.projection_context == 5
-    _assert_cpp_animates_like_python(exe, proj.save(tmp_path / "projected.vpp"), d / "test.wav", tmp_path)
+    puppet = Puppet.train([pts], [str(d / "train.wav")], fps=FPS, n_states=6, n_iter=12, **options)
+    vc = puppet.part_arrays(0)["vocal_covars"]
+    assert vc.ndim == 3 and np.array_equal(vc, np.repeat(vc[:1], len(vc), axis=0))
+    path = puppet.save(tmp_path / "puppet.vpp")
+    saved = load(path)
+    assert {k: saved.metadata["training"]["options"][k] for k in options} == options
+    assert saved._core.projected == ("vocal_features" in options)
+    if saved._core.projected:
+        assert saved._core.projection_context == 5
+    _assert_cpp_animates_like_python(exe, path, d / "test.wav", tmp_path)
 
 
 def test_bad_input_is_reported_and_writes_nothing(workdir, tmp_path, capsys):
