@@ -82,7 +82,8 @@ class Animated:
         Viterbi log p(path, audio), or log p(audio) for posterior synthesis (with adaptation, of
         the input under the adapted model: including T log|det A|).
     transforms : list of dict
-        With ``adapt``: per face part, the feature transform found (``A`` [A', A'], ``b`` [A'],
+        With ``adapt``: per face part, the transform of the vocal features found (``A`` [V, V],
+        ``b`` [V]; V = A', the standardised features, or the projection's dimension),
         ``log_likelihood``: the penalised log-likelihood before each EM iteration and after the
         last); empty without.
     """
@@ -298,8 +299,9 @@ class Puppet:
         states_fps : float, optional
             Rate of ``states`` (default: the puppet's).
         adapt : {None, "full"}
-            ``"full"``: unsupervised test-time adaptation of the input's standardised features
-            to each part's vocal HMM before decoding (``cpp/include/voicepuppet/adapt.hpp``): an
+            ``"full"``: unsupervised test-time adaptation of the input's vocal features (the
+            standardised features, or their projection for a ``vocal_features="projected"``
+            puppet) to each part's vocal HMM before decoding (``cpp/include/voicepuppet/adapt.hpp``): an
             affine transform A z + b found by EM with the puppet's own state posteriors, against
             a prior of ``adapt_tau`` frames of the puppet's voice. None (default): the features as
             they are. Measured in docs/results.md ("test-time adaptation"): not the default.
