@@ -83,7 +83,7 @@ class Animated:
         the input under the adapted model: including T log|det A|).
     transforms : list of dict
         With ``adapt``: per face part, the transform of the vocal features found (``A`` [V, V],
-        ``b`` [V]; V = A', the standardised features, or the projection's dimension),
+        ``b`` [V], V their dimension: A' standardised features or the projection's K;
         ``log_likelihood``: the penalised log-likelihood before each EM iteration and after the
         last); empty without.
     """
