@@ -46,5 +46,8 @@ def test_demo_with_real_speech_uses_the_real_speech_performer(tmp_path, monkeypa
                  render_video=False, progress=False, log=logs.append)
     assert calls == [(tmp_path / "out" / "corpus-real", 2)]
     assert "real recordings" in logs[0] and s["train_frames"] > 300
+    # The option for voices never heard is measured beside the default on the real-speech split.
+    assert sorted(s["models"]) == ["entropic", "projected"]
+    assert "projected puppet" in (tmp_path / "out" / "results.md").read_text()
     with pytest.raises(ValueError, match="speech must be 'espeak' or 'real'"):
         demo.run(tmp_path, speech="klingon")

@@ -36,7 +36,8 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
     measured). ``speech="real"``: the performer speaks the real recordings that ship inside
     packages (:func:`voicepuppet.synth.make_real_corpus`: 80 s of two LibriVox readers, tested
     on two CMU ARCTIC speakers; ``train_seconds`` and ``n_test`` are then not used), in
-    ``out_dir/corpus-real``.
+    ``out_dir/corpus-real``; a third puppet for voices it never heard (``vocal_features=
+    "projected"``, ``vocal_covariance="tied"``) is measured beside the default there.
     """
     if train_on not in ("truth", "tracked"):
         raise ValueError(f"train_on must be 'truth' or 'tracked', got {train_on!r}")
@@ -87,6 +88,12 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
         log("      and a conventionally trained one (Baum-Welch, no prior) for comparison")
         models["conventional"] = Puppet.train([landmarks], [train.audio], fps=tracked.fps,
                                               n_states=n_states, seed=seed, prior="ml", progress=progress)
+    if speech == "real":
+        # The test speakers are voices it never heard: the option for them beside the default.
+        log("      and one for voices it never heard (vocal Gaussians on the learned projection, tied)")
+        models["projected"] = Puppet.train([landmarks], [train.audio], fps=tracked.fps, n_states=n_states,
+                                           seed=seed, vocal_features="projected", vocal_covariance="tied",
+                                           progress=progress)
 
     t = time.perf_counter()
     log(f"[4/5] animating {len(tests)} held-out utterances and measuring against ground truth")
