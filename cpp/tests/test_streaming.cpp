@@ -259,6 +259,16 @@ RowMatrixXd walk_features(const Puppet& pp, Index T, unsigned seed) {
   return X;
 }
 
+/// Decoder and trajectory lags longer than the test streams (80 input, 200 output frames).
+StreamingOptions covering_lags(double fps, bool posterior) {
+  StreamingOptions o;
+  o.decode_lag = 80;
+  o.trajectory_lag = 200;
+  o.fps = fps;
+  o.posterior = posterior;
+  return o;
+}
+
 RowMatrixXd stream_points(StreamingPuppet& sp, const RowMatrixXd& X, Index chunk) {
   std::vector<RowMatrixXd> rows;
   Index next = 0;
@@ -289,12 +299,7 @@ TEST_CASE("streaming puppet: lags covering the stream give Puppet::animate exact
   const RowMatrixXd X = walk_features(pp, 70, 4);
   for (bool posterior : {false, true}) {
     for (double fps : {0.0, 60.0, 25.0}) {
-      StreamingOptions o;
-      o.decode_lag = 80;
-      o.trajectory_lag = 200;
-      o.fps = fps;
-      o.posterior = posterior;
-      StreamingPuppet sp(pp, o);
+      StreamingPuppet sp(pp, covering_lags(fps, posterior));
       AnimateOptions ao;
       ao.fps = fps;
       ao.posterior = posterior;
@@ -460,12 +465,7 @@ TEST_CASE("streaming puppet: a projected puppet streams Puppet::project and Pupp
     const RowMatrixXd v_ref = pp.project(pp.standardize(X));
     for (bool posterior : {false, true}) {
       for (double fps : {0.0, 25.0}) {
-        StreamingOptions o;
-        o.decode_lag = 80;
-        o.trajectory_lag = 200;
-        o.fps = fps;
-        o.posterior = posterior;
-        StreamingPuppet sp(pp, o);
+        StreamingPuppet sp(pp, covering_lags(fps, posterior));
         CHECK(sp.options().projection_lag == cf.k);
         AnimateOptions ao;
         ao.fps = fps;
