@@ -140,9 +140,10 @@ def test_split_lag():
     assert split_lag(330, FPS, 0.026, True, 2) == (2, 2, 0, 3, 2)
     assert split_lag(330, FPS, 0.017, False) == (0, 0, 0, 5, 4)
     assert split_lag(0, FPS, 0.026, True, 2) == (0, 0, 0, 0, 0)
-    # a projection of +-5 frames: a third of what the formants leave (at most 5), then the deltas
-    assert split_lag(150, FPS, 0.026, True, 0, 5) == (0, 0, 1, 1, 1)
-    assert split_lag(330, FPS, 0.026, True, 2, 5) == (2, 1, 2, 2, 2)
+    # a projection of +-5 frames: half what the formants leave, rounded up (at most 5), then
+    # the deltas
+    assert split_lag(150, FPS, 0.026, True, 0, 5) == (0, 0, 2, 1, 0)
+    assert split_lag(330, FPS, 0.026, True, 2, 5) == (2, 1, 4, 1, 1)
     assert split_lag(1000, FPS, 0.026, True, 0, 5) == (2, 0, 5, 11, 11)
     with pytest.raises(ValueError, match="lag_ms"):
         split_lag(-5, FPS, 0.026, True)
@@ -446,15 +447,15 @@ def test_projected_puppet_large_lags_give_the_offline_animation(projected, speec
 def test_projected_puppet_latency(projected, puppet):
     p, _ = projected
     window = LivePuppet(p).features.lookahead_s()
-    # the budget: 3 frames at 150 ms, the projection takes one of them
+    # the budget: 3 frames at 150 ms, the projection takes two of them
     live = LivePuppet(p, lag_ms=150)
     assert (live.formant_lag, live.delta_lag, live.projection_lag, live.decode_lag,
-            live.trajectory_lag) == (0, 0, 1, 1, 1)
+            live.trajectory_lag) == (0, 0, 2, 1, 0)
     assert live.latency_s == pytest.approx(window + 3 / FPS, abs=1e-12)
-    # exact vocal features: 5 frames (167 ms) on top of the decoder's and the trajectory's
+    # exact vocal features: 5 frames (167 ms) on top of the decoder's
     exact = LivePuppet(p, lag_ms=150, projection_lag=-1)
     assert exact.projection_lag == 5
-    assert exact.latency_s == pytest.approx(window + 7 / FPS, abs=1e-12)
+    assert exact.latency_s == pytest.approx(window + 6 / FPS, abs=1e-12)
     with pytest.raises(ValueError, match="projection context 5"):
         LivePuppet(p, projection_lag=6)
     with pytest.raises(ValueError, match="projection_lag must be a whole number"):
@@ -479,8 +480,8 @@ def test_cli_projected_puppet(projected, speech, tmp_path):
         assert len(r.stdout.decode().splitlines()) == n
         summaries[len(extra)] = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
     budget, exact = summaries[0], summaries[2]
-    assert budget["projection_lag"] == 1 and exact["projection_lag"] == 5
+    assert budget["projection_lag"] == 2 and exact["projection_lag"] == 5
     assert budget["algorithmic_latency_ms"] == pytest.approx((window + 3 / FPS) * 1e3, abs=0.01)
     assert budget["algorithmic_latency_ms"] <= 150
-    # the exact projection reports its 4 more frames of look-ahead
-    assert exact["algorithmic_latency_ms"] == pytest.approx((window + 7 / FPS) * 1e3, abs=0.01)
+    # the exact projection reports its 3 more frames of look-ahead
+    assert exact["algorithmic_latency_ms"] == pytest.approx((window + 6 / FPS) * 1e3, abs=0.01)

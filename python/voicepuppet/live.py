@@ -88,8 +88,9 @@ def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
 
     The analysis windows take ``window_s``; the whole frames left, ``B = floor((lag_ms / 1000 -
     window_s) fps)``, are shared: if the feature set has formants, one frame in four (at most
-    2) to the formant tracker; if the puppet's vocal features are a projection of ±k frames, a
-    third of the rest (at most ``projection_context`` k) to its look-ahead; if they read audio
+    2) to the formant tracker; if the puppet's vocal features are a projection of ±k frames,
+    half the rest, rounded up (at most ``projection_context`` k), to its look-ahead (measured
+    better than a third, docs/streaming.md); if they read audio
     deltas (``delta_width`` w > 0), a third of the rest (at most w) to theirs; the remainder to
     the state decoder and the trajectory solve, half each (the decoder gets the odd frame).
 
@@ -102,7 +103,7 @@ def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
     budget = max(0, int(math.floor((lag_ms / 1000.0 - window_s) * fps + 1e-9)))
     f = min(2, budget // 4) if formants else 0
     rest = budget - f
-    pl = min(int(projection_context), rest // 3)
+    pl = min(int(projection_context), (rest + 1) // 2)
     rest -= pl
     dl = min(int(delta_width), rest // 3)
     rest -= dl
