@@ -90,9 +90,9 @@ def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
     window_s) fps)``, are shared: if the feature set has formants, one frame in four (at most
     2) to the formant tracker; if the puppet's vocal features are a projection of ±k frames,
     half the rest, rounded up (at most ``projection_context`` k), to its look-ahead (measured
-    better than a third, docs/streaming.md); if they read audio
-    deltas (``delta_width`` w > 0), a third of the rest (at most w) to theirs; the remainder to
-    the state decoder and the trajectory solve, half each (the decoder gets the odd frame).
+    better than a third, docs/streaming.md); if they read audio deltas (``delta_width`` w > 0),
+    a third of the rest (at most w) to theirs; the remainder to the state decoder and the
+    trajectory solve, half each (the decoder gets the odd frame).
 
     Returns
     -------
@@ -133,11 +133,11 @@ class LivePuppet:
     formant_lag, delta_lag, projection_lag, decode_lag, trajectory_lag : int, optional
         Explicit look-aheads in frames. ``formant_lag=-1`` waits for the formant tracker's
         exact decisions (unbounded latency), ``delta_lag=-1`` uses the delta look-ahead the
-        vocal features need to be exact (the puppet's delta width; 0 for a projected puppet,
-        whose projection reads the features alone), ``projection_lag=-1`` a projected puppet's
-        full context k (0 .. k; missing future frames repeat the newest one); with all three at
-        -1 and large decode and trajectory lags the output is exactly ``puppet.animate`` of the
-        same audio.
+        vocal features need to be exact (the puppet's delta width; 0 when they are a projection
+        of the features alone, as ``vocal_features="projected"`` trains them),
+        ``projection_lag=-1`` a projected puppet's full context k (0 .. k; missing future frames
+        repeat the newest one); with all three at -1 and large decode and trajectory lags the
+        output is exactly ``puppet.animate`` of the same audio.
     """
 
     def __init__(self, puppet, lag_ms: float = 150.0, *, fps: float | None = None,
