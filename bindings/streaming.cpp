@@ -34,13 +34,16 @@ void bind_streaming(py::module_& m) {
       .def_readonly("first_frame", &StreamedFrames::first_frame)
       .def_readonly("points", &StreamedFrames::points)
       .def_readonly("face", &StreamedFrames::face)
+      .def_readonly("vocal", &StreamedFrames::vocal)
+      .def_readonly("first_vocal", &StreamedFrames::first_vocal)
       .def("__len__", &StreamedFrames::size);
   py::class_<StreamingPuppet>(m, "StreamingPuppet",
                               "A Puppet driven frame by frame with bounded latency (streaming.hpp).")
       .def(py::init([](const Puppet& puppet, Index decode_lag, Index trajectory_lag, double fps,
-                       bool posterior, Index delta_lag) {
+                       bool posterior, Index delta_lag, Index projection_lag) {
              StreamingOptions o;
              o.delta_lag = delta_lag;
+             o.projection_lag = projection_lag;
              o.decode_lag = decode_lag;
              o.trajectory_lag = trajectory_lag;
              o.fps = fps;
@@ -48,7 +51,8 @@ void bind_streaming(py::module_& m) {
              return StreamingPuppet(puppet, o);
            }),
            py::arg("puppet"), py::arg("decode_lag") = 2, py::arg("trajectory_lag") = 2,
-           py::arg("fps") = 0.0, py::arg("posterior") = false, py::arg("delta_lag") = -1)
+           py::arg("fps") = 0.0, py::arg("posterior") = false, py::arg("delta_lag") = -1,
+           py::arg("projection_lag") = -1)
       .def("push", &StreamingPuppet::push, py::arg("raw_features"),
            py::call_guard<py::gil_scoped_release>(),
            "Push raw audio feature frames [K, A]; returns the face frames completed.")
@@ -61,6 +65,8 @@ void bind_streaming(py::module_& m) {
       .def_property_readonly("frames_emitted", &StreamingPuppet::frames_emitted)
       .def_property_readonly("log_likelihood", &StreamingPuppet::log_likelihood)
       .def_property_readonly("delta_lag", [](const StreamingPuppet& s) { return s.options().delta_lag; })
+      .def_property_readonly("projection_lag",
+                             [](const StreamingPuppet& s) { return s.options().projection_lag; })
       .def_property_readonly("decode_lag", [](const StreamingPuppet& s) { return s.options().decode_lag; })
       .def_property_readonly("trajectory_lag",
                              [](const StreamingPuppet& s) { return s.options().trajectory_lag; })

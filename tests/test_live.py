@@ -33,10 +33,9 @@ def speech():
     return np.concatenate([np.zeros(3200), x, np.zeros(6400), x])
 
 
-@pytest.fixture(scope="module")
-def puppet(speech, tmp_path_factory):
+def planted_face(speech):
+    """The audio and a face whose mouth and jaw follow its loudness: (Audio, points [T, 68, 2])."""
     from voicepuppet.audio import extract
-    from voicepuppet.puppet import Puppet
 
     rng = np.random.default_rng(SEED)
     au = prepare(speech, 16000, target_rate=None, remove_dc=False)
@@ -52,6 +51,14 @@ def puppet(speech, tmp_path_factory):
     pts[:, 48, 0] += 3 * open_                # mouth corners in
     pts[:, 54, 0] -= 3 * open_
     pts += rng.normal(0, 0.3, pts.shape)
+    return au, pts
+
+
+@pytest.fixture(scope="module")
+def puppet(speech, tmp_path_factory):
+    from voicepuppet.puppet import Puppet
+
+    au, pts = planted_face(speech)
     p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0)
     path = tmp_path_factory.mktemp("live") / "test.vpp"
     p.save(path)
@@ -125,13 +132,19 @@ def test_bounded_lag_emits_within_the_latency(puppet, speech):
 
 
 def test_split_lag():
-    # budget = floor((0.150 - 0.026) * 29.97) = 3 frames
-    assert split_lag(150, FPS, 0.026, True) == (0, 0, 2, 1)
-    assert split_lag(150, FPS, 0.026, True, 2) == (0, 1, 1, 1)
+    # (formant, delta, projection, decode, trajectory); budget = floor((0.150 - 0.026) * 29.97)
+    # = 3 frames
+    assert split_lag(150, FPS, 0.026, True) == (0, 0, 0, 2, 1)
+    assert split_lag(150, FPS, 0.026, True, 2) == (0, 1, 0, 1, 1)
     # budget 9: formants 2, deltas min(2, 7 // 3) = 2, decoder 3, trajectory 2
-    assert split_lag(330, FPS, 0.026, True, 2) == (2, 2, 3, 2)
-    assert split_lag(330, FPS, 0.017, False) == (0, 0, 5, 4)
-    assert split_lag(0, FPS, 0.026, True, 2) == (0, 0, 0, 0)
+    assert split_lag(330, FPS, 0.026, True, 2) == (2, 2, 0, 3, 2)
+    assert split_lag(330, FPS, 0.017, False) == (0, 0, 0, 5, 4)
+    assert split_lag(0, FPS, 0.026, True, 2) == (0, 0, 0, 0, 0)
+    # a projection of +-5 frames: half what the formants leave, rounded up (at most 5), then
+    # the deltas
+    assert split_lag(150, FPS, 0.026, True, 0, 5) == (0, 0, 2, 1, 0)
+    assert split_lag(330, FPS, 0.026, True, 2, 5) == (2, 1, 4, 1, 1)
+    assert split_lag(1000, FPS, 0.026, True, 0, 5) == (2, 0, 5, 11, 11)
     with pytest.raises(ValueError, match="lag_ms"):
         split_lag(-5, FPS, 0.026, True)
 
@@ -370,3 +383,105 @@ def test_osc_messages(puppet, speech, tmp_path):
     assert [m.params[0] for m in msgs] == [rec["frame"] for rec in lines]
     first = np.array(msgs[0].params[2:], dtype=np.float64).reshape(68, 2)
     np.testing.assert_allclose(first, np.array(lines[0]["points"]), atol=0.006)
+
+
+# ------------------------------------------------------------------ a projected puppet on the stream
+@pytest.fixture(scope="module")
+def projected(speech, tmp_path_factory):
+    """The test puppet's face and audio, trained with the option for voices never heard: vocal
+    Gaussians (one tied covariance) on a projection of +-5 standardised frames."""
+    from voicepuppet.puppet import Puppet
+
+    au, pts = planted_face(speech)
+    p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0, vocal_features="projected",
+                     vocal_covariance="tied")
+    assert p._core.projected and p._core.projection_context == 5 and p._core.delta_width == 2
+    path = tmp_path_factory.mktemp("live_projected") / "projected.vpp"
+    p.save(path)
+    return p, path
+
+
+def test_projected_puppet_core_stream_is_the_offline_projection_and_animation(projected, speech):
+    """The C++ stream on feature frames: every frame's vocal features (the first and last 5
+    included) are Puppet::project of the whole sequence's standardised frames, and the face the
+    offline animation, for pushes of 1, 7 and all frames."""
+    from voicepuppet import _core
+    from voicepuppet.audio import extract
+
+    p, _ = projected
+    au = prepare(speech[:40000], 16000, target_rate=None, remove_dc=False)
+    feats = np.ascontiguousarray(extract(au, fps=FPS, features=p.feature_set).values)
+    core = p._core
+    v_ref = np.asarray(core.project(core.standardize(feats)))
+    for posterior, fps in ((False, 0.0), (True, 25.0)):
+        ref = np.asarray(core.animate(feats, fps, posterior)["points"])
+        sp = _core.StreamingPuppet(core, 2000, 2000, fps, posterior)
+        assert (sp.delta_lag, sp.projection_lag) == (0, 5)  # the projection reads no deltas
+        for chunk in (1, 7, feats.shape[0]):
+            got = [sp.push(feats[a:a + chunk]) for a in range(0, feats.shape[0], chunk)]
+            got.append(sp.flush())
+            assert [g.first_vocal for g in got] == list(np.cumsum([0] + [g.vocal.shape[0]
+                                                                         for g in got])[:-1])
+            v = np.vstack([g.vocal for g in got])
+            assert v.shape == v_ref.shape
+            np.testing.assert_allclose(v, v_ref, rtol=0, atol=1e-12 * (1 + np.abs(v_ref).max()))
+            pts = np.vstack([g.points for g in got])
+            assert pts.shape == ref.shape
+            np.testing.assert_allclose(pts, ref, rtol=0, atol=1e-8 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("posterior,fps", [(False, None), (True, 60.0)])
+def test_projected_puppet_large_lags_give_the_offline_animation(projected, speech, posterior, fps):
+    p, _ = projected
+    x = speech[:40000]
+    ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False), fps=fps,
+                    posterior=posterior).animation.points
+    live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, delta_lag=-1,
+                      projection_lag=-1, decode_lag=2000, trajectory_lag=2000)
+    assert (live.delta_lag, live.projection_lag) == (0, 5)
+    got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED + 3)))
+    assert got.shape == ref.shape
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-8 * np.abs(ref).max())
+
+
+def test_projected_puppet_latency(projected, puppet):
+    p, _ = projected
+    window = LivePuppet(p).features.lookahead_s()
+    # the budget: 3 frames at 150 ms, the projection takes two of them
+    live = LivePuppet(p, lag_ms=150)
+    assert (live.formant_lag, live.delta_lag, live.projection_lag, live.decode_lag,
+            live.trajectory_lag) == (0, 0, 2, 1, 0)
+    assert live.latency_s == pytest.approx(window + 3 / FPS, abs=1e-12)
+    # exact vocal features: 5 frames (167 ms) on top of the decoder's
+    exact = LivePuppet(p, lag_ms=150, projection_lag=-1)
+    assert exact.projection_lag == 5
+    assert exact.latency_s == pytest.approx(window + 6 / FPS, abs=1e-12)
+    with pytest.raises(ValueError, match="projection context 5"):
+        LivePuppet(p, projection_lag=6)
+    with pytest.raises(ValueError, match="projection_lag must be a whole number"):
+        LivePuppet(p, projection_lag=-2)
+    with pytest.raises(ValueError, match="projection context 0"):  # a puppet without one
+        LivePuppet(puppet[0], projection_lag=1)
+    assert LivePuppet(puppet[0]).projection_lag == 0
+
+
+def test_cli_projected_puppet(projected, speech, tmp_path):
+    import soundfile
+
+    p, path = projected
+    wav = tmp_path / "in.wav"
+    soundfile.write(wav, speech[:24000], 16000, subtype="DOUBLE")
+    n = math.ceil(24000 / 16000 * FPS)
+    window = LivePuppet(p).features.lookahead_s()
+    summaries = {}
+    for extra in ([], ["--projection-lag", "-1"]):
+        r = run_cli([str(path), "--input", str(wav), "--no-realtime", "--lag-ms", "150", *extra])
+        assert r.returncode == 0, r.stderr.decode()
+        assert len(r.stdout.decode().splitlines()) == n
+        summaries[len(extra)] = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
+    budget, exact = summaries[0], summaries[2]
+    assert budget["projection_lag"] == 2 and exact["projection_lag"] == 5
+    assert budget["algorithmic_latency_ms"] == pytest.approx((window + 3 / FPS) * 1e3, abs=0.01)
+    assert budget["algorithmic_latency_ms"] <= 150
+    # the exact projection reports its 3 more frames of look-ahead
+    assert exact["algorithmic_latency_ms"] == pytest.approx((window + 6 / FPS) * 1e3, abs=0.01)

@@ -234,18 +234,31 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
     fail_argument("fps must be 0 (the puppet's rate) or a positive frame rate, got ", options.fps);
   }
   out_fps_ = options.fps == 0 ? puppet_.fps() : options.fps;
-  if (puppet_.projected()) {
-    fail_argument("the puppet's vocal features are a projection of +-", puppet_.projection_context(),
-                  " audio frames (trained with vocal_features=\"projected\"), which streaming does not "
-                  "compute; animate it offline, or train with vocal_features=\"audio\" for live use");
-  }
   const Index w = puppet_.delta_width();
   if (options.delta_lag < -1 || options.delta_lag > w) {
     fail_argument("delta_lag must be -1 (the puppet's delta width, ", w, ") or 0 .. ", w,
                   " frames, got ", options.delta_lag);
   }
-  delta_lag_ = options.delta_lag < 0 ? w : options.delta_lag;
+  const Index k = puppet_.projection_context();
+  if (puppet_.projected()) {
+    const PuppetFile& f = puppet_.file();
+    context_ = k;
+    columns_ = f.at("audio/projection_columns").i64[0];
+    projection_ = f.at("audio/projection").matrix();
+    projection_offset_ = f.at("audio/projection_offset").matrix().row(0).transpose();
+  }
+  // A projection of the first C <= A columns (Python's default with context) never reads the
+  // deltas: waiting for them would only add latency.
+  const bool deltas_read = !(puppet_.projected() && columns_ <= puppet_.n_features());
+  delta_lag_ = options.delta_lag < 0 ? (deltas_read ? w : 0) : options.delta_lag;
   options_.delta_lag = delta_lag_;
+  if (options.projection_lag < -1 || options.projection_lag > k) {
+    fail_argument("projection_lag must be -1 (the puppet's projection context, ", k, ") or 0 .. ", k,
+                  " frames", puppet_.projected() ? "" : " (this puppet has no projection)", ", got ",
+                  options.projection_lag);
+  }
+  projection_lag_ = options.projection_lag < 0 ? k : options.projection_lag;
+  options_.projection_lag = projection_lag_;
   mean_ = puppet_.file().at("audio/mean").matrix().row(0).transpose();
   std_ = puppet_.file().at("audio/std").matrix().row(0).transpose();
   const auto models = part_models(puppet_, out_fps_);
@@ -277,7 +290,7 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
 }
 
 double StreamingPuppet::latency_seconds() const {
-  return static_cast<double>(delta_lag_ + options_.decode_lag) / puppet_.fps() +
+  return static_cast<double>(delta_lag_ + projection_lag_ + options_.decode_lag) / puppet_.fps() +
          static_cast<double>(options_.trajectory_lag) / out_fps_;
 }
 
@@ -297,6 +310,8 @@ void StreamingPuppet::reset() {
   }
   raw_.clear();
   raw_first_ = standardized_ = 0;
+  z_.clear();
+  z_first_ = projected_ = vocal_ = 0;
   pushed_ = emitted_ = 0;
 }
 
@@ -427,11 +442,41 @@ RowMatrixXd StreamingPuppet::standardized_ready(bool final_pass) {
   return z;
 }
 
-StreamedFrames StreamingPuppet::decode(const RowMatrixXd& z, bool final_pass) {
+RowMatrixXd StreamingPuppet::vocal_ready(const RowMatrixXd& z, bool final_pass) {
+  if (!puppet_.projected()) return z;
+  const Index k = context_, C = columns_;
+  for (Index t = 0; t < z.rows(); ++t) z_.emplace_back(z.row(t).head(C).transpose());
+  // z holds the frames standardised by this call: standardized_ frames are known in all
+  const Index known = standardized_;
+  // frame s is ready once frame s + projection_lag is standardised (all frames at the end)
+  const Index ready = final_pass ? known : std::max<Index>(0, known - projection_lag_);
+  const Index n = std::max<Index>(ready - projected_, 0);
+  RowMatrixXd x(n, C * (2 * k + 1));
+  for (Index s = projected_; s < ready; ++s) {
+    // context s − k .. s + k, clamped to the first frame and to the newest one it may read
+    // (s + projection_lag; the last frame at the end), as Puppet::project clamps to the
+    // recording's edges: with projection_lag = k the row is the offline one
+    const Index hi = final_pass ? known - 1 : s + projection_lag_;
+    for (Index j = -k; j <= k; ++j) {
+      const Index u = std::clamp<Index>(s + j, 0, hi);
+      x.row(s - projected_).segment((j + k) * C, C) = z_[static_cast<size_t>(u - z_first_)].transpose();
+    }
+  }
+  projected_ = ready;
+  RowMatrixXd v = x * projection_;
+  v.rowwise() += projection_offset_.transpose();
+  // forget standardised frames no later context needs (those before the next frame's)
+  const Index keep = std::max<Index>(z_first_, std::min<Index>(projected_ - k, known));
+  z_.erase(z_.begin(), z_.begin() + static_cast<std::ptrdiff_t>(keep - z_first_));
+  z_first_ = keep;
+  return v;
+}
+
+StreamedFrames StreamingPuppet::decode(RowMatrixXd v, bool final_pass) {
   std::vector<RowMatrixXd> faces;
   for (Index p = 0; p < puppet_.n_parts(); ++p) {
     PartStream& ps = parts_[static_cast<size_t>(p)];
-    DecodedFrames f = z.rows() ? ps.decoder.push(ps.vocal.log_density(z)) : DecodedFrames{};
+    DecodedFrames f = v.rows() ? ps.decoder.push(ps.vocal.log_density(v)) : DecodedFrames{};
     if (final_pass) {
       DecodedFrames rest = ps.decoder.flush();
       if (f.size() == 0) {
@@ -448,7 +493,11 @@ StreamedFrames StreamingPuppet::decode(const RowMatrixXd& z, bool final_pass) {
     }
     faces.push_back(feed(ps, f, final_pass));
   }
-  return assemble(faces);
+  StreamedFrames out = assemble(faces);
+  out.first_vocal = vocal_;
+  vocal_ += v.rows();
+  out.vocal = std::move(v);
+  return out;
 }
 
 StreamedFrames StreamingPuppet::push(const MatrixRef& raw_features) {
@@ -459,7 +508,7 @@ StreamedFrames StreamingPuppet::push(const MatrixRef& raw_features) {
   require_finite(raw_features, "raw_features");
   for (Index t = 0; t < raw_features.rows(); ++t) raw_.emplace_back(raw_features.row(t).transpose());
   pushed_ += raw_features.rows();
-  return decode(standardized_ready(false), false);
+  return decode(vocal_ready(standardized_ready(false), false), false);
 }
 
 StreamedFrames StreamingPuppet::flush() {
@@ -468,8 +517,9 @@ StreamedFrames StreamingPuppet::flush() {
     std::vector<RowMatrixXd> faces;
     for (Index p = 0; p < puppet_.n_parts(); ++p) faces.emplace_back(0, puppet_.part(p).n_dims());
     out = assemble(faces);
+    out.vocal.resize(0, puppet_.n_vocal());
   } else {
-    out = decode(standardized_ready(true), true);
+    out = decode(vocal_ready(standardized_ready(true), true), true);
   }
   reset();
   return out;

@@ -259,6 +259,16 @@ RowMatrixXd walk_features(const Puppet& pp, Index T, unsigned seed) {
   return X;
 }
 
+/// Decoder and trajectory lags longer than the test streams (80 input, 200 output frames).
+StreamingOptions covering_lags(double fps, bool posterior) {
+  StreamingOptions o;
+  o.decode_lag = 80;
+  o.trajectory_lag = 200;
+  o.fps = fps;
+  o.posterior = posterior;
+  return o;
+}
+
 RowMatrixXd stream_points(StreamingPuppet& sp, const RowMatrixXd& X, Index chunk) {
   std::vector<RowMatrixXd> rows;
   Index next = 0;
@@ -289,12 +299,7 @@ TEST_CASE("streaming puppet: lags covering the stream give Puppet::animate exact
   const RowMatrixXd X = walk_features(pp, 70, 4);
   for (bool posterior : {false, true}) {
     for (double fps : {0.0, 60.0, 25.0}) {
-      StreamingOptions o;
-      o.decode_lag = 80;
-      o.trajectory_lag = 200;
-      o.fps = fps;
-      o.posterior = posterior;
-      StreamingPuppet sp(pp, o);
+      StreamingPuppet sp(pp, covering_lags(fps, posterior));
       AnimateOptions ao;
       ao.fps = fps;
       ao.posterior = posterior;
@@ -357,4 +362,218 @@ TEST_CASE("streaming puppet: bad input") {
   CHECK_THROWS_WITH_AS(sp.push(bad), doctest::Contains("NaN or infinite"), std::invalid_argument);
   CHECK(sp.push(RowMatrixXd::Zero(0, 3)).size() == 0);
   CHECK(sp.flush().size() == 0);
+}
+
+// ------------------------------------------------------------------ projected puppets
+namespace {
+
+/// The puppet of `f` with its vocal features made a projection of ±k standardised frames (the
+/// first C columns) to V dimensions: random projection and offset, vocal Gaussians redrawn in
+/// V dimensions (full, or one covariance copied to every state: "tied"; or diagonal).
+PuppetFile add_projection(PuppetFile f, Index k, Index C, Index V, unsigned seed, bool tied, bool diag) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const Index M = C * (2 * k + 1);
+  std::vector<double> P, c;
+  for (Index i = 0; i < M * V; ++i) P.push_back(g(rng) / std::sqrt(static_cast<double>(M)));
+  for (Index i = 0; i < V; ++i) c.push_back(0.2 * g(rng));
+  auto int1 = [](Index v) {
+    PuppetArray a;
+    a.dtype = PuppetArray::DType::Int64;
+    a.shape = {1};
+    a.i64 = {v};
+    return a;
+  };
+  const auto v_ = static_cast<std::uint64_t>(V);
+  f.arrays["audio/projection"] = f64({static_cast<std::uint64_t>(M), v_}, P);
+  f.arrays["audio/projection_offset"] = f64({v_}, c);
+  f.arrays["audio/projection_context"] = int1(k);
+  f.arrays["audio/projection_columns"] = int1(C);
+  for (int p = 0; p < 2; ++p) {
+    const std::string pre = "hmm/part" + std::to_string(p);
+    const auto n_ = f.arrays.at(pre + "/startprob").shape[0];
+    std::vector<double> vm, vc;
+    Eigen::MatrixXd S;
+    for (std::uint64_t n = 0; n < n_; ++n) {
+      for (Index a = 0; a < V; ++a) vm.push_back(0.8 * g(rng));
+      if (n == 0 || !tied) {
+        Eigen::MatrixXd B(V, V);
+        for (Index i = 0; i < V; ++i)
+          for (Index j = 0; j < V; ++j) B(i, j) = g(rng);
+        S = 0.3 * (B * B.transpose() / static_cast<double>(V) + Eigen::MatrixXd::Identity(V, V));
+      }
+      for (Index i = 0; i < V; ++i) {
+        if (diag) {
+          vc.push_back(S(i, i));
+          continue;
+        }
+        for (Index j = 0; j < V; ++j) vc.push_back(S(i, j));
+      }
+    }
+    f.arrays[pre + "/vocal_means"] = f64({n_, v_}, vm);
+    f.arrays[pre + "/vocal_covars"] = diag ? f64({n_, v_}, vc) : f64({n_, v_, v_}, vc);
+  }
+  return f;
+}
+
+struct Streamed {
+  RowMatrixXd points, vocal;
+};
+
+/// Pushes X in chunks (0: one push), collects the points and the vocal features in order.
+Streamed stream_all(StreamingPuppet& sp, const RowMatrixXd& X, Index chunk) {
+  std::vector<StreamedFrames> got;
+  if (chunk <= 0) chunk = X.rows();
+  for (Index t = 0; t < X.rows(); t += chunk) got.push_back(sp.push(X.middleRows(t, std::min(chunk, X.rows() - t))));
+  got.push_back(sp.flush());
+  Index m = 0, j = 0;
+  for (const auto& f : got) {
+    REQUIRE(f.first_frame == m);
+    REQUIRE(f.first_vocal == j);
+    REQUIRE(f.vocal.cols() == sp.puppet().n_vocal());
+    m += f.size();
+    j += f.vocal.rows();
+  }
+  Streamed s{RowMatrixXd(m, 2 * sp.puppet().n_points()), RowMatrixXd(j, sp.puppet().n_vocal())};
+  m = j = 0;
+  for (const auto& f : got) {
+    if (f.size()) s.points.middleRows(m, f.size()) = f.points;
+    if (f.vocal.rows()) s.vocal.middleRows(j, f.vocal.rows()) = f.vocal;
+    m += f.size();
+    j += f.vocal.rows();
+  }
+  return s;
+}
+
+}  // namespace
+
+TEST_CASE("streaming puppet: a projected puppet streams Puppet::project and Puppet::animate") {
+  struct Config {
+    Index width, k, C, V;
+    bool tied, diag;
+  };
+  // deltas or none; contexts 1 (shorter than the stream's edges need) and 5 (the default);
+  // projected columns fewer than, or all of, the standardised ones; full, tied, diagonal
+  for (const Config cf : {Config{2, 5, 3, 4, true, false}, Config{0, 1, 3, 2, false, false},
+                          Config{2, 3, 6, 3, false, true}}) {
+    const PuppetFile base = random_puppet(5, 3, 2, 31, 30.0, cf.width);
+    const RowMatrixXd X = walk_features(Puppet(base), 47, 8);
+    const Puppet pp(add_projection(base, cf.k, cf.C, cf.V, 5, cf.tied, cf.diag));
+    REQUIRE(pp.projected());
+    REQUIRE(pp.projection_context() == cf.k);
+    REQUIRE(pp.n_vocal() == cf.V);
+    const RowMatrixXd v_ref = pp.project(pp.standardize(X));
+    for (bool posterior : {false, true}) {
+      for (double fps : {0.0, 25.0}) {
+        StreamingPuppet sp(pp, covering_lags(fps, posterior));
+        CHECK(sp.options().projection_lag == cf.k);
+        AnimateOptions ao;
+        ao.fps = fps;
+        ao.posterior = posterior;
+        const RowMatrixXd ref = pp.animate(X, ao).points;
+        for (Index chunk : {Index(1), Index(7), Index(0)}) {
+          CAPTURE(cf.k);
+          CAPTURE(chunk);
+          const Streamed s = stream_all(sp, X, chunk);
+          // every frame's vocal features, the first and last k included, are the offline ones
+          REQUIRE(s.vocal.rows() == X.rows());
+          CHECK((s.vocal - v_ref).cwiseAbs().maxCoeff() < 1e-12 * (1.0 + v_ref.cwiseAbs().maxCoeff()));
+          REQUIRE(s.points.rows() == ref.rows());
+          CHECK((s.points - ref).cwiseAbs().maxCoeff() < 1e-8 * (1.0 + ref.cwiseAbs().maxCoeff()));
+        }
+      }
+    }
+  }
+}
+
+TEST_CASE("streaming puppet: the projection's look-ahead delays every frame by projection_lag") {
+  const PuppetFile base = random_puppet(5, 4, 2, 23, 30.0, 2);
+  const RowMatrixXd X = walk_features(Puppet(base), 60, 9);
+  // the projection reads all 8 standardised columns, the deltas too
+  const Puppet pp(add_projection(base, 5, 8, 3, 11, true, false));
+  const RowMatrixXd Z = pp.standardize(X), v_ref = pp.project(Z);
+  CHECK(StreamingPuppet(pp).options().delta_lag == 2);
+  for (Index pl : {Index(0), Index(2), Index(5)}) {
+    StreamingOptions o;
+    o.delta_lag = 1;
+    o.projection_lag = pl;
+    o.decode_lag = 2;
+    o.trajectory_lag = 3;
+    StreamingPuppet sp(pp, o);
+    CHECK(std::abs(sp.latency_seconds() - static_cast<double>(6 + pl) / 30.0) < 1e-12);
+    for (Index t = 0; t < X.rows(); ++t) {
+      const StreamedFrames f = sp.push(X.middleRows(t, 1));
+      // input t gives the deltas of t - 1, the vocal features of t - 1 - pl, decides frame
+      // t - 3 - pl, completes output frame t - 6 - pl
+      CHECK(f.vocal.rows() == (t >= 1 + pl ? 1 : 0));
+      if (f.vocal.rows()) CHECK(f.first_vocal == t - 1 - pl);
+      CHECK(f.size() == (t >= 6 + pl ? 1 : 0));
+      if (f.size()) CHECK(f.first_frame == t - 6 - pl);
+    }
+    CHECK(sp.flush().size() == 6 + pl);
+    const Streamed one = stream_all(sp, X, 1), all = stream_all(sp, X, X.rows()), seven = stream_all(sp, X, 7);
+    CHECK((one.points - all.points).cwiseAbs().maxCoeff() < 1e-10);
+    CHECK((one.points - seven.points).cwiseAbs().maxCoeff() < 1e-10);
+    CHECK((one.vocal - seven.vocal).cwiseAbs().maxCoeff() < 1e-12);
+    // delta_lag 1 < w: the projected deltas are approximations, so are the vocal features
+    CHECK((one.vocal - v_ref).cwiseAbs().maxCoeff() > 1e-6);
+    CHECK(one.vocal.allFinite());
+  }
+  // with exact deltas, projection_lag < k is exactly "the newest standardised frame repeated":
+  // frame s's features are Puppet::project of the frames 0 .. s + pl, at row s
+  for (Index pl : {Index(0), Index(3)}) {
+    StreamingOptions o;
+    o.projection_lag = pl;
+    StreamingPuppet sp(pp, o);
+    const Streamed s = stream_all(sp, X, 1);
+    // (frames decided before the flush: s + pl + w <= T - 1, w = 2)
+    for (Index t = 0; t + pl + 2 < X.rows(); ++t) {
+      const RowMatrixXd prefix = pp.project(Z.topRows(t + pl + 1));
+      CHECK((s.vocal.row(t) - prefix.row(t)).cwiseAbs().maxCoeff() < 1e-12 * (1.0 + prefix.cwiseAbs().maxCoeff()));
+    }
+    // the frames flushed at the end read the real last frames, as offline
+    CHECK((s.vocal.bottomRows(pl + 2) - v_ref.bottomRows(pl + 2)).cwiseAbs().maxCoeff() <
+          1e-12 * (1.0 + v_ref.cwiseAbs().maxCoeff()));
+  }
+  StreamingOptions bad;
+  bad.projection_lag = 6;
+  CHECK_THROWS_WITH_AS(StreamingPuppet(pp, bad), doctest::Contains("projection_lag"), std::invalid_argument);
+  bad.projection_lag = -2;
+  CHECK_THROWS_WITH_AS(StreamingPuppet(pp, bad), doctest::Contains("projection context, 5"), std::invalid_argument);
+}
+
+TEST_CASE("streaming puppet: a projection of the features alone waits for no deltas") {
+  // Python's projected puppets read the A raw columns only (their context forms any deltas)
+  const PuppetFile base = random_puppet(5, 4, 2, 23, 30.0, 2);
+  const RowMatrixXd X = walk_features(Puppet(base), 50, 2);
+  const Puppet pp(add_projection(base, 5, 4, 3, 13, true, false));
+  StreamingOptions o;
+  o.decode_lag = 2;
+  o.trajectory_lag = 1;
+  StreamingPuppet sp(pp, o);
+  CHECK(sp.options().delta_lag == 0);
+  CHECK(sp.options().projection_lag == 5);
+  CHECK(std::abs(sp.latency_seconds() - 8.0 / 30.0) < 1e-12);  // (5 + 2) / 30 + 1 / 30
+  const Streamed s = stream_all(sp, X, 1);
+  const RowMatrixXd v_ref = pp.project(pp.standardize(X));
+  CHECK((s.vocal - v_ref).cwiseAbs().maxCoeff() < 1e-12 * (1.0 + v_ref.cwiseAbs().maxCoeff()));
+  o.delta_lag = 2;  // an explicit delta look-ahead is honoured, and only delays
+  StreamingPuppet slow(pp, o);
+  CHECK(std::abs(slow.latency_seconds() - 10.0 / 30.0) < 1e-12);
+  const Streamed s2 = stream_all(slow, X, 1);
+  CHECK((s2.points - s.points).cwiseAbs().maxCoeff() < 1e-10);
+}
+
+TEST_CASE("streaming puppet: without a projection the vocal features are the standardised frames") {
+  const Puppet pp(random_puppet(4, 3, 2, 7, 30.0, 2));
+  const RowMatrixXd X = walk_features(pp, 40, 3);
+  StreamingPuppet sp(pp);
+  CHECK(sp.options().delta_lag == 2);
+  CHECK(sp.options().projection_lag == 0);
+  CHECK(std::abs(sp.latency_seconds() - 6.0 / 30.0) < 1e-12);  // delta 2 + decode 2, trajectory 2
+  const Streamed s = stream_all(sp, X, 3);
+  CHECK(s.vocal == pp.standardize(X));  // bit for bit: the same arithmetic as offline
+  StreamingOptions o;
+  o.projection_lag = 1;
+  CHECK_THROWS_WITH_AS(StreamingPuppet(pp, o), doctest::Contains("has no projection"), std::invalid_argument);
 }

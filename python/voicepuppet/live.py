@@ -11,9 +11,10 @@ fixed-lag Viterbi or posteriors, then the fixed-lag trajectory solve):
 
 Latency. A face frame ``k`` shows the sound at time ``k / fps``. It can be emitted once the
 analysis windows around that time are full (``window_s``: about 17 ms after it for the spectra,
-26 ms for the formants), plus the look-ahead given to the formant tracker, the state decoder and
-the trajectory solve. ``lag_ms`` is the budget for all of it: the windows take what they need
-and the rest (whole frames) is split between the three look-aheads (see :func:`split_lag`).
+26 ms for the formants), plus the look-ahead given to the formant tracker, the audio deltas, a
+projected puppet's vocal features (``vocal_features="projected"``: ±k frames of audio), the state
+decoder and the trajectory solve. ``lag_ms`` is the budget for all of it: the windows take what
+they need and the rest (whole frames) is split between the look-aheads (see :func:`split_lag`).
 Below the windows' own look-ahead (``lag_ms`` under ~26 ms) nothing is left to split and the
 latency is the windows'.
 
@@ -82,28 +83,32 @@ class LiveFrames:
 
 
 def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
-              delta_width: int = 0) -> tuple:
+              delta_width: int = 0, projection_context: int = 0) -> tuple:
     """Split a latency budget into look-aheads (frames at ``fps``).
 
     The analysis windows take ``window_s``; the whole frames left, ``B = floor((lag_ms / 1000 -
     window_s) fps)``, are shared: if the feature set has formants, one frame in four (at most
-    2) to the formant tracker; if the puppet uses audio deltas, a third of the rest (at most
-    ``delta_width``) to their look-ahead; the remainder to the state decoder and the trajectory
-    solve, half each (the decoder gets the odd frame).
+    2) to the formant tracker; if the puppet's vocal features are a projection of ±k frames,
+    half the rest, rounded up (at most ``projection_context`` k), to its look-ahead (measured
+    better than a third, docs/streaming.md); if they read audio deltas (``delta_width`` w > 0),
+    a third of the rest (at most w) to theirs; the remainder to the state decoder and the
+    trajectory solve, half each (the decoder gets the odd frame).
 
     Returns
     -------
-    (formant_lag, delta_lag, decode_lag, trajectory_lag) : tuple of int
+    (formant_lag, delta_lag, projection_lag, decode_lag, trajectory_lag) : tuple of int
     """
     if not (isinstance(lag_ms, (int, float)) and math.isfinite(lag_ms) and lag_ms >= 0):
         raise ValueError(f"lag_ms must be a non-negative number of milliseconds, got {lag_ms!r}")
     budget = max(0, int(math.floor((lag_ms / 1000.0 - window_s) * fps + 1e-9)))
     f = min(2, budget // 4) if formants else 0
     rest = budget - f
+    pl = min(int(projection_context), (rest + 1) // 2)
+    rest -= pl
     dl = min(int(delta_width), rest // 3)
     rest -= dl
     decode = (rest + 1) // 2
-    return f, dl, decode, rest - decode
+    return f, dl, pl, decode, rest - decode
 
 
 class LivePuppet:
@@ -125,17 +130,20 @@ class LivePuppet:
     rate : int
         Sample rate of the pushed audio; other rates than 16000 are resampled on the stream with
         ``resample_poly``'s filter.
-    formant_lag, delta_lag, decode_lag, trajectory_lag : int, optional
+    formant_lag, delta_lag, projection_lag, decode_lag, trajectory_lag : int, optional
         Explicit look-aheads in frames. ``formant_lag=-1`` waits for the formant tracker's
-        exact decisions (unbounded latency), ``delta_lag=-1`` uses the puppet's full delta width;
-        with both and large decode and trajectory lags the output is exactly ``puppet.animate``
-        of the same audio.
+        exact decisions (unbounded latency), ``delta_lag=-1`` uses the delta look-ahead the
+        vocal features need to be exact (the puppet's delta width; 0 when they are a projection
+        of the features alone, as ``vocal_features="projected"`` trains them),
+        ``projection_lag=-1`` a projected puppet's full context k (0 .. k; missing future frames
+        repeat the newest one); with all three at -1 and large decode and trajectory lags the
+        output is exactly ``puppet.animate`` of the same audio.
     """
 
     def __init__(self, puppet, lag_ms: float = 150.0, *, fps: float | None = None,
                  posterior: bool = False, rate: int = ANALYSIS_RATE, formant_lag: int | None = None,
-                 delta_lag: int | None = None, decode_lag: int | None = None,
-                 trajectory_lag: int | None = None):
+                 delta_lag: int | None = None, projection_lag: int | None = None,
+                 decode_lag: int | None = None, trajectory_lag: int | None = None):
         from voicepuppet import _core
 
         if isinstance(puppet, (str, os.PathLike)):
@@ -161,19 +169,32 @@ class LivePuppet:
         has_formants = "formants" in fset.features
         window = self.features.lookahead_s()
         width = int(core.delta_width)
-        f, dl, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants, width)
+        k = int(core.projection_context)
+        # the deltas a projected puppet's vocal features read (none when the projection reads
+        # the first A columns, the features alone: its default with context)
+        reads_deltas = not core.projected or \
+            int(puppet.arrays["audio/projection_columns"][0]) > int(core.n_features)
+        f, dl, pl, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants,
+                                    width if reads_deltas else 0, k)
         f = f if formant_lag is None else formant_lag
         dl = dl if delta_lag is None else delta_lag
+        pl = pl if projection_lag is None else projection_lag
         d = d if decode_lag is None else decode_lag
         t = t if trajectory_lag is None else trajectory_lag
-        for name, v in (("formant_lag", f), ("delta_lag", dl), ("decode_lag", d),
-                        ("trajectory_lag", t)):
+        for name, v in (("formant_lag", f), ("delta_lag", dl), ("projection_lag", pl),
+                        ("decode_lag", d), ("trajectory_lag", t)):
             if not isinstance(v, (int, np.integer)) or v < (-1 if name in ("formant_lag",
-                                                                          "delta_lag") else 0):
+                                                                          "delta_lag",
+                                                                          "projection_lag")
+                                                             else 0):
                 raise ValueError(f"{name} must be a whole number of frames >= 0, got {v!r}")
         if dl > width:
             raise ValueError(f"delta_lag must be at most the puppet's delta width {width}, got "
                              f"{dl}")
+        if pl > k:
+            raise ValueError(f"projection_lag must be at most the puppet's projection context "
+                             f"{k} (frames of audio on each side its vocal features read), got "
+                             f"{pl}")
         self.formant_lag = None if f < 0 else int(f)
         if has_formants:
             self.features = StreamingFeatures(fset, fps=puppet.fps, rate=ANALYSIS_RATE,
@@ -181,7 +202,8 @@ class LivePuppet:
         out_fps = 0.0 if fps is None else float(fps)
         if fps is not None and not (math.isfinite(out_fps) and out_fps > 0):
             raise ValueError(f"fps must be positive, got {fps!r}")
-        self.core = _core.StreamingPuppet(core, int(d), int(t), out_fps, bool(posterior), int(dl))
+        self.core = _core.StreamingPuppet(core, int(d), int(t), out_fps, bool(posterior), int(dl),
+                                          int(pl))
         self.fps = float(self.core.output_fps)
         try:
             rate_i = int(rate)
@@ -201,6 +223,10 @@ class LivePuppet:
         return int(self.core.delta_lag)
 
     @property
+    def projection_lag(self) -> int:
+        return int(self.core.projection_lag)
+
+    @property
     def decode_lag(self) -> int:
         return int(self.core.decode_lag)
 
@@ -210,9 +236,9 @@ class LivePuppet:
 
     @property
     def latency_s(self) -> float:
-        """Algorithmic latency in seconds: analysis windows + formant tracker bound + decoder
-        and trajectory look-aheads (compute time not included). Unbounded (inf) when the
-        formant tracker waits for exact decisions."""
+        """Algorithmic latency in seconds: analysis windows + formant tracker bound + delta,
+        projection, decoder and trajectory look-aheads (compute time not included). Unbounded
+        (inf) when the formant tracker waits for exact decisions."""
         if self.formant_lag is None and "formants" in self.puppet.feature_set.features:
             return math.inf
         return self.features.lookahead_s() + self.core.latency_seconds
@@ -398,7 +424,8 @@ def run_live(args, out=None) -> int:
     """The ``live`` verb (see ``add_parser``)."""
     out = out or sys.stdout
     live = LivePuppet(args.puppet, lag_ms=args.lag_ms, fps=args.fps, posterior=args.posterior,
-                      rate=args.rate if args.input == "-" else ANALYSIS_RATE)
+                      rate=args.rate if args.input == "-" else ANALYSIS_RATE,
+                      projection_lag=getattr(args, "projection_lag", None))
     ws = _WebSocketOut(*_host_port(args.websocket, "websocket")) if args.websocket else None
     osc = _OscOut(*_host_port(args.osc, "osc")) if args.osc else None
     if ws is not None:
@@ -487,7 +514,7 @@ def run_live(args, out=None) -> int:
                "lag_ms": live.lag_ms,
                "algorithmic_latency_ms": round(live.latency_s * 1e3, 2),
                "formant_lag": live.formant_lag, "delta_lag": live.delta_lag,
-               "decode_lag": live.decode_lag,
+               "projection_lag": live.projection_lag, "decode_lag": live.decode_lag,
                "trajectory_lag": live.trajectory_lag,
                "latency_ms_p50": round(float(np.percentile(lat, 50)), 2),
                "latency_ms_p99": round(float(np.percentile(lat, 99)), 2),
@@ -510,6 +537,9 @@ def add_parser(sub) -> None:
                    help="latency budget in ms (analysis windows + look-aheads; default 150)")
     p.add_argument("--fps", type=float, default=None, help="output frame rate (default: the "
                    "puppet's)")
+    p.add_argument("--projection-lag", type=int, default=None, metavar="FRAMES",
+                   help="look-ahead of a projected puppet's vocal features (0 .. its context k, "
+                        "-1 for k: exact); default: its share of --lag-ms")
     p.add_argument("--posterior", action="store_true",
                    help="posterior-weighted synthesis instead of the fixed-lag Viterbi path")
     p.add_argument("--rate", type=int, default=ANALYSIS_RATE,

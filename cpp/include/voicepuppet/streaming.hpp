@@ -84,9 +84,16 @@ class FixedLagDecoder {
 /// Options of a StreamingPuppet.
 struct StreamingOptions {
   /// look-ahead of the audio deltas (frames at the puppet's rate, 0 .. the puppet's delta
-  /// width; −1: the full width, as offline): missing future frames repeat the latest one, as
-  /// the offline deltas do at the end of a recording
+  /// width; −1: what exactness needs, the full width, as offline, or 0 for a projected puppet
+  /// whose projection reads the features alone, not their deltas): missing future frames
+  /// repeat the latest one, as the offline deltas do at the end of a recording
   Index delta_lag = -1;
+  /// look-ahead of a projected puppet's vocal features (Puppet::projected(): v_t reads the
+  /// standardised frames t − k .. t + k), frames at the puppet's rate, 0 .. k; −1: the full
+  /// context k, as offline. Missing future frames repeat the newest standardised one, as the
+  /// offline projection repeats the last frame at the end of a recording. A puppet without a
+  /// projection has k = 0.
+  Index projection_lag = -1;
   Index decode_lag = 2;      ///< look-ahead of the state decoder, frames at the puppet's rate
   Index trajectory_lag = 2;  ///< look-ahead of the trajectory solve, frames at the output rate
   double fps = 0;            ///< output frame rate; 0: the puppet's own rate
@@ -98,6 +105,10 @@ struct StreamedFrames {
   Index first_frame = 0;  ///< output index of the first row
   RowMatrixXd points;     ///< #M by 2P pixel landmarks (x0, y0, x1, y1, ...) at the mean pose
   RowMatrixXd face;       ///< #M by K face coordinates (parts side by side)
+  /// #J by #V vocal features (Puppet::n_vocal) of the input frames whose features this call
+  /// completed: a projected puppet's projection, else the standardised [features, deltas]
+  RowMatrixXd vocal;
+  Index first_vocal = 0;  ///< input index of the first row of `vocal`
   Index size() const { return points.rows(); }
 };
 
@@ -105,23 +116,28 @@ struct StreamedFrames {
 /// puppet's feature columns), face frames out, state carried between calls.
 ///
 /// Audio deltas (a puppet with delta width w > 0) of frame s use frames s − w .. s + delta_lag,
-/// the latest repeated for the missing ones. Then per face part: standardise → vocal log
-/// densities → FixedLagDecoder (frame t decided after
+/// the latest repeated for the missing ones. A projected puppet's vocal features of frame t
+/// (Puppet::project: [z_{t−k}, …, z_{t+k}] · P + c over the standardised frames z, edges
+/// repeated) are computed once z_{t + projection_lag} is known, the newest standardised frame
+/// repeated for the later ones; without a projection the vocal features are z. Then per face
+/// part: vocal log densities → FixedLagDecoder (frame t decided after
 /// t + decode_lag) → states (or posteriors) resampled to the output rate as they are decided
 /// (sample and hold, or linear interpolation, exactly as resample_states / resample_weights) →
 /// FixedLagTrajectory (output frame k emitted after k + trajectory_lag) → face coordinates →
-/// Puppet::to_points. Work per frame is O(decode_lag · arcs + D³ + trajectory_lag · D²),
+/// Puppet::to_points. Work per frame is O((2k + 1) · C · V + decode_lag · arcs + D³ +
+/// trajectory_lag · D²) (C projected columns, V vocal dimensions),
 /// independent of the stream's length. With lags covering the whole stream (or for the frames
 /// still held back at `flush`) the output equals Puppet::animate.
 ///
 /// Latency (seconds of audio after a frame's time before it is emitted):
-/// (delta_lag + decode_lag) / puppet fps + trajectory_lag / output fps (+ the feature window's
-/// look-ahead, which is the front end's).
+/// (delta_lag + projection_lag + decode_lag) / puppet fps + trajectory_lag / output fps (+ the
+/// feature window's look-ahead, which is the front end's).
 class StreamingPuppet {
  public:
   /// @param[in] puppet   copied: the stream does not depend on the caller's object
   /// @param[in] options  lags (≥ 0), output rate (≥ 0), synthesis mode
-  /// @throws std::invalid_argument for a negative lag or a bad rate.
+  /// @throws std::invalid_argument for a negative lag, a delta_lag above the puppet's delta
+  ///         width, a projection_lag above its projection context, or a bad rate.
   explicit StreamingPuppet(const Puppet& puppet, const StreamingOptions& options = {});
 
   /// Pushes raw (unstandardised) audio feature frames at the puppet's rate.
@@ -142,7 +158,8 @@ class StreamingPuppet {
   double output_fps() const { return out_fps_; }
   Index frames_pushed() const { return pushed_; }
   Index frames_emitted() const { return emitted_; }
-  /// Algorithmic latency in seconds: (delta_lag + decode_lag) / fps + trajectory_lag / output fps.
+  /// Algorithmic latency in seconds: (delta_lag + projection_lag + decode_lag) / fps +
+  /// trajectory_lag / output fps.
   double latency_seconds() const;
   /// log p(features so far) under each part's vocal HMM, summed over parts.
   double log_likelihood() const;
@@ -173,7 +190,12 @@ class StreamingPuppet {
   /// Standardised [features, deltas] of the frames whose deltas are now known (all of them at
   /// the end of the stream).
   RowMatrixXd standardized_ready(bool final_pass);
-  StreamedFrames decode(const RowMatrixXd& z, bool final_pass);
+  /// A projected puppet's vocal features of the frames whose projection context is now known
+  /// (all of them at the end), given the newly standardised frames z; z itself without a
+  /// projection.
+  RowMatrixXd vocal_ready(const RowMatrixXd& z, bool final_pass);
+  /// Decodes the vocal features v of the next input frames; the result carries them.
+  StreamedFrames decode(RowMatrixXd v, bool final_pass);
 
   Puppet puppet_;
   StreamingOptions options_;
@@ -183,6 +205,13 @@ class StreamingPuppet {
   std::vector<VectorXd> raw_;  ///< raw frames raw_first_ .. pushed_ − 1 still needed for deltas
   Index raw_first_ = 0, standardized_ = 0;
   VectorXd mean_, std_;
+  // The projection (empty without one): v_t = [z_{t−k}, …, z_{t+k}] (first C columns) · P + c.
+  RowMatrixXd projection_;        ///< #C·(2k+1) by #V
+  VectorXd projection_offset_;    ///< #V
+  Index context_ = 0, columns_ = 0, projection_lag_ = 0;
+  std::vector<VectorXd> z_;       ///< first C standardised columns of frames z_first_ .. standardized_ − 1
+  Index z_first_ = 0, projected_ = 0;
+  Index vocal_ = 0;               ///< input frames whose vocal features are computed
   Index pushed_ = 0, emitted_ = 0;
 };
 

@@ -8,13 +8,18 @@ Cases (medians of interleaved repeats; per-frame percentiles over every frame of
   largest relative difference of the exact-mode features);
 - ``puppet_stream_cpp``: ``voicepuppet::StreamingPuppet`` fed one feature frame per push, against
   the offline C++ ``Puppet.animate`` (``agree``: with lags covering the stream);
+- ``puppet_stream_cpp_projected``: the same stream of a puppet trained on the same clip with
+  ``vocal_features="projected", vocal_covariance="tied"`` (±5 frames, exact look-ahead), against
+  the unprojected puppet's stream (``agree``: its exact stream against its offline animate;
+  ``frame_ms_p50_10x``: per-frame compute on the clip's features repeated 10 times);
 - ``live_lag{L}ms``: :class:`voicepuppet.live.LivePuppet` end to end (audio chunks of 5 ms in,
   face frames out) for several latency budgets. A frame's end-to-end latency is the audio
   time between the frame's moment and the end of the chunk that completed it, plus the compute
   time of that push: ``latency = lag + compute`` measured, not assumed.
 
 ``python -m voicepuppet.bench.live --table`` prints the accuracy table of docs/streaming.md
-(streamed vs offline animation for each latency budget, Err of eq. 7 and landmark RMSE / IOD).
+(streamed vs offline animation for each latency budget, Err of eq. 7 and landmark RMSE / IOD);
+``--projection-table`` the price of a projected puppet's shorter projection look-ahead.
 """
 
 from __future__ import annotations
@@ -51,6 +56,24 @@ def _corpus(quick: bool):
                          n_states=12 if quick else 26, n_iter=10 if quick else 20)
         p.save(path)
     return c, p
+
+
+def _projected(corpus, quick: bool):
+    """The puppet of ``_corpus`` trained with the projection (cached beside it)."""
+    import os
+
+    from voicepuppet.audio.samples import cache_dir
+    from voicepuppet.puppet import Puppet, load
+
+    secs = 20 if quick else 60
+    path = os.path.join(cache_dir(), f"bench-live-{secs}s", "puppet-projected.vpp")
+    if os.path.exists(path):
+        return load(path)
+    p = Puppet.train([corpus.train.points], [corpus.train.audio], fps=corpus.train.fps,
+                     n_states=12 if quick else 26, n_iter=10 if quick else 20,
+                     vocal_features="projected", vocal_covariance="tied")
+    p.save(path)
+    return p
 
 
 def _stream_live(live, x):
@@ -143,6 +166,40 @@ def run(quick: bool = False, repeats: int = 3) -> list:
                       frame_ms_p50=float(np.percentile(cf, 50)),
                       frame_ms_p99=float(np.percentile(cf, 99))))
 
+    # 2b. a projected puppet's stream (the projection's +-5 frames computed per frame) against
+    #     the unprojected one's, both one feature frame per push
+    proj = _projected(corpus, quick)
+    proj_frames = []
+
+    def cpp_stream_projected(dl=2, tl=1, x=feats, record=True):
+        sp = _core.StreamingPuppet(proj._core, dl, tl, 0.0, False)
+        out = []
+        for t in range(x.shape[0]):
+            c0 = time.perf_counter()
+            r = sp.push(x[t:t + 1])
+            if record:
+                proj_frames.append(time.perf_counter() - c0)
+            out.append(np.asarray(r.points))
+        out.append(np.asarray(sp.flush().points))
+        return np.vstack(out)
+
+    med, _ = timeit_interleaved({"ours": cpp_stream_projected, "peer": cpp_stream}, repeats)
+    exact = cpp_stream_projected(T + 1, T + 1, record=False)
+    offline = np.asarray(proj._core.animate(np.ascontiguousarray(feats), 0.0, False)["points"])
+    pf = np.array(proj_frames) * 1e3
+    n_short = len(proj_frames)
+    cpp_stream_projected(x=np.ascontiguousarray(np.tile(feats, (10, 1))))
+    long = np.array(proj_frames[n_short:]) * 1e3
+    cases.append(case("puppet_stream_cpp_projected",
+                      f"T={T}, N={proj.n_states(0)}, k=5, lags 5+2+1",
+                      med["ours"], "unprojected StreamingPuppet", med["peer"],
+                      rel_diff(exact, offline),
+                      frame_ms_p50=float(np.percentile(pf, 50)),
+                      frame_ms_p99=float(np.percentile(pf, 99)),
+                      frame_ms_p50_10x=float(np.percentile(long, 50)),
+                      algorithmic_latency_ms=_core.StreamingPuppet(
+                          proj._core, 2, 1, 0.0, False).latency_seconds * 1e3))
+
     # 3. end to end, per latency budget, with the collector's scans frozen as the live verb does
     gc.freeze()
     for lag in ((50, 150) if quick else (0, 50, 150, 330)):
@@ -212,14 +269,62 @@ def error_table(quick: bool = False) -> str:
     return "\n".join(rows)
 
 
+def projection_table(quick: bool = False) -> str:
+    """Markdown table: the price of ``projection_lag`` < k for the projected puppet of
+    ``_projected``: each projection look-ahead with the other look-aheads of the 150 ms and
+    330 ms budgets, and with exact formants and decoder and trajectory lags covering the clips
+    (the projection's price alone); Err / RMSE as in :func:`error_table`, Viterbi."""
+    from voicepuppet.audio import load_audio
+    from voicepuppet.live import LivePuppet
+    from voicepuppet.metrics import err, landmark_rmse_iod
+
+    corpus, _ = _corpus(quick)
+    proj = _projected(corpus, quick)
+    clips = corpus.test
+    offline = {c.audio: proj.animate(load_audio(c.audio)).animation.points for c in clips}
+    rows = ["| other look-aheads | look-aheads (formant, deltas, projection, decoder, trajectory) "
+            "| latency (ms) | Err vs offline | RMSE/IOD vs offline | Err vs truth | RMSE/IOD vs truth |",
+            "|---|---|---|---|---|---|---|"]
+    settings = (("150 ms budget", dict(lag_ms=150)), ("330 ms budget", dict(lag_ms=330)),
+                ("covering", dict(formant_lag=-1, decode_lag=2000, trajectory_lag=2000)))
+    k = int(proj._core.projection_context)
+    for label, kw in settings:
+        for pl in range(k + 1):
+            r = []
+            for c in clips:
+                live = LivePuppet(proj, projection_lag=pl, **kw)
+                pts, _, _ = _stream_live(live, load_audio(c.audio).samples)
+                o = offline[c.audio]
+                n = min(len(pts), len(c.points))
+                r.append((err(pts, o), landmark_rmse_iod(pts, o), err(pts[:n], c.points[:n]),
+                          landmark_rmse_iod(pts[:n], c.points[:n])))
+            m = np.mean(r, axis=0)
+            la = (live.formant_lag, live.delta_lag, pl, live.decode_lag, live.trajectory_lag)
+            lat = f"{live.latency_s * 1e3:.0f}" if math.isfinite(live.latency_s) else "unbounded"
+            rows.append(f"| {label} | {la} | {lat} | {m[0]:.4f} | {m[1]:.4f} | {m[2]:.3f} | "
+                        f"{m[3]:.4f} |")
+    base = []
+    for c in clips:
+        o = offline[c.audio]
+        n = min(len(o), len(c.points))
+        base.append((err(o[:n], c.points[:n]), landmark_rmse_iod(o[:n], c.points[:n])))
+    rows.append(f"| offline | - | - | 0 | 0 | {np.mean([b[0] for b in base]):.3f} | "
+                f"{np.mean([b[1] for b in base]):.4f} |")
+    return "\n".join(rows)
+
+
 if __name__ == "__main__":  # pragma: no cover
     import argparse
 
     ap = argparse.ArgumentParser(description="accuracy table of docs/streaming.md")
     ap.add_argument("--table", action="store_true")
+    ap.add_argument("--projection-table", action="store_true",
+                    help="the price of projection_lag < k for a projected puppet")
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args()
-    if a.table:
+    if a.projection_table:
+        print(projection_table(a.quick))
+    elif a.table:
         print(error_table(a.quick))
     else:
         from voicepuppet.bench import print_table
