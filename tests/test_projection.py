@@ -155,7 +155,7 @@ def test_projected_puppet_file_round_trip(projected, voices, tmp_path):
     np.testing.assert_array_equal(plain._core.project(z), z)
 
 
-def test_bad_projection_options_and_streaming_refused(projected, voices):
+def test_bad_projection_options(projected, voices):
     (pts, feats, _), _ = voices
     with pytest.raises(ValueError, match="vocal_features must be one of"):
         Puppet.train([pts], features_list=[feats], vocal_features="ridge", **OPTS)
@@ -168,8 +168,10 @@ def test_bad_projection_options_and_streaming_refused(projected, voices):
         fit_projection(np.zeros((60, 2)), np.zeros((60, 1)), [60], context=0, columns=3)
     with pytest.raises(ValueError, match="projection_columns"):
         Puppet(projected.metadata, {**projected.arrays, "audio/projection_columns": np.array([11])})
-    with pytest.raises(ValueError, match="streaming does not compute"):
-        _core.StreamingPuppet(projected._core, 5, 5, 0.0, False, -1)
+    # It streams (tests/test_live.py, cpp/tests/test_streaming.cpp); a look-ahead beyond the
+    # projection's context (3 here) is refused.
+    with pytest.raises(ValueError, match="projection_lag must be -1"):
+        _core.StreamingPuppet(projected._core, 5, 5, 0.0, False, -1, 4)
 
 
 def test_a_projected_puppet_is_adapted_in_its_projected_space(projected, voices):
