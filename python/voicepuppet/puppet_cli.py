@@ -206,7 +206,7 @@ def add_parser(sub) -> None:
     p.add_argument("--vocal-features", choices=["audio", "projected"],
                    help="what the vocal Gaussians are fitted on: the audio features (default) or their learned "
                         "projection onto the face (with --vocal-covariance tied: better on voices the puppet "
-                        "never heard, worse on the training voice; not for live; docs/puppet.md)")
+                        "never heard, worse on the training voice; live adds its 5-frame look-ahead; docs/puppet.md)")
     p.add_argument("--vocal-covariance", choices=["full", "diag", "tied"],
                    help="each state's vocal covariance: its own (full, default; or diag) or one for all (tied)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
