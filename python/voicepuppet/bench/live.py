@@ -42,36 +42,36 @@ def _corpus(quick: bool):
     import os
 
     from voicepuppet.audio.samples import cache_dir
-    from voicepuppet.puppet import Puppet, load
     from voicepuppet.synth import make_corpus
 
     secs = 20 if quick else 60
     c = make_corpus(os.path.join(cache_dir(), f"bench-live-{secs}s"), train_seconds=secs, n_test=3,
                     seed=0, progress=False)
-    path = os.path.join(cache_dir(), f"bench-live-{secs}s", "puppet.vpp")
-    if os.path.exists(path):
-        p = load(path)
-    else:
-        p = Puppet.train([c.train.points], [c.train.audio], fps=c.train.fps,
-                         n_states=12 if quick else 26, n_iter=10 if quick else 20)
-        p.save(path)
-    return c, p
+    return c, _cached_puppet(c, quick)
 
 
 def _projected(corpus, quick: bool):
     """The puppet of ``_corpus`` trained with the projection (cached beside it)."""
+    return _cached_puppet(corpus, quick, vocal_features="projected", vocal_covariance="tied")
+
+
+def _cached_puppet(corpus, quick: bool, **options):
+    """The bench's puppet of ``corpus`` with training ``options``, cached in the corpus folder
+    under the corpus's key (from its ``corpus.json``): a rebuilt corpus trains it again."""
+    import hashlib
+    import json
     import os
 
-    from voicepuppet.audio.samples import cache_dir
     from voicepuppet.puppet import Puppet, load
 
-    secs = 20 if quick else 60
-    path = os.path.join(cache_dir(), f"bench-live-{secs}s", "puppet-projected.vpp")
+    with open(os.path.join(corpus.out_dir, "corpus.json")) as fh:
+        key = json.load(fh)["key"]
+    opts = dict(n_states=12 if quick else 26, n_iter=10 if quick else 20, **options)
+    tag = hashlib.sha256(json.dumps([key, opts], sort_keys=True).encode()).hexdigest()[:12]
+    path = os.path.join(corpus.out_dir, f"puppet-{tag}.vpp")
     if os.path.exists(path):
         return load(path)
-    p = Puppet.train([corpus.train.points], [corpus.train.audio], fps=corpus.train.fps,
-                     n_states=12 if quick else 26, n_iter=10 if quick else 20,
-                     vocal_features="projected", vocal_covariance="tied")
+    p = Puppet.train([corpus.train.points], [corpus.train.audio], fps=corpus.train.fps, **opts)
     p.save(path)
     return p
 
