@@ -147,6 +147,7 @@ void bind_puppet(py::module_& m) {
       .def_property_readonly("projected", &Puppet::projected)
       .def_property_readonly("projection_context", &Puppet::projection_context)
       .def_property_readonly("n_vocal", &Puppet::n_vocal)
+      .def_property_readonly("vocal_delta_width", &Puppet::vocal_delta_width)
       .def("project", &Puppet::project, py::arg("standardized"))
       .def("vocal_log_density", &Puppet::vocal_log_density, py::arg("standardized"), py::arg("part") = 0,
            py::call_guard<py::gil_scoped_release>())

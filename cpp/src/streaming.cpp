@@ -240,17 +240,9 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
                   " frames, got ", options.delta_lag);
   }
   const Index k = puppet_.projection_context();
-  if (puppet_.projected()) {
-    const PuppetFile& f = puppet_.file();
-    context_ = k;
-    columns_ = f.at("audio/projection_columns").i64[0];
-    projection_ = f.at("audio/projection").matrix();
-    projection_offset_ = f.at("audio/projection_offset").matrix().row(0).transpose();
-  }
-  // A projection of the first C <= A columns (Python's default with context) never reads the
-  // deltas: waiting for them would only add latency.
-  const bool deltas_read = !(puppet_.projected() && columns_ <= puppet_.n_features());
-  delta_lag_ = options.delta_lag < 0 ? (deltas_read ? w : 0) : options.delta_lag;
+  // A projection of the features alone never reads the deltas: waiting for them would only add
+  // latency (Puppet::vocal_delta_width).
+  delta_lag_ = options.delta_lag < 0 ? puppet_.vocal_delta_width() : options.delta_lag;
   options_.delta_lag = delta_lag_;
   if (options.projection_lag < -1 || options.projection_lag > k) {
     fail_argument("projection_lag must be -1 (the puppet's projection context, ", k, ") or 0 .. ", k,
@@ -444,7 +436,7 @@ RowMatrixXd StreamingPuppet::standardized_ready(bool final_pass) {
 
 RowMatrixXd StreamingPuppet::vocal_ready(const RowMatrixXd& z, bool final_pass) {
   if (!puppet_.projected()) return z;
-  const Index k = context_, C = columns_;
+  const Index k = puppet_.projection_context(), C = puppet_.projection_columns();
   for (Index t = 0; t < z.rows(); ++t) z_.emplace_back(z.row(t).head(C).transpose());
   // z holds the frames standardised by this call: standardized_ frames are known in all
   const Index known = standardized_;
@@ -463,8 +455,8 @@ RowMatrixXd StreamingPuppet::vocal_ready(const RowMatrixXd& z, bool final_pass) 
     }
   }
   projected_ = ready;
-  RowMatrixXd v = x * projection_;
-  v.rowwise() += projection_offset_.transpose();
+  RowMatrixXd v = x * puppet_.projection();
+  v.rowwise() += puppet_.projection_offset().transpose();
   // forget standardised frames no later context needs (those before the next frame's)
   const Index keep = std::max<Index>(z_first_, std::min<Index>(projected_ - k, known));
   z_.erase(z_.begin(), z_.begin() + static_cast<std::ptrdiff_t>(keep - z_first_));

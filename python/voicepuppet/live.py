@@ -170,12 +170,10 @@ class LivePuppet:
         window = self.features.lookahead_s()
         width = int(core.delta_width)
         k = int(core.projection_context)
-        # the deltas a projected puppet's vocal features read (none when the projection reads
-        # the first A columns, the features alone: its default with context)
-        reads_deltas = not core.projected or \
-            int(puppet.arrays["audio/projection_columns"][0]) > int(core.n_features)
+        # the delta look-ahead the vocal features need (none for a projection of the features
+        # alone, a projected puppet's default with context)
         f, dl, pl, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants,
-                                    width if reads_deltas else 0, k)
+                                    int(core.vocal_delta_width), k)
         f = f if formant_lag is None else formant_lag
         dl = dl if delta_lag is None else delta_lag
         pl = pl if projection_lag is None else projection_lag

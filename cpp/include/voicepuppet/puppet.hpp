@@ -109,6 +109,17 @@ class Puppet {
   bool projected() const { return projection_.size() > 0; }
   /// k: frames of audio on each side the projection reads (0 without a projection).
   Index projection_context() const { return projection_context_; }
+  /// C: the leading standardised columns the projection reads (0 without a projection).
+  Index projection_columns() const { return projection_columns_; }
+  /// The projection #C·(2k+1) by #V and its offset #V (empty without a projection).
+  const RowMatrixXd& projection() const { return projection_; }
+  const VectorXd& projection_offset() const { return projection_offset_; }
+  /// The frames of delta look-ahead the vocal features need: the delta width, or 0 when they
+  /// are a projection of the features alone (C <= A, as Python's vocal_features="projected"
+  /// trains them with context), which never reads the deltas.
+  Index vocal_delta_width() const {
+    return projected() && projection_columns_ <= n_features() ? 0 : delta_width_;
+  }
   /// V, the vocal features' dimension.
   Index n_vocal() const { return projected() ? projection_.cols() : audio_mean_.size(); }
   /// The vocal features of standardised frames #T by #A' (one whole sequence: the context

@@ -205,10 +205,8 @@ class StreamingPuppet {
   std::vector<VectorXd> raw_;  ///< raw frames raw_first_ .. pushed_ − 1 still needed for deltas
   Index raw_first_ = 0, standardized_ = 0;
   VectorXd mean_, std_;
-  // The projection (empty without one): v_t = [z_{t−k}, …, z_{t+k}] (first C columns) · P + c.
-  RowMatrixXd projection_;        ///< #C·(2k+1) by #V
-  VectorXd projection_offset_;    ///< #V
-  Index context_ = 0, columns_ = 0, projection_lag_ = 0;
+  // The projection (Puppet::projection): v_t = [z_{t−k}, …, z_{t+k}] (first C columns) · P + c.
+  Index projection_lag_ = 0;
   std::vector<VectorXd> z_;       ///< first C standardised columns of frames z_first_ .. standardized_ − 1
   Index z_first_ = 0, projected_ = 0;
   Index vocal_ = 0;               ///< input frames whose vocal features are computed

@@ -143,16 +143,20 @@ def run(quick: bool = False, repeats: int = 3) -> list:
     T = feats.shape[0]
     cpp_frames = []
 
-    def cpp_stream(dl=2, tl=1):
-        sp = _core.StreamingPuppet(puppet._core, dl, tl, 0.0, False)
+    def stream_frames(core, dl, tl, x, times):
+        """Push x one feature frame at a time; returns the points, appends each push's time."""
+        sp = _core.StreamingPuppet(core, dl, tl, 0.0, False)
         out = []
-        for t in range(T):
+        for t in range(x.shape[0]):
             c0 = time.perf_counter()
-            r = sp.push(feats[t:t + 1])
-            cpp_frames.append(time.perf_counter() - c0)
+            r = sp.push(x[t:t + 1])
+            times.append(time.perf_counter() - c0)
             out.append(np.asarray(r.points))
         out.append(np.asarray(sp.flush().points))
         return np.vstack(out)
+
+    def cpp_stream(dl=2, tl=1):
+        return stream_frames(puppet._core, dl, tl, feats, cpp_frames)
 
     med, res = timeit_interleaved({"ours": cpp_stream,
                                    "peer": lambda: np.asarray(puppet._core.animate(
@@ -172,16 +176,7 @@ def run(quick: bool = False, repeats: int = 3) -> list:
     proj_frames = []
 
     def cpp_stream_projected(dl=2, tl=1, x=feats, record=True):
-        sp = _core.StreamingPuppet(proj._core, dl, tl, 0.0, False)
-        out = []
-        for t in range(x.shape[0]):
-            c0 = time.perf_counter()
-            r = sp.push(x[t:t + 1])
-            if record:
-                proj_frames.append(time.perf_counter() - c0)
-            out.append(np.asarray(r.points))
-        out.append(np.asarray(sp.flush().points))
-        return np.vstack(out)
+        return stream_frames(proj._core, dl, tl, x, proj_frames if record else [])
 
     med, _ = timeit_interleaved({"ours": cpp_stream_projected, "peer": cpp_stream}, repeats)
     exact = cpp_stream_projected(T + 1, T + 1, record=False)
