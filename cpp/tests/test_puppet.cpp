@@ -2,6 +2,8 @@
 // and puppet.hpp (analysis and synthesis against the kernels it composes, computed by hand).
 #include <doctest/doctest.h>
 
+#include "throws_with.hpp"
+
 #include "voicepuppet/hmm.hpp"
 #include "voicepuppet/puppet.hpp"
 #include "voicepuppet/puppet_io.hpp"
@@ -17,14 +19,7 @@ using namespace voicepuppet;
 
 namespace {
 
-bool throws_with(const std::function<void()>& f, const std::string& needle) {
-  try {
-    f();
-  } catch (const std::exception& e) {
-    return std::string(e.what()).find(needle) != std::string::npos;
-  }
-  return false;
-}
+using voicepuppet::testing::throws_with;
 
 PuppetArray arr(std::vector<std::uint64_t> shape, std::vector<double> v) {
   PuppetArray a;
