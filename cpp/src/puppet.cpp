@@ -72,14 +72,21 @@ RowMatrixXd side_by_side(const std::vector<RowMatrixXd>& faces, Index n_dims) {
 RowMatrixXd ContextMap::apply(const MatrixRef& z) const {
   if (z.cols() < columns) fail_argument("a context map reads ", columns, " columns, got ", z.cols());
   const Index T = z.rows(), C = columns, k = context;
-  RowMatrixXd x(T, C * (2 * k + 1));
-  for (Index t = 0; t < T; ++t) {
-    for (Index j = -k; j <= k; ++j) {
-      const Index s = std::clamp<Index>(t + j, 0, T - 1);
-      x.row(t).segment((j + k) * C, C) = z.row(s).head(C);
+  // The stacked context rows are built and multiplied a block of frames at a time: the whole
+  // stack would be T·C·(2k+1) doubles (230 MB for an hour at 30 fps, C = 24, k = 5).
+  constexpr Index kRows = 512;
+  RowMatrixXd out(T, map.cols());
+  RowMatrixXd x(std::min(T, kRows), C * (2 * k + 1));
+  for (Index t0 = 0; t0 < T; t0 += kRows) {
+    const Index n = std::min(kRows, T - t0);
+    for (Index i = 0; i < n; ++i) {
+      for (Index j = -k; j <= k; ++j) {
+        const Index s = std::clamp<Index>(t0 + i + j, 0, T - 1);
+        x.row(i).segment((j + k) * C, C) = z.row(s).head(C);
+      }
     }
+    out.middleRows(t0, n).noalias() = x.topRows(n) * map;
   }
-  RowMatrixXd out = x * map;
   out.rowwise() += offset.transpose();
   return out;
 }

@@ -5,6 +5,7 @@
 // guided puppet it would otherwise stream unguided.
 #include <doctest/doctest.h>
 
+#include "puppet_arrays.hpp"
 #include "throws_with.hpp"
 
 #include "voicepuppet/hmm.hpp"
@@ -22,57 +23,42 @@ namespace {
 
 using voicepuppet::testing::throws_with;
 
-PuppetArray farr(std::vector<std::uint64_t> shape, std::vector<double> v) {
-  PuppetArray a;
-  a.shape = std::move(shape);
-  a.f64 = std::move(v);
-  return a;
-}
-
-PuppetArray iarr(std::int64_t v) {
-  PuppetArray a;
-  a.dtype = PuppetArray::DType::Int64;
-  a.shape = {1};
-  a.i64 = {v};
-  return a;
-}
-
 // Three points, one part with a 2-D basis, two states, two audio columns (as test_puppet.cpp's
 // tiny puppet, with K = 2 so that the guide's precision is a matrix).
 PuppetFile unguided() {
   PuppetFile f;
   f.metadata = R"({"kind": "test"})";
-  f.arrays["fps"] = farr({1}, {30});
-  f.arrays["audio/mean"] = farr({2}, {1, -1});
-  f.arrays["audio/std"] = farr({2}, {2, 0.5});
-  f.arrays["face/mean_shape"] = farr({3, 2}, {-1, 0, 1, 0, 0, 1});
-  f.arrays["face/mean_pose"] = farr({4}, {0, 0, 0, 0});
+  f.arrays["fps"] = testing::arr({1}, {30});
+  f.arrays["audio/mean"] = testing::arr({2}, {1, -1});
+  f.arrays["audio/std"] = testing::arr({2}, {2, 0.5});
+  f.arrays["face/mean_shape"] = testing::arr({3, 2}, {-1, 0, 1, 0, 0, 1});
+  f.arrays["face/mean_pose"] = testing::arr({4}, {0, 0, 0, 0});
   PuppetArray pts;
   pts.dtype = PuppetArray::DType::Int64;
   pts.shape = {3};
   pts.i64 = {0, 1, 2};
   f.arrays["face/part0/points"] = pts;
-  f.arrays["face/part0/basis"] = farr({2, 6}, {0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0});
-  f.arrays["hmm/part0/startprob"] = farr({2}, {1, 0});
-  f.arrays["hmm/part0/transmat"] = farr({2, 2}, {0.9, 0.1, 0, 1});
-  f.arrays["hmm/part0/face_means"] = farr({2, 4}, {0, 0, 0, 0, 4, -1, 0, 0});
+  f.arrays["face/part0/basis"] = testing::arr({2, 6}, {0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0});
+  f.arrays["hmm/part0/startprob"] = testing::arr({2}, {1, 0});
+  f.arrays["hmm/part0/transmat"] = testing::arr({2, 2}, {0.9, 0.1, 0, 1});
+  f.arrays["hmm/part0/face_means"] = testing::arr({2, 4}, {0, 0, 0, 0, 4, -1, 0, 0});
   // [pose, velocity] covariances 4 x 4 per state: diagonal plus a pose correlation
-  f.arrays["hmm/part0/face_covars"] = farr({2, 4, 4}, {1, 0.2, 0, 0,  0.2, 0.5, 0, 0,  0, 0, 0.1, 0,  0, 0, 0, 0.1,
+  f.arrays["hmm/part0/face_covars"] = testing::arr({2, 4, 4}, {1, 0.2, 0, 0,  0.2, 0.5, 0, 0,  0, 0, 0.1, 0,  0, 0, 0, 0.1,
                                                       0.3, 0, 0, 0,  0, 0.3, 0, 0,  0, 0, 0.1, 0,  0, 0, 0, 0.1});
-  f.arrays["hmm/part0/vocal_means"] = farr({2, 2}, {-1, 0, 1, 0});
-  f.arrays["hmm/part0/vocal_covars"] = farr({2, 2}, {0.2, 1, 0.2, 1});
+  f.arrays["hmm/part0/vocal_means"] = testing::arr({2, 2}, {-1, 0, 1, 0});
+  f.arrays["hmm/part0/vocal_covars"] = testing::arr({2, 2}, {0.2, 1, 0.2, 1});
   return f;
 }
 
 // The guide: ŷ_t = [z_{t−1}, z_t, z_{t+1}] (first column) · map + offset, K = 2.
 PuppetFile guided(double weight = 1.0) {
   PuppetFile f = unguided();
-  f.arrays["guide/context"] = iarr(1);
-  f.arrays["guide/columns"] = iarr(1);
-  f.arrays["guide/map"] = farr({3, 2}, {0.5, 0.1, 1.0, -0.3, -0.25, 0.2});
-  f.arrays["guide/offset"] = farr({2}, {0.1, -0.2});
-  f.arrays["guide/covariance"] = farr({2, 2}, {0.4, 0.1, 0.1, 0.2});
-  f.arrays["guide/weight"] = farr({1}, {weight});
+  f.arrays["guide/context"] = testing::int_arr(1);
+  f.arrays["guide/columns"] = testing::int_arr(1);
+  f.arrays["guide/map"] = testing::arr({3, 2}, {0.5, 0.1, 1.0, -0.3, -0.25, 0.2});
+  f.arrays["guide/offset"] = testing::arr({2}, {0.1, -0.2});
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {0.4, 0.1, 0.1, 0.2});
+  f.arrays["guide/weight"] = testing::arr({1}, {weight});
   return f;
 }
 
@@ -192,35 +178,35 @@ TEST_CASE("guide: bad guide arrays are refused with the array's name") {
   f.arrays.erase("guide/map");
   refused(f, "no 'guide/map'");
   f = guided();
-  f.arrays["guide/context"] = iarr(101);
+  f.arrays["guide/context"] = testing::int_arr(101);
   refused(f, "guide/context must be in [0, 100]");
   f = guided();
-  f.arrays["guide/columns"] = iarr(3);
+  f.arrays["guide/columns"] = testing::int_arr(3);
   refused(f, "guide/columns must be in [1, 2]");
   f = guided();
-  f.arrays["guide/map"] = farr({3, 1}, {0.5, 1.0, -0.25});  // one column: K = 2 expected
+  f.arrays["guide/map"] = testing::arr({3, 1}, {0.5, 1.0, -0.25});  // one column: K = 2 expected
   refused(f, "'guide/map' must be float64 of shape (3, 2)");
   f = guided();
-  f.arrays["guide/offset"] = farr({3}, {0, 0, 0});
+  f.arrays["guide/offset"] = testing::arr({3}, {0, 0, 0});
   refused(f, "guide/offset");
   f = guided();
-  f.arrays["guide/weight"] = farr({1}, {-1});
+  f.arrays["guide/weight"] = testing::arr({1}, {-1});
   refused(f, "guide/weight must be >= 0");
   f = guided();
-  f.arrays["guide/weight"] = farr({1}, {NAN});
+  f.arrays["guide/weight"] = testing::arr({1}, {NAN});
   refused(f, "guide/weight");
   f = guided();
-  f.arrays["guide/covariance"] = farr({2, 2}, {0.4, 0.3, 0.1, 0.2});
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {0.4, 0.3, 0.1, 0.2});
   refused(f, "guide/covariance is not symmetric");
   f = guided();
-  f.arrays["guide/covariance"] = farr({2, 2}, {0.1, 0.4, 0.4, 0.1});
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {0.1, 0.4, 0.4, 0.1});
   refused(f, "guide/covariance (rows 0 .. 1) is not positive semi-definite");
   f = guided();
-  f.arrays["guide/covariance"] = farr({2, 2}, {-0.1, 0, 0, 0.2});
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {-0.1, 0, 0, 0.2});
   refused(f, "guide/covariance (rows 0 .. 1) is not positive semi-definite");
   // a zero covariance (a perfect cross-fitted prediction) is floored absolutely: precision 1e9·I
   f = guided();
-  f.arrays["guide/covariance"] = farr({2, 2}, {0, 0, 0, 0});
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {0, 0, 0, 0});
   const Puppet zero(f);
   CHECK((zero.guide_precision(0) - Eigen::MatrixXd::Identity(2, 2) / kGuideCovarianceFloor).cwiseAbs().maxCoeff() <
         1e-3);

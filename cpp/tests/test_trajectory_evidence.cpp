@@ -4,6 +4,7 @@
 // targets, a planted offset is fixed by the evidence, and bad evidence is refused.
 #include <doctest/doctest.h>
 
+#include "random_trajectory.hpp"
 #include "throws_with.hpp"
 #include "voicepuppet/trajectory.hpp"
 
@@ -17,95 +18,20 @@
 
 using namespace voicepuppet;
 using Eigen::MatrixXd;
+using testing::dense_solve;
+using testing::diag_of;
+using testing::one_hot;
+using testing::random_model;
+using testing::random_states;
+using testing::RandomModel;
+using testing::rel;
 
 namespace {
-
-struct Model {
-  RowMatrixXd means, vel_means, covars;  // full: N·2D by 2D
-};
-
-Model make_model(Index n, Index d, std::mt19937& rng) {
-  std::normal_distribution<double> g(0.0, 1.0);
-  Model m;
-  m.means = RowMatrixXd::NullaryExpr(n, d, [&] { return g(rng); });
-  m.vel_means = RowMatrixXd::NullaryExpr(n, d, [&] { return 0.3 * g(rng); });
-  m.covars.resize(n * 2 * d, 2 * d);
-  for (Index i = 0; i < n; ++i) {
-    MatrixXd a = MatrixXd::NullaryExpr(2 * d, 2 * d, [&] { return g(rng); });
-    m.covars.middleRows(i * 2 * d, 2 * d) =
-        a * a.transpose() / static_cast<double>(2 * d) + 0.5 * MatrixXd::Identity(2 * d, 2 * d);
-  }
-  return m;
-}
-
-RowMatrixXd diag_covars(const Model& m) {
-  const Index n = m.means.rows(), d = m.means.cols();
-  RowMatrixXd v(n, 2 * d);
-  for (Index s = 0; s < n; ++s) v.row(s) = m.covars.middleRows(s * 2 * d, 2 * d).diagonal().transpose();
-  return v;
-}
 
 MatrixXd random_spd(Index d, std::mt19937& rng, double scale) {
   std::normal_distribution<double> g(0.0, 1.0);
   MatrixXd a = MatrixXd::NullaryExpr(d, d, [&] { return g(rng); });
   return scale * (a * a.transpose() / static_cast<double>(d) + 0.2 * MatrixXd::Identity(d, d));
-}
-
-// The objective Σ_t Σ_n w_tn (frame t's cost under n) + Σ_t (y_t − ŷ_t)ᵀ W (y_t − ŷ_t), as
-// quadratic forms of the stacked y (selection matrices), solved by a dense LDLT.
-MatrixXd dense_guided(const Model& m, const MatrixXd& weights, bool diagonal, const RowMatrixXd& targets,
-                      const MatrixXd& w_ev) {
-  const Index n = m.means.rows(), d = m.means.cols(), T = weights.rows();
-  MatrixXd h = MatrixXd::Zero(T * d, T * d);
-  Eigen::VectorXd r = Eigen::VectorXd::Zero(T * d);
-  for (Index t = 0; t < T; ++t) {
-    MatrixXd e = MatrixXd::Zero(d, T * d);
-    e.block(0, t * d, d, d).setIdentity();
-    h += e.transpose() * w_ev * e;
-    r += e.transpose() * w_ev * targets.row(t).transpose();
-    for (Index s = 0; s < n; ++s) {
-      const double w = weights(t, s);
-      if (w == 0.0) continue;
-      MatrixXd k = m.covars.middleRows(s * 2 * d, 2 * d);
-      if (diagonal) k = MatrixXd(k.diagonal().asDiagonal());
-      if (t == 0) {
-        const MatrixXd p = MatrixXd(k.topLeftCorner(d, d)).llt().solve(MatrixXd::Identity(d, d));
-        h += w * e.transpose() * p * e;
-        r += w * e.transpose() * p * m.means.row(s).transpose();
-        continue;
-      }
-      MatrixXd sel = MatrixXd::Zero(2 * d, T * d);
-      sel.block(0, t * d, d, d).setIdentity();
-      sel.block(d, t * d, d, d).setIdentity();
-      sel.block(d, (t - 1) * d, d, d) = -MatrixXd::Identity(d, d);
-      Eigen::VectorXd target(2 * d);
-      target << m.means.row(s).transpose(), m.vel_means.row(s).transpose();
-      const MatrixXd p = k.llt().solve(MatrixXd::Identity(2 * d, 2 * d));
-      h += w * sel.transpose() * p * sel;
-      r += w * sel.transpose() * p * target;
-    }
-  }
-  Eigen::VectorXd y = h.ldlt().solve(r);
-  return Eigen::Map<const RowMatrixXd>(y.data(), T, d);
-}
-
-double rel(const MatrixXd& a, const MatrixXd& b) { return (a - b).cwiseAbs().maxCoeff() / b.cwiseAbs().maxCoeff(); }
-
-VectorXi states_of(Index T, Index n, std::mt19937& rng) {
-  std::uniform_int_distribution<Index> u(0, n - 1), dwell(1, 6);
-  VectorXi s(T);
-  Index t = 0;
-  while (t < T) {
-    const Index st = u(rng), len = dwell(rng);
-    for (Index k = 0; k < len && t < T; ++k) s[t++] = st;
-  }
-  return s;
-}
-
-MatrixXd hot(const VectorXi& s, Index n) {
-  MatrixXd w = MatrixXd::Zero(s.size(), n);
-  for (Index t = 0; t < s.size(); ++t) w(t, s[t]) = 1.0;
-  return w;
 }
 
 MatrixXd soft(Index T, Index n, std::mt19937& rng) {
@@ -126,21 +52,21 @@ TEST_CASE("evidence: full and diagonal models, hard and weighted, equal the dens
   std::mt19937 rng(20261202);
   for (Index d : {1, 3, 9}) {
     const Index n = 4, T = 40;
-    const Model m = make_model(n, d, rng);
+    const RandomModel m = random_model(n, d, rng);
     const TrajectoryModel full(m.means, m.vel_means, m.covars, CovarianceType::Full);
-    const TrajectoryModel diag(m.means, m.vel_means, diag_covars(m), CovarianceType::Diagonal);
-    const VectorXi s = states_of(T, n, rng);
+    const TrajectoryModel diag(m.means, m.vel_means, diag_of(m), CovarianceType::Diagonal);
+    const VectorXi s = random_states(T, n, rng);
     const MatrixXd g = soft(T, n, rng);
     const MatrixXd w_full = random_spd(d, rng, 0.7);
     const MatrixXd w_diag = MatrixXd(w_full.diagonal().asDiagonal());
     for (const MatrixXd& w : {w_full, w_diag}) {
       const TrajectoryEvidence e{random_targets(T, d, rng), w};
       CAPTURE(d);
-      CHECK(rel(solve_trajectory(full, s, &e), dense_guided(m, hot(s, n), false, e.targets, w)) < 1e-10);
-      CHECK(rel(solve_trajectory_weighted(full, g, &e), dense_guided(m, g, false, e.targets, w)) < 1e-10);
+      CHECK(rel(solve_trajectory(full, s, &e), dense_solve(m, one_hot(s, n), false, &e.targets, &w)) < 1e-10);
+      CHECK(rel(solve_trajectory_weighted(full, g, &e), dense_solve(m, g, false, &e.targets, &w)) < 1e-10);
       // a diagonal model with a full W is solved as full; with a diagonal W as D scalar systems
-      CHECK(rel(solve_trajectory(diag, s, &e), dense_guided(m, hot(s, n), true, e.targets, w)) < 1e-10);
-      CHECK(rel(solve_trajectory_weighted(diag, g, &e), dense_guided(m, g, true, e.targets, w)) < 1e-10);
+      CHECK(rel(solve_trajectory(diag, s, &e), dense_solve(m, one_hot(s, n), true, &e.targets, &w)) < 1e-10);
+      CHECK(rel(solve_trajectory_weighted(diag, g, &e), dense_solve(m, g, true, &e.targets, &w)) < 1e-10);
     }
   }
 }
@@ -149,12 +75,12 @@ TEST_CASE("evidence: a zero precision is the unguided solve exactly") {
   std::mt19937 rng(7);
   for (Index d : {2, 17}) {
     const Index n = 5, T = 50;
-    const Model m = make_model(n, d, rng);
-    const VectorXi s = states_of(T, n, rng);
+    const RandomModel m = random_model(n, d, rng);
+    const VectorXi s = random_states(T, n, rng);
     const MatrixXd g = soft(T, n, rng);
     const TrajectoryEvidence e{random_targets(T, d, rng), MatrixXd::Zero(d, d)};
     for (CovarianceType type : {CovarianceType::Full, CovarianceType::Diagonal}) {
-      const TrajectoryModel model(m.means, m.vel_means, type == CovarianceType::Full ? m.covars : diag_covars(m), type);
+      const TrajectoryModel model(m.means, m.vel_means, type == CovarianceType::Full ? m.covars : diag_of(m), type);
       CHECK((solve_trajectory(model, s, &e).array() == solve_trajectory(model, s).array()).all());
       CHECK((solve_trajectory_weighted(model, g, &e).array() == solve_trajectory_weighted(model, g).array()).all());
     }
@@ -164,12 +90,12 @@ TEST_CASE("evidence: a zero precision is the unguided solve exactly") {
 TEST_CASE("evidence: a huge precision returns the targets") {
   std::mt19937 rng(11);
   const Index n = 3, d = 6, T = 30;
-  const Model m = make_model(n, d, rng);
+  const RandomModel m = random_model(n, d, rng);
   const TrajectoryModel model(m.means, m.vel_means, m.covars, CovarianceType::Full);
-  const VectorXi s = states_of(T, n, rng);
+  const VectorXi s = random_states(T, n, rng);
   const TrajectoryEvidence e{random_targets(T, d, rng), random_spd(d, rng, 1e9)};
   CHECK((solve_trajectory(model, s, &e) - e.targets).cwiseAbs().maxCoeff() < 1e-6);
-  CHECK((solve_trajectory_weighted(model, hot(s, n), &e) - e.targets).cwiseAbs().maxCoeff() < 1e-6);
+  CHECK((solve_trajectory_weighted(model, one_hot(s, n), &e) - e.targets).cwiseAbs().maxCoeff() < 1e-6);
 }
 
 TEST_CASE("evidence: a planted offset of the model's means is fixed by the evidence") {
@@ -197,15 +123,15 @@ TEST_CASE("evidence: a planted offset of the model's means is fixed by the evide
 TEST_CASE("evidence: bad shapes and values throw std::invalid_argument naming the array") {
   std::mt19937 rng(3);
   const Index n = 2, d = 3, T = 10;
-  const Model m = make_model(n, d, rng);
+  const RandomModel m = random_model(n, d, rng);
   const TrajectoryModel model(m.means, m.vel_means, m.covars, CovarianceType::Full);
-  const VectorXi s = states_of(T, n, rng);
+  const VectorXi s = random_states(T, n, rng);
   const MatrixXd w = random_spd(d, rng, 1.0);
   const RowMatrixXd y = random_targets(T, d, rng);
   auto bad = [&](const TrajectoryEvidence& e, const char* what) {
     CAPTURE(what);
     CHECK(testing::throws_with<std::invalid_argument>([&] { solve_trajectory(model, s, &e); }, what));
-    CHECK(testing::throws_with<std::invalid_argument>([&] { solve_trajectory_weighted(model, hot(s, n), &e); }, what));
+    CHECK(testing::throws_with<std::invalid_argument>([&] { solve_trajectory_weighted(model, one_hot(s, n), &e); }, what));
   };
   bad({random_targets(T - 1, d, rng), w}, "evidence.targets must be 10 x 3");
   bad({y, MatrixXd::Identity(d + 1, d + 1)}, "evidence.precision must be 3 x 3");
