@@ -91,6 +91,9 @@ AdaptOptions adapt_options(const std::string& kind, double tau, Index n_iter, In
 
 void bind_puppet(py::module_& m) {
   m.attr("PUPPET_FORMAT_VERSION") = kPuppetFormatVersion;
+  m.def("puppet_format_version", [](const std::string& metadata, const py::dict& arrays) {
+          return puppet_format_version(to_file(metadata, arrays));
+        }, py::arg("metadata"), py::arg("arrays"), "The format version encode_puppet writes (2 with a guide).");
   m.def("crc32", [](const py::bytes& data, std::uint32_t crc) {
           const std::string s = data;
           return crc32(s.data(), s.size(), crc);
@@ -149,15 +152,25 @@ void bind_puppet(py::module_& m) {
       .def_property_readonly("n_vocal", &Puppet::n_vocal)
       .def_property_readonly("vocal_delta_width", &Puppet::vocal_delta_width)
       .def("project", &Puppet::project, py::arg("standardized"))
+      .def_property_readonly("guided", &Puppet::guided)
+      .def_property_readonly("guide_context", &Puppet::guide_context)
+      .def_property_readonly("guide_columns", &Puppet::guide_columns)
+      .def_property_readonly("guide_map", &Puppet::guide_map)
+      .def_property_readonly("guide_offset", &Puppet::guide_offset)
+      .def_property_readonly("guide_weight", &Puppet::guide_weight)
+      .def_property_readonly("guide_covariance", &Puppet::guide_covariance)
+      .def("guide_precision", &Puppet::guide_precision, py::arg("part") = 0)
+      .def("guide_predict", &Puppet::guide_predict, py::arg("standardized"))
       .def("vocal_log_density", &Puppet::vocal_log_density, py::arg("standardized"), py::arg("part") = 0,
            py::call_guard<py::gil_scoped_release>())
       .def("trajectory_model", &Puppet::trajectory_model, py::arg("out_fps") = 0.0, py::arg("part") = 0)
       .def("to_points", &Puppet::to_points, py::arg("face"))
       .def("animate", [](const Puppet& p, const MatrixRef& raw, double fps, bool posterior,
-                         const std::string& adapt, double tau, Index n_iter) {
+                         const std::string& adapt, double tau, Index n_iter, double guide_weight) {
              AnimateOptions o;
              o.fps = fps;
              o.posterior = posterior;
+             o.guide_weight = guide_weight;
              o.adapt = adapt_options(adapt, tau, n_iter, AdaptOptions{}.sweeps);
              AnimateResult r;
              {
@@ -167,7 +180,7 @@ void bind_puppet(py::module_& m) {
              return result(r);
            }, py::arg("raw_features"), py::arg("fps") = 0.0, py::arg("posterior") = false,
            py::arg("adapt") = "none", py::arg("tau") = AdaptOptions{}.tau,
-           py::arg("n_iter") = AdaptOptions{}.n_iter)
+           py::arg("n_iter") = AdaptOptions{}.n_iter, py::arg("guide_weight") = AnimateOptions{}.guide_weight)
       .def("animate_states", [](const Puppet& p, const Eigen::Ref<const IndexMatrix>& states, double states_fps,
                                 double fps) {
              AnimateResult r;

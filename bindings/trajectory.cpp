@@ -2,6 +2,10 @@
 // released around the solves; the public API with its checks is voicepuppet.trajectory.
 #include <pybind11/eigen.h>
 #include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <optional>
+#include <stdexcept>
 
 #include "voicepuppet/trajectory.hpp"
 
@@ -24,10 +28,38 @@ void bind_trajectory(py::module_& m) {
       .def_property_readonly("covariance_type", [](const TrajectoryModel& t) {
         return t.covariance_type() == CovarianceType::Diagonal ? "diag" : "full";
       });
-  m.def("solve_trajectory", &solve_trajectory, py::arg("model"), py::arg("states"),
-        py::call_guard<py::gil_scoped_release>(), "Most probable trajectory [T,D] for states [T].");
-  m.def("solve_trajectory_weighted", &solve_trajectory_weighted, py::arg("model"), py::arg("weights"),
-        py::call_guard<py::gil_scoped_release>(), "Posterior-weighted trajectory [T,D] for weights [T,N].");
+  // Optional evidence: targets [T,D] and precision W [D,D] (λ folded in), both or neither.
+  auto evidence = [](const std::optional<RowMatrixXd>& targets, const std::optional<Eigen::MatrixXd>& precision) {
+    if (targets.has_value() != precision.has_value()) {
+      throw std::invalid_argument("evidence_targets and evidence_precision go together: pass both or neither");
+    }
+    std::optional<TrajectoryEvidence> e;
+    if (targets) e = TrajectoryEvidence{*targets, *precision};
+    return e;
+  };
+  m.def(
+      "solve_trajectory",
+      [evidence](const TrajectoryModel& model, const IndexVectorRef& states, const std::optional<RowMatrixXd>& targets,
+                 const std::optional<Eigen::MatrixXd>& precision) {
+        const auto e = evidence(targets, precision);
+        py::gil_scoped_release release;
+        return solve_trajectory(model, states, e ? &*e : nullptr);
+      },
+      py::arg("model"), py::arg("states"), py::arg("evidence_targets") = py::none(),
+      py::arg("evidence_precision") = py::none(),
+      "Most probable trajectory [T,D] for states [T]; optional per-frame evidence: targets [T,D] with "
+      "precision [D,D] (the weight folded in).");
+  m.def(
+      "solve_trajectory_weighted",
+      [evidence](const TrajectoryModel& model, const MatrixRef& weights, const std::optional<RowMatrixXd>& targets,
+                 const std::optional<Eigen::MatrixXd>& precision) {
+        const auto e = evidence(targets, precision);
+        py::gil_scoped_release release;
+        return solve_trajectory_weighted(model, weights, e ? &*e : nullptr);
+      },
+      py::arg("model"), py::arg("weights"), py::arg("evidence_targets") = py::none(),
+      py::arg("evidence_precision") = py::none(),
+      "Posterior-weighted trajectory [T,D] for weights [T,N]; optional evidence as solve_trajectory.");
   m.def("resample_states", &resample_states, py::arg("states"), py::arg("fps_in"), py::arg("fps_out"),
         "Sample-and-hold resampling of a state sequence.");
   m.def("resample_weights", &resample_weights, py::arg("weights"), py::arg("fps_in"), py::arg("fps_out"),

@@ -187,8 +187,12 @@ def test_voice_puppet_on_the_same_folds():
     assert m["err"]["mean"] < 0.95  # 0.81 at this seed; the mean face scores 1
     assert sum(m["frames"]) == sum(len(s.points) for s in seqs)
     assert "| voice-puppet |" in ev.format_table(res)
-    # its baselines on the same folds, from the features computed from each sequence's audio
-    assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face"]
+    # its baselines on the same folds, from the features computed from each sequence's audio, and
+    # the same (guided) puppet without its guide
+    assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face", ev.UNGUIDED]
+    assert res["models"][ev.UNGUIDED]["frames"] == m["frames"]
+    assert res["models"][ev.UNGUIDED]["err"]["folds"] != m["err"]["folds"]
+    assert f"| {ev.UNGUIDED} |" in ev.format_table(res)
     np.testing.assert_allclose(res["models"]["mean-face"]["err"]["folds"], 1.0, atol=1e-12)
     assert {"err", "lve", "rmse_iod"} <= set(res["differences"]["voice-puppet"]["ridge"])
 
@@ -485,7 +489,7 @@ def test_cross_validation_baselines_equal_a_direct_fit_on_each_fold(tmp_path):
     results = {}
     for label, ss in (("truth", seqs), ("tracked", tracked)):
         res = results[label] = run(ss)
-        assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face"]
+        assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face", ev.UNGUIDED]
         direct = _direct_baselines(ss, feats, 3, 0, 3)
         for name, rows in direct.items():
             for m in ("l1", "rms", "linf", "err"):

@@ -59,7 +59,7 @@ def puppet(speech, tmp_path_factory):
     from voicepuppet.puppet import Puppet
 
     au, pts = planted_face(speech)
-    p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0)
+    p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0, guide="none")  # guided: no streaming yet
     path = tmp_path_factory.mktemp("live") / "test.vpp"
     p.save(path)
     return p, path
@@ -394,7 +394,7 @@ def projected(speech, tmp_path_factory):
 
     au, pts = planted_face(speech)
     p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0, vocal_features="projected",
-                     vocal_covariance="tied")
+                     vocal_covariance="tied", guide="none")  # guided: no streaming yet
     assert p._core.projected and p._core.projection_context == 5 and p._core.delta_width == 2
     path = tmp_path_factory.mktemp("live_projected") / "projected.vpp"
     p.save(path)

@@ -61,10 +61,14 @@ def test_train_and_animate(workdir, capsys):
     truth = np.load(d / "test_states.npy")
     purity = sum(np.bincount(truth[states == s]).max() for s in np.unique(states)) / len(truth)
     assert purity > 0.9
-    # Read back (edited or not), the states give the same animation.
+    # Read back (edited or not), the states give the same animation as the audio without the
+    # guide's evidence (--guide-weight 0: given states are synthesised by Brand's solve).
     assert main(["animate", str(d / "p.vpp"), "--states-in", str(d / "s.csv"), "-o", str(d / "b.npz")]) == 0
-    with np.load(d / "b.npz") as z:
-        np.testing.assert_allclose(z["points"], pts, atol=1e-9)
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "u.npz"), "--guide-weight", "0",
+                 "--quiet"]) == 0
+    with np.load(d / "b.npz") as z, np.load(d / "u.npz") as u:
+        np.testing.assert_allclose(z["points"], u["points"], atol=1e-9)
+        assert np.abs(u["points"] - pts).max() > 1e-6  # the default puppet is guided: its evidence moves the face
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "c.csv"), "--fps", "50",
                  "--posterior", "--quiet"]) == 0
     assert np.loadtxt(d / "c.csv", delimiter=",", skiprows=1).shape == (400, 22)
@@ -118,8 +122,10 @@ def test_cpp_example_animates_like_python(workdir):
 
 
 @pytest.mark.parametrize("options", [dict(vocal_covariance="tied"),
-                                     dict(vocal_features="projected", vocal_covariance="tied")],
-                         ids=["tied", "projected"])
+                                     dict(vocal_features="projected", vocal_covariance="tied"),
+                                     dict(vocal_covariance="tied", guide="ridge", guide_context=2),
+                                     dict(vocal_covariance="tied", guide="none")],
+                         ids=["tied", "projected", "guided-k2", "unguided"])
 def test_cpp_example_animates_a_non_default_vocal_model_like_python(workdir, tmp_path, options):
     # A tied vocal model is stored as N equal full covariances, a projected one (vocal_features=
     # "projected") as the projection of +-5 frames the C++ puppet applies to the raw feature
@@ -139,7 +145,43 @@ def test_cpp_example_animates_a_non_default_vocal_model_like_python(workdir, tmp
     assert saved._core.projected == ("vocal_features" in options)
     if saved._core.projected:
         assert saved._core.projection_context == 5
+    assert saved.guided == (options.get("guide", "ridge") == "ridge")
+    if saved.guided:
+        assert saved._core.guide_context == options.get("guide_context", 5)
     _assert_cpp_animates_like_python(exe, path, d / "test.wav", tmp_path)
+
+
+def test_guide_switches(workdir, tmp_path, capsys):
+    d = workdir
+    common = ["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"), "--states", "6",
+              "--iterations", "12", "--quiet"]
+    assert main(common + ["-o", str(tmp_path / "none.vpp"), "--guide", "none"]) == 0
+    assert main(common + ["-o", str(tmp_path / "k2.vpp"), "--guide", "ridge", "--guide-context", "2"]) == 0
+    none, k2, default = load(tmp_path / "none.vpp"), load(tmp_path / "k2.vpp"), load(d / "p.vpp")
+    assert not none.guided and none.metadata["training"]["options"]["guide"] == "none"
+    assert k2.guided and k2._core.guide_context == 2 and default.guided and default._core.guide_context == 5
+    # --guide-weight 0 on the default (guided) puppet is the unguided puppet's animation
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "zero.npz"),
+                 "--guide-weight", "0", "--quiet"]) == 0
+    assert main(["animate", str(tmp_path / "none.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "n.npz"),
+                 "--quiet"]) == 0
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "two.npz"),
+                 "--guide-weight", "2", "--quiet"]) == 0
+    with np.load(tmp_path / "zero.npz") as a, np.load(tmp_path / "n.npz") as b, np.load(tmp_path / "two.npz") as c:
+        np.testing.assert_allclose(a["points"], b["points"], atol=1e-9)
+        assert np.abs(c["points"] - a["points"]).max() > 1e-6
+    capsys.readouterr()
+    assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide", "none", "--guide-context", "3"]) == 2
+    assert "--guide-context" in capsys.readouterr().err
+    assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-context", "101"]) == 2
+    assert "guide_context" in capsys.readouterr().err
+    assert main(["animate", str(tmp_path / "none.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "x.npz"),
+                 "--guide-weight", "1", "--quiet"]) == 2
+    assert "needs a guided puppet" in capsys.readouterr().err
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "x.npz"),
+                 "--guide-weight", "-1", "--quiet"]) == 2
+    assert "guide_weight" in capsys.readouterr().err
+    assert not (tmp_path / "bad.vpp").exists() and not (tmp_path / "x.npz").exists()
 
 
 def test_bad_input_is_reported_and_writes_nothing(workdir, tmp_path, capsys):

@@ -2,6 +2,8 @@
 
 #include "voicepuppet/hmm.hpp"
 
+#include <Eigen/Cholesky>
+
 #include <algorithm>
 #include <cmath>
 #include <string>
@@ -35,6 +37,25 @@ const PuppetArray& array(const PuppetFile& f, const std::string& name, std::vect
   return a;
 }
 
+/// The context map stored as the arrays `map`, `offset`, `context` (int) and `columns` (int):
+/// columns in [1, n_columns], context in [0, 100], map rows columns·(2·context+1), `outputs`
+/// columns (−1: any, at least one).
+ContextMap read_context_map(const PuppetFile& f, const std::string& map, const std::string& offset,
+                            const std::string& context, const std::string& columns, Index n_columns,
+                            Index outputs) {
+  ContextMap m;
+  m.context = array(f, context, {1}, PuppetArray::DType::Int64).i64[0];
+  m.columns = array(f, columns, {1}, PuppetArray::DType::Int64).i64[0];
+  if (m.context < 0 || m.context > 100) fail_argument("puppet ", context, " must be in [0, 100], got ", m.context);
+  if (m.columns < 1 || m.columns > n_columns) {
+    fail_argument("puppet ", columns, " must be in [1, ", n_columns, "], got ", m.columns);
+  }
+  m.map = array(f, map, {m.columns * (2 * m.context + 1), outputs}).matrix();
+  if (m.map.cols() < 1) fail_argument("puppet ", map, " must have at least one column");
+  m.offset = array(f, offset, {m.map.cols()}).matrix().row(0).transpose();
+  return m;
+}
+
 /// The parts' face coordinates side by side.
 RowMatrixXd side_by_side(const std::vector<RowMatrixXd>& faces, Index n_dims) {
   RowMatrixXd out(faces.front().rows(), n_dims);
@@ -47,6 +68,28 @@ RowMatrixXd side_by_side(const std::vector<RowMatrixXd>& faces, Index n_dims) {
 }
 
 }  // namespace
+
+RowMatrixXd ContextMap::apply(const MatrixRef& z) const {
+  if (z.cols() < columns) fail_argument("a context map reads ", columns, " columns, got ", z.cols());
+  const Index T = z.rows(), C = columns, k = context;
+  // The stacked context rows are built and multiplied a block of frames at a time: the whole
+  // stack would be T·C·(2k+1) doubles (230 MB for an hour at 30 fps, C = 24, k = 5).
+  constexpr Index kRows = 512;
+  RowMatrixXd out(T, map.cols());
+  RowMatrixXd x(std::min(T, kRows), C * (2 * k + 1));
+  for (Index t0 = 0; t0 < T; t0 += kRows) {
+    const Index n = std::min(kRows, T - t0);
+    for (Index i = 0; i < n; ++i) {
+      for (Index j = -k; j <= k; ++j) {
+        const Index s = std::clamp<Index>(t0 + i + j, 0, T - 1);
+        x.row(i).segment((j + k) * C, C) = z.row(s).head(C);
+      }
+    }
+    out.middleRows(t0, n).noalias() = x.topRows(n) * map;
+  }
+  out.rowwise() += offset.transpose();
+  return out;
+}
 
 RowMatrixXd append_deltas(const MatrixRef& x, Index width) {
   if (width < 0) fail_argument("delta width must be >= 0, got ", width);
@@ -82,17 +125,8 @@ Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
     fail_argument("puppet audio standardisation needs at least one column and positive std");
   }
   if (f.arrays.count("audio/projection")) {
-    projection_context_ = array(f, "audio/projection_context", {1}, PuppetArray::DType::Int64).i64[0];
-    projection_columns_ = array(f, "audio/projection_columns", {1}, PuppetArray::DType::Int64).i64[0];
-    if (projection_context_ < 0 || projection_context_ > 100) {
-      fail_argument("puppet audio/projection_context must be in [0, 100], got ", projection_context_);
-    }
-    if (projection_columns_ < 1 || projection_columns_ > A) {
-      fail_argument("puppet audio/projection_columns must be in [1, ", A, "], got ", projection_columns_);
-    }
-    projection_ = array(f, "audio/projection", {projection_columns_ * (2 * projection_context_ + 1), -1}).matrix();
-    if (projection_.cols() < 1) fail_argument("puppet audio/projection must have at least one column");
-    projection_offset_ = array(f, "audio/projection_offset", {projection_.cols()}).matrix().row(0).transpose();
+    projection_ = read_context_map(f, "audio/projection", "audio/projection_offset", "audio/projection_context",
+                                   "audio/projection_columns", A, -1);
   }
   const Index V = n_vocal();
   mean_shape_ = array(f, "face/mean_shape", {-1, 2}).matrix();
@@ -142,6 +176,46 @@ Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
                     seen[static_cast<size_t>(q)], " parts");
     }
   }
+  read_guide(A);
+}
+
+void Puppet::read_guide(Index n_columns) {
+  const auto& f = file_;
+  if (!f.arrays.count("guide/map")) {
+    const auto it = f.arrays.lower_bound("guide/");
+    if (it != f.arrays.end() && it->first.compare(0, 6, "guide/") == 0) {
+      fail_argument("puppet array '", it->first, "' belongs to a guide but the file has no 'guide/map'; "
+                    "the file is damaged or from an incompatible tool");
+    }
+    return;
+  }
+  const Index K = n_dims();
+  guide_ = read_context_map(f, "guide/map", "guide/offset", "guide/context", "guide/columns", n_columns, K);
+  guide_weight_ = array(f, "guide/weight", {1}).f64[0];
+  if (!(guide_weight_ >= 0)) fail_argument("puppet guide/weight must be >= 0, got ", guide_weight_);
+  guide_covariance_ = array(f, "guide/covariance", {K, K}).matrix();
+  const Eigen::MatrixXd& r = guide_covariance_;
+  const double rmax = r.cwiseAbs().maxCoeff();
+  if (!((r - r.transpose()).cwiseAbs().maxCoeff() <= 1e-10 * rmax)) {
+    fail_argument("puppet guide/covariance is not symmetric; the file is damaged or from an incompatible tool");
+  }
+  Index off = 0;
+  for (const auto& pt : parts_) {
+    const Index Kp = pt.n_dims();
+    Eigen::MatrixXd rp = 0.5 * (r.block(off, off, Kp, Kp) + r.block(off, off, Kp, Kp).transpose());
+    // relative to the mean variance; a zero block (a perfect cross-fitted prediction, e.g. a
+    // motionless part) gets the floor itself: evidence that holds the part to ŷ
+    const double mean_var = rp.trace() / static_cast<double>(Kp);
+    const double floor = kGuideCovarianceFloor * (mean_var > 0 ? mean_var : 1.0);
+    Eigen::LLT<Eigen::MatrixXd> llt(rp + floor * Eigen::MatrixXd::Identity(Kp, Kp));
+    if (!(mean_var >= 0) || llt.info() != Eigen::Success) {
+      fail_argument("puppet guide/covariance (rows ", off, " .. ", off + Kp - 1,
+                    ") is not positive semi-definite with positive variances; the file is damaged");
+    }
+    Eigen::MatrixXd prec = llt.solve(Eigen::MatrixXd::Identity(Kp, Kp));
+    guide_precision_.push_back(0.5 * (prec + prec.transpose()));
+    off += Kp;
+  }
 }
 
 Puppet Puppet::load(const std::string& path) {
@@ -184,17 +258,32 @@ RowMatrixXd Puppet::project(const MatrixRef& standardized) const {
                   standardized.cols());
   }
   if (!projected()) return standardized;
-  const Index T = standardized.rows(), C = projection_columns_, k = projection_context_;
-  RowMatrixXd x(T, C * (2 * k + 1));
-  for (Index t = 0; t < T; ++t) {
-    for (Index j = -k; j <= k; ++j) {
-      const Index s = std::clamp<Index>(t + j, 0, T - 1);
-      x.row(t).segment((j + k) * C, C) = standardized.row(s).head(C);
-    }
+  return projection_.apply(standardized);
+}
+
+RowMatrixXd Puppet::guide_predict(const MatrixRef& standardized) const {
+  if (!guided()) fail_argument("the puppet has no guide (train it with guide=\"ridge\")");
+  if (standardized.cols() != audio_mean_.size()) {
+    fail_argument("standardised features must have ", audio_mean_.size(), " columns (Puppet::standardize), got ",
+                  standardized.cols());
   }
-  RowMatrixXd v = x * projection_;
-  v.rowwise() += projection_offset_.transpose();
-  return v;
+  return guide_.apply(standardized);
+}
+
+const Eigen::MatrixXd& Puppet::guide_precision(Index p) const {
+  part(p);  // validates p
+  if (!guided()) fail_argument("the puppet has no guide (train it with guide=\"ridge\")");
+  return guide_precision_[static_cast<size_t>(p)];
+}
+
+double Puppet::guide_lambda(double weight) const {
+  if (std::isnan(weight) || weight < 0) return guide_weight_;
+  if (!std::isfinite(weight)) fail_argument("guide_weight must be finite, got ", weight);
+  if (weight > 0 && !guided()) {
+    fail_argument("guide_weight = ", weight, " needs a guided puppet, but this one has no guide; "
+                  "train it with guide=\"ridge\" or pass 0");
+  }
+  return weight;
 }
 
 RowMatrixXd Puppet::vocal_log_density(const MatrixRef& standardized, Index p) const {
@@ -252,8 +341,17 @@ AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOption
   if (adapt) check_adapt_options(options.adapt);
   // The vocal features (the projection of the standardised frames, if the puppet has one), once
   // for all parts; adaptation transforms them, in the space the vocal Gaussians live in.
-  const RowMatrixXd v = project(standardize(raw_features));
+  const RowMatrixXd z = standardize(raw_features);
+  const RowMatrixXd v = project(z);
   const Index T = v.rows();
+  // The guide's prediction ŷ of the face, at the output rate (interpolated as resample_weights).
+  const double lambda = guide_lambda(options.guide_weight);
+  RowMatrixXd guide_y;
+  if (lambda > 0) {
+    guide_y = guide_.apply(z);
+    if (out != fps_) guide_y = resample_weights(guide_y, fps_, out);
+  }
+  Index col = 0;
   const VectorXi no_lengths;
   AnimateResult r;
   r.states.resize(T, n_parts());
@@ -273,14 +371,22 @@ AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOption
     const ViterbiResult vit = viterbi(log_b, pt.startprob, pt.transmat, no_lengths);
     r.states.col(p) = vit.path;
     const TrajectoryModel model = trajectory_model(out, p);
+    TrajectoryEvidence evidence;
+    const TrajectoryEvidence* ev = nullptr;
+    if (lambda > 0) {  // part p's columns of ŷ, with precision λ R[sl, sl]⁻¹
+      evidence.targets = guide_y.middleCols(col, pt.n_dims());
+      evidence.precision = lambda * guide_precision_[static_cast<size_t>(p)];
+      ev = &evidence;
+    }
+    col += pt.n_dims();
     if (options.posterior) {
       const ForwardBackwardResult fb = forward_backward(log_b, pt.startprob, pt.transmat, no_lengths);
       r.log_likelihood += fb.log_likelihood;
       faces.push_back(solve_trajectory_weighted(
-          model, out == fps_ ? fb.posteriors : resample_weights(fb.posteriors, fps_, out)));
+          model, out == fps_ ? fb.posteriors : resample_weights(fb.posteriors, fps_, out), ev));
     } else {
       r.log_likelihood += vit.log_probability;
-      faces.push_back(solve_trajectory(model, out == fps_ ? vit.path : resample_states(vit.path, fps_, out)));
+      faces.push_back(solve_trajectory(model, out == fps_ ? vit.path : resample_states(vit.path, fps_, out), ev));
     }
   }
   r.face = side_by_side(faces, n_dims());

@@ -168,13 +168,18 @@ std::string encode_puppet(const PuppetFile& file) {
     }
   }
   std::string out(kMagic, sizeof(kMagic));
-  put<std::uint32_t>(out, kPuppetFormatVersion);
+  put<std::uint32_t>(out, puppet_format_version(file));
   put<std::uint32_t>(out, 0);
   put<std::uint64_t>(out, payload.size());
   put<std::uint32_t>(out, crc32(payload.data(), payload.size()));
   put<std::uint32_t>(out, 0);
   out += payload;
   return out;
+}
+
+std::uint32_t puppet_format_version(const PuppetFile& file) {
+  const auto it = file.arrays.lower_bound("guide/");
+  return it != file.arrays.end() && it->first.compare(0, 6, "guide/") == 0 ? 2 : 1;
 }
 
 PuppetFile decode_puppet(const std::string& bytes, const std::string& source) {

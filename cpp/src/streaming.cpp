@@ -250,6 +250,10 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
                   options.projection_lag);
   }
   projection_lag_ = options.projection_lag < 0 ? k : options.projection_lag;
+  if (puppet_.guided() && puppet_.guide_weight() != 0) {
+    fail_argument("streaming of guided puppets is not implemented yet: train with --guide none "
+                  "(guide=\"none\"), or animate this puppet offline (voicepuppet animate)");
+  }
   options_.projection_lag = projection_lag_;
   mean_ = puppet_.file().at("audio/mean").matrix().row(0).transpose();
   std_ = puppet_.file().at("audio/std").matrix().row(0).transpose();

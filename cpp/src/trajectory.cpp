@@ -4,12 +4,14 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
+#include <Eigen/Eigenvalues>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <string>
 #include <vector>
 
 #if defined(__AVX__)
@@ -440,8 +442,10 @@ struct WeightedFull {
 // previous frame's panel are the one contiguous operand of the next frame's update. Each column
 // block of the panel is updated left-looking (from the previous panel and its own earlier
 // columns), so almost all flops are register-tiled panel updates.
+// Evidence, if any, is the column-major precision W (ew, D×D) and the rows (W ŷ_t)ᵀ (erhs).
 template <class Provider>
-RowMatrixXd solve_full(Provider& p, Index n_frames, Index d) {
+RowMatrixXd solve_full(Provider& p, Index n_frames, Index d, const double* ew = nullptr,
+                       const RowMatrixXd* erhs = nullptr) {
   RowMatrixXd y(n_frames, d);  // holds z_t (forward) then y_t
   const Index ld = (2 * d + 2 + 7 + 7) / 8 * 8;
   std::vector<double> panels(static_cast<size_t>(2 * ld * d), 0.0);  // padding rows stay finite
@@ -473,6 +477,14 @@ RowMatrixXd solve_full(Provider& p, Index n_frames, Index d) {
         std::copy_n(hd.data() + j * d + j, d - j, col + j);
         col[d] = g[j];
         std::fill_n(col + d + 1, d, 0.0);
+      }
+    }
+    if (ew != nullptr) {  // the evidence of frame t: H[t,t] += W, r[t] += W ŷ_t
+      for (Index j = 0; j < d; ++j) {
+        double* col = cur + j * ld;
+        const double* w = ew + j * d;
+        for (Index i = j; i < d; ++i) col[i] += w[i];
+        col[d] += (*erhs)(t, j);
       }
     }
     for (Index j0 = 0; j0 < d; j0 += kBlock) {
@@ -514,8 +526,10 @@ RowMatrixXd solve_full(Provider& p, Index n_frames, Index d) {
 // `terms(t, kind)` returns a pointer to the #D row of the requested term for frame t.
 enum Term { kDiag = 0, kRhs, kUp, kNext, kRNext };
 
+// Evidence, if any, is the diagonal of W (ew, #D) and the rows (W ŷ_t)ᵀ (erhs).
 template <class Terms>
-RowMatrixXd solve_diag(Terms& terms, Index n_frames, Index d) {
+RowMatrixXd solve_diag(Terms& terms, Index n_frames, Index d, const double* ew = nullptr,
+                       const RowMatrixXd* erhs = nullptr) {
   using Arr = Eigen::Array<double, Eigen::Dynamic, 1>;
   using Map = Eigen::Map<Arr>;
   using CMap = Eigen::Map<const Arr>;
@@ -530,6 +544,10 @@ RowMatrixXd solve_diag(Terms& terms, Index n_frames, Index d) {
     if (t + 1 < n_frames) {
       q += CMap(terms(t + 1, kNext), d);
       g += CMap(terms(t + 1, kRNext), d);
+    }
+    if (ew != nullptr) {
+      q += CMap(ew, d);
+      g += CMap(erhs->row(t).data(), d);
     }
     if (t > 0) {
       CMap up(terms(t, kUp), d);
@@ -717,24 +735,98 @@ TrajectoryModel::TrajectoryModel(const MatrixRef& means, const MatrixRef& vel_me
 }
 
 // ------------------------------------------------------------------ batch solves
-RowMatrixXd solve_trajectory(const TrajectoryModel& model, const IndexVectorRef& states) {
-  check_states(states, model.n_states());
-  if (model.covariance_type() == CovarianceType::Diagonal) {
-    HardDiag terms{model.diag_blocks(), states};
-    return solve_diag(terms, states.size(), model.n_dims());
+void check_trajectory_evidence(const TrajectoryEvidence& e, Index n_frames, Index n_dims, const char* name) {
+  if (e.targets.rows() != n_frames || e.targets.cols() != n_dims) {
+    fail_argument(name, ".targets must be ", n_frames, " x ", n_dims, " (one row per frame), got ",
+                  shape_of(e.targets));
   }
-  HardFull p{model.full_blocks(), states};
-  return solve_full(p, states.size(), model.n_dims());
+  if (e.precision.rows() != n_dims || e.precision.cols() != n_dims) {
+    fail_argument(name, ".precision must be ", n_dims, " x ", n_dims, ", got ", e.precision.rows(), " x ",
+                  e.precision.cols());
+  }
+  require_finite(e.targets, (std::string(name) + ".targets").c_str());
+  if (!e.precision.allFinite()) fail_argument(name, ".precision contains NaN or infinite values");
+  const double wmax = e.precision.cwiseAbs().maxCoeff();
+  if (!((e.precision - e.precision.transpose()).cwiseAbs().maxCoeff() <= 1e-10 * wmax)) {
+    fail_argument(name, ".precision is not symmetric; symmetrise it ((W + W^T) / 2)");
+  }
+  if (wmax > 0.0) {
+    const Eigen::SelfAdjointEigenSolver<MatrixXd> es(e.precision, Eigen::EigenvaluesOnly);
+    const double lmin = es.eigenvalues().minCoeff();
+    if (!(lmin >= -1e-12 * wmax)) {
+      fail_argument(name, ".precision is not positive semi-definite (smallest eigenvalue ", lmin,
+                    "); pass λ R⁻¹ for a positive definite covariance R");
+    }
+  }
 }
 
-RowMatrixXd solve_trajectory_weighted(const TrajectoryModel& model, const MatrixRef& weights) {
-  check_weights(weights, model.n_states(), "weights");
-  if (model.covariance_type() == CovarianceType::Diagonal) {
-    WeightedDiag terms(model.diag_blocks(), weights, model.n_dims());
-    return solve_diag(terms, weights.rows(), model.n_dims());
+namespace {
+// The checked evidence in the form the solves take: W symmetrised (column-major) and W ŷ_t.
+struct PreparedEvidence {
+  MatrixXd w;
+  RowMatrixXd wy;
+  bool diagonal = false;  // W has no off-diagonal entry
+  VectorXd wdiag;
+  PreparedEvidence(const TrajectoryEvidence& e, Index n_frames, Index n_dims) {
+    check_trajectory_evidence(e, n_frames, n_dims);
+    w = 0.5 * (e.precision + e.precision.transpose());
+    wy = e.targets * w;  // row t = (W ŷ_t)ᵀ, W symmetric
+    wdiag = w.diagonal();
+    diagonal = (w - MatrixXd(wdiag.asDiagonal())).cwiseAbs().maxCoeff() == 0.0;
   }
-  WeightedFull p(model.full_blocks(), weights, model.n_dims());
-  return solve_full(p, weights.rows(), model.n_dims());
+};
+}  // namespace
+
+RowMatrixXd solve_trajectory(const TrajectoryModel& model, const IndexVectorRef& states,
+                             const TrajectoryEvidence* evidence) {
+  check_states(states, model.n_states());
+  const Index n = states.size(), d = model.n_dims();
+  if (evidence == nullptr) {
+    if (model.covariance_type() == CovarianceType::Diagonal) {
+      HardDiag terms{model.diag_blocks(), states};
+      return solve_diag(terms, n, d);
+    }
+    HardFull p{model.full_blocks(), states};
+    return solve_full(p, n, d);
+  }
+  const PreparedEvidence e(*evidence, n, d);
+  if (model.covariance_type() == CovarianceType::Diagonal) {
+    if (e.diagonal) {
+      HardDiag terms{model.diag_blocks(), states};
+      return solve_diag(terms, n, d, e.wdiag.data(), &e.wy);
+    }
+    const auto blocks = expand_diag(model);
+    HardFull p{blocks, states};
+    return solve_full(p, n, d, e.w.data(), &e.wy);
+  }
+  HardFull p{model.full_blocks(), states};
+  return solve_full(p, n, d, e.w.data(), &e.wy);
+}
+
+RowMatrixXd solve_trajectory_weighted(const TrajectoryModel& model, const MatrixRef& weights,
+                                      const TrajectoryEvidence* evidence) {
+  check_weights(weights, model.n_states(), "weights");
+  const Index n = weights.rows(), d = model.n_dims();
+  if (evidence == nullptr) {
+    if (model.covariance_type() == CovarianceType::Diagonal) {
+      WeightedDiag terms(model.diag_blocks(), weights, d);
+      return solve_diag(terms, n, d);
+    }
+    WeightedFull p(model.full_blocks(), weights, d);
+    return solve_full(p, n, d);
+  }
+  const PreparedEvidence e(*evidence, n, d);
+  if (model.covariance_type() == CovarianceType::Diagonal) {
+    if (e.diagonal) {
+      WeightedDiag terms(model.diag_blocks(), weights, d);
+      return solve_diag(terms, n, d, e.wdiag.data(), &e.wy);
+    }
+    const auto blocks = expand_diag(model);
+    WeightedFull p(blocks, weights, d);
+    return solve_full(p, n, d, e.w.data(), &e.wy);
+  }
+  WeightedFull p(model.full_blocks(), weights, d);
+  return solve_full(p, n, d, e.w.data(), &e.wy);
 }
 
 // ------------------------------------------------------------------ resampling

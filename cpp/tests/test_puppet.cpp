@@ -2,6 +2,7 @@
 // and puppet.hpp (analysis and synthesis against the kernels it composes, computed by hand).
 #include <doctest/doctest.h>
 
+#include "puppet_arrays.hpp"
 #include "throws_with.hpp"
 
 #include "voicepuppet/hmm.hpp"
@@ -19,14 +20,8 @@ using namespace voicepuppet;
 
 namespace {
 
+using voicepuppet::testing::arr;
 using voicepuppet::testing::throws_with;
-
-PuppetArray arr(std::vector<std::uint64_t> shape, std::vector<double> v) {
-  PuppetArray a;
-  a.shape = std::move(shape);
-  a.f64 = std::move(v);
-  return a;
-}
 
 // Three points, one part with a 1-D basis moving point 2 vertically, two states, two audio columns.
 PuppetFile tiny_puppet(double log_scale = 0, double angle = 0, double tx = 0, double ty = 0) {

@@ -4,6 +4,7 @@
 // weights equal the hard solve, and the fixed-lag stream equals truncated dense solves.
 #include <doctest/doctest.h>
 
+#include "random_trajectory.hpp"
 #include "voicepuppet/trajectory.hpp"
 
 #include <Eigen/Cholesky>
@@ -17,87 +18,13 @@
 using namespace voicepuppet;
 using Eigen::MatrixXd;
 
-namespace {
-
-struct RandomModel {
-  RowMatrixXd means, vel_means, covars;  // full: N·2D by 2D
-};
-
-RandomModel random_model(Index n, Index d, std::mt19937& rng) {
-  std::normal_distribution<double> g(0.0, 1.0);
-  RandomModel m;
-  m.means = RowMatrixXd::NullaryExpr(n, d, [&] { return g(rng); });
-  m.vel_means = RowMatrixXd::NullaryExpr(n, d, [&] { return 0.3 * g(rng); });
-  m.covars.resize(n * 2 * d, 2 * d);
-  for (Index i = 0; i < n; ++i) {
-    MatrixXd a = MatrixXd::NullaryExpr(2 * d, 2 * d, [&] { return g(rng); });
-    MatrixXd k = a * a.transpose() / static_cast<double>(2 * d) + 0.5 * MatrixXd::Identity(2 * d, 2 * d);
-    m.covars.middleRows(i * 2 * d, 2 * d) = k;
-  }
-  return m;
-}
-
-// Dense normal equations from the objective: frame 0 scores G0 y against μ with (K^xx)⁻¹;
-// frame t ≥ 1 scores M_t y = [y_t, y_t − y_{t−1}] against [μ, μ̇] with K⁻¹. Weighted: Σ_n w_tn.
-MatrixXd dense_solve(const RandomModel& m, const MatrixXd& weights, bool diagonal) {
-  const Index n = m.means.rows(), d = m.means.cols(), T = weights.rows();
-  MatrixXd h = MatrixXd::Zero(T * d, T * d);
-  Eigen::VectorXd r = Eigen::VectorXd::Zero(T * d);
-  for (Index t = 0; t < T; ++t) {
-    for (Index s = 0; s < n; ++s) {
-      const double w = weights(t, s);
-      if (w == 0.0) continue;
-      MatrixXd k = m.covars.middleRows(s * 2 * d, 2 * d);
-      if (diagonal) k = MatrixXd(k.diagonal().asDiagonal());
-      if (t == 0) {
-        MatrixXd kxx = k.topLeftCorner(d, d);
-        MatrixXd p = kxx.llt().solve(MatrixXd::Identity(d, d));
-        h.topLeftCorner(d, d) += w * p;
-        r.head(d) += w * p * m.means.row(s).transpose();
-        continue;
-      }
-      MatrixXd sel = MatrixXd::Zero(2 * d, T * d);
-      sel.block(0, t * d, d, d).setIdentity();
-      sel.block(d, t * d, d, d).setIdentity();
-      sel.block(d, (t - 1) * d, d, d) = -MatrixXd::Identity(d, d);
-      Eigen::VectorXd target(2 * d);
-      target << m.means.row(s).transpose(), m.vel_means.row(s).transpose();
-      MatrixXd p = k.llt().solve(MatrixXd::Identity(2 * d, 2 * d));
-      h += w * sel.transpose() * p * sel;
-      r += w * sel.transpose() * p * target;
-    }
-  }
-  Eigen::VectorXd y = h.llt().solve(r);
-  return Eigen::Map<const RowMatrixXd>(y.data(), T, d);
-}
-
-RowMatrixXd diag_of(const RandomModel& m) {
-  const Index n = m.means.rows(), d = m.means.cols();
-  RowMatrixXd v(n, 2 * d);
-  for (Index s = 0; s < n; ++s) v.row(s) = m.covars.middleRows(s * 2 * d, 2 * d).diagonal().transpose();
-  return v;
-}
-
-double rel(const MatrixXd& a, const MatrixXd& b) { return (a - b).cwiseAbs().maxCoeff() / b.cwiseAbs().maxCoeff(); }
-
-VectorXi random_states(Index T, Index n, std::mt19937& rng) {
-  std::uniform_int_distribution<Index> u(0, n - 1), dwell(1, 6);
-  VectorXi s(T);
-  Index t = 0;
-  while (t < T) {
-    const Index st = u(rng), len = dwell(rng);
-    for (Index k = 0; k < len && t < T; ++k) s[t++] = st;
-  }
-  return s;
-}
-
-MatrixXd one_hot(const VectorXi& s, Index n) {
-  MatrixXd w = MatrixXd::Zero(s.size(), n);
-  for (Index t = 0; t < s.size(); ++t) w(t, s[t]) = 1.0;
-  return w;
-}
-
-}  // namespace
+using testing::dense_solve;
+using testing::diag_of;
+using testing::one_hot;
+using testing::random_model;
+using testing::random_states;
+using testing::RandomModel;
+using testing::rel;
 
 TEST_CASE("full covariance: block Cholesky equals the dense solve of the objective") {
   std::mt19937 rng(1234);

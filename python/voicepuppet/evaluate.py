@@ -412,6 +412,16 @@ def _puppet_predictions(train, test, face_space, feats_train, feats_test, *, n_s
     return preds, puppet
 
 
+#: The model of a guided voice puppet animated without its guide (``guide_weight=0``).
+UNGUIDED = "voice-puppet, unguided (Brand §4.5)"
+
+
+def _unguided_predictions(puppet, test, face_space, feats_test):
+    """The same puppet's test predictions with Brand's unguided solve (as _puppet_predictions)."""
+    return [_as_face(puppet.animate(features=f, fps=s.fps, guide_weight=0).animation.points, len(s.points),
+                     face_space) for s, f in zip(test, feats_test)]
+
+
 def _baseline_predictions(puppet, Ytr, feats_train, feats_test, lengths):
     """The two baselines of the voice puppet, learnt from a fold's training sequences.
 
@@ -520,6 +530,9 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
             f_tr, f_te = [features_of(i) for i in tr_idx], [features_of(i) for i in te_idx]
             preds, pup = _puppet_predictions(train, test, fs, f_tr, f_te, n_states=n_states, seed=seed)
             per_fold["voice-puppet"].append(_fold_metrics(preds, Yte, fs, None))
+            if pup.guided:
+                per_fold.setdefault(UNGUIDED, []).append(
+                    _fold_metrics(_unguided_predictions(pup, test, fs, f_te), Yte, fs, None))
             bar.update()
             base, alpha = _baseline_predictions(pup, Ytr, f_tr, f_te, [len(y) for y in Yte])
             alphas.append(alpha)

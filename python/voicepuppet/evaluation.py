@@ -76,6 +76,10 @@ class RidgeBaseline:
         return (context_stack(A, self.k) - self.x_mean) @ self.W + self.y_mean
 
 
+#: The row of a guided puppet animated without its guide (``guide_weight=0``: Brand's solve).
+UNGUIDED_ROW = "voice, unguided (Brand §4.5)"
+
+
 def ridge_input(puppet, raw) -> np.ndarray:
     """What the ridge baseline hears: raw audio features [T, A] standardised as ``puppet``
     standardises them (its training mean and std), without the deltas the puppet appends (a
@@ -200,6 +204,8 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
             }
             if posterior:
                 preds["voice-posterior"] = puppet.animate(features=raw, posterior=True).face
+            if puppet.guided:  # the same puppet without its guide's evidence
+                preds[UNGUIDED_ROW] = puppet.animate(features=raw, guide_weight=0).face
             for name, face in preds.items():
                 m = compare(face, points, fs)
                 slot = acc.setdefault(name, {})

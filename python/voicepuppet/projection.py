@@ -15,6 +15,10 @@ standard deviation, folded into one affine map (arrays ``audio/projection*``, ap
 
     v_t = [z_{t−k}, …, z_{t+k}] · P + c,   z = the first ``columns`` standardised feature columns,
     frames beyond the ends repeating the first or last frame.
+
+The same ridge, unstandardised, is a puppet's **guide** (training option ``guide="ridge"``,
+:func:`fit_guide`): its prediction ŷ and the covariance R of its cross-fitted residuals enter
+the trajectory solve as per-frame Gaussian evidence (arrays ``guide/*``, applied by C++).
 """
 
 from __future__ import annotations
@@ -23,6 +27,10 @@ import numpy as np
 
 from voicepuppet.audio import Standardizer
 from voicepuppet.evaluation import RidgeBaseline, context_stack
+
+#: Guides of :meth:`voicepuppet.puppet.Puppet.train` (option ``guide``): "ridge" adds the
+#: ridge's prediction of the face as evidence in the trajectory solve, "none" is Brand's solve.
+GUIDES = ("ridge", "none")
 
 #: Vocal feature spaces of :meth:`voicepuppet.puppet.Puppet.train` (option ``vocal_features``).
 VOCAL_FEATURES = ("audio", "projected")
@@ -53,6 +61,85 @@ def cross_fit(X, Y, lengths, n_folds: int = 5) -> np.ndarray:
         rest = np.setdiff1d(np.arange(len(X)), fold)
         yhat[fold] = RidgeBaseline(0).fit([X[rest]], [Y[rest]]).predict(X[fold])
     return yhat
+
+
+def _context_ridge(Z, Y, lengths, k: int, n_folds: int):
+    """The ridge from ±k frames of ``Z`` (T, C) to ``Y`` (T, K): the context-stacked rows X
+    (stacked per sequence, edges repeated), the cross-fitted predictions (T, K) and the
+    :class:`RidgeBaseline` fitted on all frames."""
+    bounds = np.concatenate([[0], np.cumsum(lengths)])
+    # Context is stacked per sequence (edges repeated), then frames go to folds.
+    X = np.vstack([context_stack(Z[a:b], k) for a, b in zip(bounds[:-1], bounds[1:])])
+    return X, cross_fit(X, Y, lengths, n_folds), RidgeBaseline(0).fit([X], [Y])
+
+
+def _check_ridge_args(Z, Y, lengths, context, columns, n_folds, what: str, option: str):
+    if isinstance(context, bool) or int(context) != context or context < 0:
+        raise ValueError(f"{option} must be an integer >= 0, got {context!r}")
+    if not 1 <= columns <= Z.shape[1]:
+        raise ValueError(f"columns must be in [1, {Z.shape[1]}], got {columns!r}")
+    if len(Z) != len(Y) or lengths.sum() != len(Z):
+        raise ValueError(f"standardized {Z.shape} and face {Y.shape} must have the frames of lengths "
+                         f"(adding up to {int(lengths.sum())})")
+    if len(Z) < 2 * n_folds:
+        raise ValueError(f"{len(Z)} training frames are too few to cross-fit {what} over "
+                         f"{n_folds} folds; give more training audio")
+
+
+#: The guide's weight λ written into a guided puppet's file (guide/weight): 1 is the posterior
+#: of the face given both the vocal HMM's trajectory and the ridge's prediction.
+GUIDE_WEIGHT = 1.0
+
+
+def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5):
+    """Fit the guide: the ridge's prediction ŷ of the face from ±k frames of audio and the
+    covariance R of its cross-fitted residuals, used as evidence in the trajectory solve
+    (``+ λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)``, ``cpp/include/voicepuppet/puppet.hpp``).
+
+    Parameters
+    ----------
+    standardized : array (T, A')
+        Standardised training features (as the puppet standardises them), sequences concatenated.
+    face : array (T, K)
+        The training face coordinates of all parts (the puppet's face space).
+    lengths : array of int
+        Frames per training sequence (they add up to T).
+    context : int
+        k: frames of context on each side.
+    columns : int
+        How many leading columns of ``standardized`` the map reads (A: the features without
+        their deltas, as the ridge baseline hears them).
+    n_folds : int
+        Cross-fitting folds (:func:`cross_fit_folds`).
+
+    Returns
+    -------
+    arrays : dict
+        ``guide/map`` [columns·(2k+1), K] and ``guide/offset`` [K] (ŷ_t = [z_{t−k} … z_{t+k}] ·
+        map + offset, the ridge fitted on all frames with its own α), ``guide/context`` [1] and
+        ``guide/columns`` [1] (int), ``guide/covariance`` [K, K] (R: the covariance of the
+        cross-fitted residuals y − ŷ_cf, as large as novel audio makes them), ``guide/weight``
+        [1] (λ = :data:`GUIDE_WEIGHT`).
+    info : dict
+        α, folds, context, columns and the residuals' mean variance (for the metadata).
+    """
+    Z = np.asarray(standardized, dtype=np.float64)
+    Y = np.asarray(face, dtype=np.float64)
+    lengths = np.asarray(lengths, dtype=np.int64)
+    _check_ridge_args(Z, Y, lengths, context, columns, n_folds, "the guide", "guide_context")
+    k = int(context)
+    X, yhat, full = _context_ridge(Z[:, :columns], Y, lengths, k, n_folds)
+    res = Y - yhat
+    R = np.cov(res, rowvar=False, bias=True).reshape(Y.shape[1], Y.shape[1])
+    arrays = {"guide/map": np.ascontiguousarray(full.W),
+              "guide/offset": np.ascontiguousarray(full.y_mean - full.x_mean @ full.W),
+              "guide/context": np.array([k], dtype=np.int64),
+              "guide/columns": np.array([int(columns)], dtype=np.int64),
+              "guide/covariance": np.ascontiguousarray(0.5 * (R + R.T)),
+              "guide/weight": np.array([GUIDE_WEIGHT])}
+    info = {"alpha": float(full.alpha), "folds": int(n_folds), "context": k, "columns": int(columns),
+            "residual_variance": float(np.trace(R) / len(R))}
+    return arrays, info
 
 
 def fit_projection(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5):
@@ -87,24 +174,10 @@ def fit_projection(standardized, face, lengths, *, context: int, columns: int, n
     Z = np.asarray(standardized, dtype=np.float64)
     Y = np.asarray(face, dtype=np.float64)
     lengths = np.asarray(lengths, dtype=np.int64)
-    if int(context) != context or context < 0:
-        raise ValueError(f"vocal_context must be an integer >= 0, got {context!r}")
-    if not 1 <= columns <= Z.shape[1]:
-        raise ValueError(f"columns must be in [1, {Z.shape[1]}], got {columns!r}")
-    if len(Z) != len(Y) or lengths.sum() != len(Z):
-        raise ValueError(f"standardized {Z.shape} and face {Y.shape} must have the frames of lengths "
-                         f"(adding up to {int(lengths.sum())})")
-    if len(Z) < 2 * n_folds:
-        raise ValueError(f"{len(Z)} training frames are too few to cross-fit the projection over "
-                         f"{n_folds} folds; give more training audio")
+    _check_ridge_args(Z, Y, lengths, context, columns, n_folds, "the projection", "vocal_context")
     k = int(context)
-    Z = Z[:, :columns]
-    bounds = np.concatenate([[0], np.cumsum(lengths)])
-    # Context is stacked per sequence (edges repeated), then frames go to folds.
-    X = np.vstack([context_stack(Z[a:b], k) for a, b in zip(bounds[:-1], bounds[1:])])
-    yhat = cross_fit(X, Y, lengths, n_folds)
+    X, yhat, full = _context_ridge(Z[:, :columns], Y, lengths, k, n_folds)
     std = Standardizer.fit(yhat)
-    full = RidgeBaseline(0).fit([X], [Y])
     P = full.W / std.std
     c = (full.y_mean - full.x_mean @ full.W - std.mean) / std.std
     arrays = {"audio/projection": np.ascontiguousarray(P), "audio/projection_offset": c,

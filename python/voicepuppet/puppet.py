@@ -16,10 +16,14 @@ Training (:meth:`Puppet.train`), one pass, no back and forth:
    ``vocal_features="projected"`` the vocal Gaussians live instead on a learned projection of
    the audio, the ridge's cross-fitted prediction of the face coordinates from ±``vocal_context``
    frames (:mod:`voicepuppet.projection`), stored in the file and applied by C++.
+5. Guide (``guide="ridge"``, the default): the ridge's prediction ŷ of the face from
+   ±``guide_context`` frames of audio and the covariance R of its cross-fitted residuals; at
+   synthesis the trajectory solve adds ``λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)`` (λ = 1: the
+   posterior given both; ``animate(guide_weight=0)`` is Brand's solve). ``guide="none"``: none.
 
 Animation runs in C++ (:class:`voicepuppet._core.Puppet`, ``cpp/include/voicepuppet/puppet.hpp``):
 features → standardise (→ projection) → vocal log densities → Viterbi (or posteriors) → closed-form trajectory at
-the output rate → landmarks at the training mean pose. The puppet file (``.vpp``) is written and
+the output rate (with the guide's evidence) → landmarks at the training mean pose. The puppet file (``.vpp``) is written and
 read by C++ too (magic number, format version, CRC-32), so a C++ program animates without Python.
 """
 
@@ -35,7 +39,7 @@ import numpy as np
 from voicepuppet import _core
 from voicepuppet.animation import Animation, check_output_path
 from voicepuppet.face import FaceSpace, check_landmarks, observations
-from voicepuppet.projection import VOCAL_FEATURES, fit_projection
+from voicepuppet.projection import GUIDES, VOCAL_FEATURES, fit_guide, fit_projection
 
 #: What ``Puppet.train`` uses unless told otherwise (recorded in each puppet's metadata).
 TRAIN_DEFAULTS = {
@@ -54,6 +58,9 @@ TRAIN_DEFAULTS = {
     "vocal_features": "audio",  # or "projected": remap on the ridge's cross-fitted face prediction
                                 # (with "tied": better across real voices, worse on espeak: docs/results.md)
     "vocal_context": 5,      # +-frames of audio the projection reads (projected only; latency)
+    "guide": "ridge",        # or "none": the ridge's prediction of the face as evidence in the
+                             # trajectory solve (lambda = 1), or Brand's solve alone (docs/puppet.md)
+    "guide_context": 5,      # +-frames of audio the guide's ridge reads (guide="ridge" only)
     "min_covar": 0.1,        # facial variance floor, x the mean data variance: chosen by CV (docs/results.md)
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
     "seed": 0,
@@ -124,6 +131,17 @@ class Puppet:
     def part_names(self) -> list:
         return list(self.metadata["parts"])
 
+    @property
+    def guided(self) -> bool:
+        """Whether the puppet has a guide (``guide="ridge"``): the ridge's prediction of the face
+        as evidence in the trajectory solve (λ = :attr:`guide_weight` unless overridden)."""
+        return bool(self._core.guided)
+
+    @property
+    def guide_weight(self) -> float:
+        """λ stored in the file (0 without a guide)."""
+        return float(self._core.guide_weight)
+
     def n_states(self, part: int = 0) -> int:
         return int(self._core.n_states(part))
 
@@ -186,6 +204,12 @@ class Puppet:
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= 100:
             raise ValueError(f"vocal_context must be an integer in [0, 100] (frames of audio on each side "
                              f"the projection reads), got {k!r}")
+        if opt["guide"] not in GUIDES:
+            raise ValueError(f"guide must be one of {GUIDES}, got {opt['guide']!r}")
+        kg = opt["guide_context"]
+        if isinstance(kg, bool) or not isinstance(kg, (int, np.integer)) or not 0 <= kg <= 100:
+            raise ValueError(f"guide_context must be an integer in [0, 100] (frames of audio on each side "
+                             f"the guide's ridge reads), got {kg!r}")
         if isinstance(points_list, np.ndarray) or not isinstance(points_list, (list, tuple)):
             points_list = [points_list]
         if (audio_list is None) == (features_list is None):
@@ -228,6 +252,11 @@ class Puppet:
         arrays = {"fps": np.array([float(fps)]), "audio/mean": std.mean, "audio/std": std.std,
                   "audio/delta_width": np.array([w], dtype=np.int64)}
         arrays.update(fs.to_arrays())
+        if opt["guide"] == "ridge":
+            # The ridge baseline's map (features without deltas, its own alpha) and the covariance
+            # of its cross-fitted residuals, in the puppet's face space: evidence in the solve.
+            guide, guide_info = fit_guide(A, Y, lengths, context=int(kg), columns=raw[0].shape[1])
+            arrays.update(guide)
         if opt["vocal_features"] == "projected":
             # With context the map reads the features alone (its context can form their deltas).
             cols = raw[0].shape[1] if k != 0 else A.shape[1]
@@ -267,6 +296,8 @@ class Puppet:
                         "options": _jsonable(opt), "parts": report}}
         if opt["vocal_features"] == "projected":
             metadata["training"]["projection"] = proj_info
+        if opt["guide"] == "ridge":
+            metadata["training"]["guide"] = guide_info
         return cls(metadata, arrays)
 
     # -------------------------------------------------------------------------- animation
@@ -281,7 +312,8 @@ class Puppet:
     def animate(self, audio=None, *, fps: float | None = None, posterior: bool = False,
                 features=None, states=None, states_fps: float | None = None,
                 adapt: str | None = None, adapt_tau: float = ADAPT_DEFAULTS["tau"],
-                adapt_iter: int = ADAPT_DEFAULTS["n_iter"], progress: bool = False) -> Animated:
+                adapt_iter: int = ADAPT_DEFAULTS["n_iter"], guide_weight: float | None = None,
+                progress: bool = False) -> Animated:
         """Facial animation for novel audio (any voice, any language).
 
         Parameters
@@ -309,6 +341,11 @@ class Puppet:
             The prior's weight in frames (> 0; ``inf``: no adaptation, bit-identical to None).
         adapt_iter : int
             EM iterations (>= 1).
+        guide_weight : float, optional
+            λ of a guided puppet's evidence (the ridge's prediction of the face, weighted by the
+            inverse covariance of its residuals): None (default) the file's (1), 0 Brand's
+            unguided solve, any λ >= 0. A positive value needs a guided puppet (:attr:`guided`).
+            Given states (``states=``) are always synthesised unguided.
         """
         out_fps = float(fps) if fps is not None else self.fps
         if out_fps <= 0 or not np.isfinite(out_fps):
@@ -321,6 +358,21 @@ class Puppet:
                 raise ValueError(f"adapt must be None or {' or '.join(map(repr, ADAPT_KINDS))}, got {adapt!r}")
             if states is not None:
                 raise ValueError("adapt applies to audio or features, not to given states; drop adapt")
+        if guide_weight is None:
+            lam = -1.0
+        else:
+            if isinstance(guide_weight, bool) or not isinstance(guide_weight, (int, float, np.integer, np.floating)):
+                raise ValueError(f"guide_weight must be None or a number >= 0, got {guide_weight!r}")
+            lam = float(guide_weight)
+            if not (lam >= 0 and np.isfinite(lam)):
+                raise ValueError(f"guide_weight must be None (the puppet's) or a finite number >= 0 "
+                                 f"(0: unguided), got {guide_weight!r}")
+            if lam > 0 and not self.guided:
+                raise ValueError(f"guide_weight={lam:g} needs a guided puppet; this one was trained with "
+                                 "guide='none' (pass None or 0, or retrain with guide='ridge')")
+            if states is not None and lam > 0:
+                raise ValueError("guide_weight applies to audio or features, not to given states "
+                                 "(they are synthesised unguided); drop guide_weight")
         if states is not None:
             s = np.asarray(states)
             if s.ndim == 1:
@@ -333,7 +385,7 @@ class Puppet:
             if features is None:
                 features = self.audio_features(audio, progress=progress)
             r = self._core.animate(np.ascontiguousarray(features, dtype=np.float64), out_fps, posterior,
-                                   adapt or "none", float(adapt_tau), _count(adapt_iter, "adapt_iter"))
+                                   adapt or "none", float(adapt_tau), _count(adapt_iter, "adapt_iter"), lam)
             sf = self.fps
         pts = r["points"].reshape(len(r["points"]), -1, 2)
         return Animated(Animation(pts, out_fps), r["face"], r["states"], sf, float(r["log_likelihood"]),

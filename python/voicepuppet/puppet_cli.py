@@ -94,7 +94,10 @@ def _train(args) -> int:
                                   "prior": args.prior, "feature_set": args.feature_set,
                                   "vocal_features": args.vocal_features,
                                   "vocal_covariance": args.vocal_covariance,
+                                  "guide": args.guide, "guide_context": args.guide_context,
                                   "seed": args.seed}.items() if v is not None}
+    if args.guide == "none" and args.guide_context is not None:
+        raise ValueError("--guide-context sets the guide's ridge: drop it with --guide none")
     if args.scheduler or args.workers:
         from voicepuppet import distributed
 
@@ -169,13 +172,16 @@ def _animate(args) -> int:
     if args.states_in:
         if adapt:
             raise ValueError("--adapt adapts the audio's features; with --states-in there is no audio: drop --adapt")
+        if args.guide_weight is not None and args.guide_weight != 0:
+            raise ValueError("--guide-weight weighs the guide's prediction from the audio; with --states-in "
+                             "there is no audio (the states are synthesised unguided): drop --guide-weight")
         states, sfps = load_states(args.states_in)
         result = puppet.animate(states=states, states_fps=sfps, fps=args.fps)
     else:
         if args.audio is None:
             raise ValueError("give the AUDIO to animate (or --states-in)")
         result = puppet.animate(args.audio, fps=args.fps, posterior=args.posterior, progress=not args.quiet,
-                                **adapt)
+                                guide_weight=args.guide_weight, **adapt)
     anim = result.animation
     if args.exaggerate is not None:
         anim = exaggerate(anim, args.exaggerate)
@@ -209,6 +215,12 @@ def add_parser(sub) -> None:
                         "never heard, worse on the training voice; live adds its 5-frame look-ahead; docs/puppet.md)")
     p.add_argument("--vocal-covariance", choices=["full", "diag", "tied"],
                    help="each state's vocal covariance: its own (full, default; or diag) or one for all (tied)")
+    p.add_argument("--guide", choices=["ridge", "none"],
+                   help="ridge (default): the ridge's prediction of the face from the audio joins the "
+                        "trajectory solve as evidence, weighted by its residuals' inverse covariance; none: "
+                        "Brand's solve alone (docs/puppet.md). A guided puppet does not stream live yet")
+    p.add_argument("--guide-context", type=int, metavar="K",
+                   help="frames of audio on each side the guide's ridge reads (default 5)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run the HMM's E-steps on this Dask scheduler "
                    "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process")
@@ -234,6 +246,9 @@ def add_parser(sub) -> None:
                    help="the adaptation prior's weight in frames (default: puppet.ADAPT_DEFAULTS, 30)")
     a.add_argument("--adapt-iter", type=int, metavar="N",
                    help="adaptation EM iterations (default: puppet.ADAPT_DEFAULTS, 1)")
+    a.add_argument("--guide-weight", type=float, metavar="W",
+                   help="weight of a guided puppet's evidence (default: the puppet's, 1; 0: Brand's unguided "
+                        "solve)")
     a.add_argument("--states-out", metavar="S.csv", help="also write the facial state sequence (for editing)")
     a.add_argument("--states-in", metavar="S.csv", help="synthesise from this (edited) state sequence instead of audio")
     a.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -31,6 +31,18 @@
 ///   hmm/part{p}/vocal_means [N, V]
 ///   hmm/part{p}/vocal_covars [N, V, V] (full; a tied model, Python's
 ///                                     vocal_covariance="tied", is N equal copies) or [N, V] (diagonal)
+///   guide/map [C_g·(2k_g+1), K]       optional (Python's guide="ridge"): a prediction of the face
+///   guide/offset [K]                  from ±k_g frames of audio, ŷ_t = [z_{t−k}, …, z_{t+k}] · map
+///   guide/context [1] (int)           + offset (z the first C_g = guide/columns standardised
+///   guide/columns [1] (int)           columns, edges repeated, k_g ≤ 100, as the projection),
+///   guide/covariance [K, K]           used as evidence in the trajectory solve with precision
+///   guide/weight [1]                  λ R⁻¹ (R = guide/covariance, the covariance of the
+///                                     prediction's cross-fitted residuals; λ = guide/weight ≥ 0);
+///                                     K = all parts' face dims, part p uses its columns of ŷ and
+///                                     the marginal R[sl_p, sl_p], floored by
+///                                     kGuideCovarianceFloor · (its mean variance, or 1 if 0) on
+///                                     the diagonal.
+///                                     A file with a guide is format version 2 (puppet_io.hpp).
 
 #include "voicepuppet/adapt.hpp"
 #include "voicepuppet/hmm_gaussian.hpp"
@@ -65,6 +77,23 @@ struct PuppetPart {
 /// repeating the first or last frame; returns [x, d] side by side (#T by 2·#A), or x if w = 0.
 RowMatrixXd append_deltas(const MatrixRef& x, Index width);
 
+/// Relative floor added to the diagonal of each part's guide covariance R[sl, sl] (times its
+/// mean variance, or 1 if that is 0) before its Cholesky factor gives the precision, so that it
+/// is positive definite.
+constexpr double kGuideCovarianceFloor = 1e-9;
+
+/// A linear map of ±k frames of context: out_t = [z_{t−k}, …, z_{t+k}] · map + offset, z the
+/// first `columns` columns of x, frames beyond the ends repeating the first or last frame (the
+/// vocal projection and the guide of a puppet file).
+struct ContextMap {
+  RowMatrixXd map;  ///< #columns·(2·context+1) by #outputs (empty: no map)
+  VectorXd offset;  ///< #outputs
+  Index context = 0, columns = 0;
+  bool empty() const { return map.size() == 0; }
+  /// #T by #outputs for x #T by (≥ columns) (one whole sequence).
+  RowMatrixXd apply(const MatrixRef& x) const;
+};
+
 struct AnimateOptions {
   double fps = 0;          ///< output frame rate; 0: the puppet's own rate
   bool posterior = false;  ///< posterior-weighted synthesis (§5) instead of the Viterbi path
@@ -72,6 +101,9 @@ struct AnimateOptions {
   /// if the puppet has one) to each part's vocal HMM (adapt.hpp)
   /// before decoding; kind None (the default) decodes them as they are.
   AdaptOptions adapt;
+  /// λ of the guide's evidence (puppet files with a guide): negative or NaN: the file's
+  /// guide/weight; 0: Brand's unguided solve. A positive value needs a guided puppet.
+  double guide_weight = -1;
 };
 
 struct AnimateResult {
@@ -106,26 +138,44 @@ class Puppet {
   /// mismatch or NaN.
   RowMatrixXd standardize(const MatrixRef& raw) const;
   /// Whether the vocal features are a projection of the standardised ones (audio/projection).
-  bool projected() const { return projection_.size() > 0; }
+  bool projected() const { return !projection_.empty(); }
   /// k: frames of audio on each side the projection reads (0 without a projection).
-  Index projection_context() const { return projection_context_; }
+  Index projection_context() const { return projection_.context; }
   /// C: the leading standardised columns the projection reads (0 without a projection).
-  Index projection_columns() const { return projection_columns_; }
+  Index projection_columns() const { return projection_.columns; }
   /// The projection #C·(2k+1) by #V and its offset #V (empty without a projection).
-  const RowMatrixXd& projection() const { return projection_; }
-  const VectorXd& projection_offset() const { return projection_offset_; }
+  const RowMatrixXd& projection() const { return projection_.map; }
+  const VectorXd& projection_offset() const { return projection_.offset; }
   /// The frames of delta look-ahead the vocal features need: the delta width, or 0 when they
   /// are a projection of the features alone (C <= A, as Python's vocal_features="projected"
   /// trains them with context), which never reads the deltas.
   Index vocal_delta_width() const {
-    return projected() && projection_columns_ <= n_features() ? 0 : delta_width_;
+    return projected() && projection_.columns <= n_features() ? 0 : delta_width_;
   }
   /// V, the vocal features' dimension.
-  Index n_vocal() const { return projected() ? projection_.cols() : audio_mean_.size(); }
+  Index n_vocal() const { return projected() ? projection_.map.cols() : audio_mean_.size(); }
   /// The vocal features of standardised frames #T by #A' (one whole sequence: the context
   /// repeats its first and last frame): the projection if there is one, else a copy; #T by #V.
   /// @throws std::invalid_argument on a column mismatch.
   RowMatrixXd project(const MatrixRef& standardized) const;
+  /// Whether the file has a guide (guide/map ...): a prediction of the face from audio used as
+  /// evidence in the trajectory solve.
+  bool guided() const { return !guide_.empty(); }
+  /// k_g, C_g, the map #C_g·(2k_g+1) by #K and offset #K of the guide (0 / empty without one).
+  Index guide_context() const { return guide_.context; }
+  Index guide_columns() const { return guide_.columns; }
+  const RowMatrixXd& guide_map() const { return guide_.map; }
+  const VectorXd& guide_offset() const { return guide_.offset; }
+  /// λ, the file's guide/weight (0 without a guide).
+  double guide_weight() const { return guide_weight_; }
+  /// R #K by #K as stored (empty without a guide).
+  const Eigen::MatrixXd& guide_covariance() const { return guide_covariance_; }
+  /// R[sl_p, sl_p]⁻¹ of part p (floored, from its Cholesky factor), #K_p by #K_p, without λ.
+  const Eigen::MatrixXd& guide_precision(Index p = 0) const;
+  /// The guide's prediction ŷ #T by #K of standardised frames #T by #A' (one whole sequence,
+  /// edges repeated) at the puppet's rate. @throws std::invalid_argument without a guide or on
+  /// a column mismatch.
+  RowMatrixXd guide_predict(const MatrixRef& standardized) const;
   /// log N(v_t; vocal Gaussian of state n) of part p, v = project(standardized) for standardised
   /// frames #T by #A' of one sequence; #T by #N.
   RowMatrixXd vocal_log_density(const MatrixRef& standardized, Index p = 0) const;
@@ -142,13 +192,18 @@ class Puppet {
 
  private:
   double out_rate(double fps) const;
+  void read_guide(Index n_columns);
+  /// λ for an AnimateOptions::guide_weight (negative/NaN: the file's), validated.
+  double guide_lambda(double weight) const;
   PuppetFile file_;
   double fps_ = 0;
   Index delta_width_ = 0;
   VectorXd audio_mean_, audio_std_, mean_pose_;
-  RowMatrixXd projection_;     ///< #C·(2k+1) by #V, empty without a projection
-  VectorXd projection_offset_;
-  Index projection_context_ = 0, projection_columns_ = 0;
+  ContextMap projection_;  ///< #C·(2k+1) by #V, empty without a projection
+  ContextMap guide_;       ///< #C_g·(2k_g+1) by #K, empty without a guide
+  Eigen::MatrixXd guide_covariance_;
+  std::vector<Eigen::MatrixXd> guide_precision_;  ///< per part, without λ
+  double guide_weight_ = 0;
   RowMatrixXd mean_shape_;
   std::vector<PuppetPart> parts_;
   std::vector<TrajectoryModel> native_;  ///< trajectory blocks at the puppet's own rate

@@ -5,7 +5,9 @@
 ///
 ///   offset  size  field
 ///   0       8     magic "VPUPPET\x1a"
-///   8       4     format version (uint32, currently 1)
+///   8       4     format version (uint32): 2 for a file with a guide (arrays guide/...,
+///                 puppet.hpp), which an older reader must refuse rather than animate
+///                 unguided; 1 otherwise (unguided files stay byte-identical). Both are read.
 ///   12      4     flags (uint32, 0)
 ///   16      8     payload size in bytes (uint64)
 ///   24      4     CRC-32 of the payload (IEEE 802.3 polynomial, as zlib.crc32)
@@ -29,7 +31,8 @@
 
 namespace voicepuppet {
 
-constexpr std::uint32_t kPuppetFormatVersion = 1;
+/// The newest format version this voicepuppet reads (and writes, for a file with a guide).
+constexpr std::uint32_t kPuppetFormatVersion = 2;
 
 /// One named n-dimensional array of float64 or int64.
 struct PuppetArray {
@@ -55,6 +58,9 @@ struct PuppetFile {
   /// The array called `name`; throws std::invalid_argument naming it if absent.
   const PuppetArray& at(const std::string& name) const;
 };
+
+/// The version `encode_puppet` writes for `file`: 2 if it has an array under "guide/", else 1.
+std::uint32_t puppet_format_version(const PuppetFile& file);
 
 /// CRC-32 (IEEE, reflected, as zlib.crc32) of `n` bytes, continuing from `crc`.
 std::uint32_t crc32(const void* data, std::size_t n, std::uint32_t crc = 0);

@@ -19,6 +19,16 @@
 /// covariance is rows n·2D .. n·2D+2D−1, a C-contiguous [N, 2D, 2D] array reshaped);
 /// diagonal: #N by 2D variances (pose variances, then velocity variances).
 ///
+/// Per-frame evidence (optional, TrajectoryEvidence): a Gaussian observation of each frame's
+/// pose, targets ŷ_t with one precision W (= λ R⁻¹: the caller folds the weight λ in), adds
+///   Σ_t (y_t − ŷ_t)ᵀ W (y_t − ŷ_t)
+/// to the objective, i.e. H[t,t] += W and r[t] += W ŷ_t for every frame t (not γ-weighted in
+/// the posterior-weighted solve: one term per frame). H stays block tridiagonal; the term is
+/// added where frame t's diagonal block and right-hand side are formed, so the solve costs D²
+/// more per frame (plus the T×D by D×D product W ŷ). A diagonal-covariance model with a
+/// non-diagonal W is expanded to full blocks and solved as a full model (O(T·D³)); with a
+/// diagonal W it stays D scalar systems. W = 0 gives the unguided solve exactly.
+///
 /// Other frame rates: a model trained at rate f_model and synthesised at f_out uses the
 /// velocity scale r = f_model / f_out: μ̇ → r·μ̇, K^xv → r·K^xv, K^vv → r²·K^vv (the exact
 /// change of variables from training-frame to output-frame differences).
@@ -79,6 +89,19 @@ class TrajectoryModel {
   DiagBlocks diag_;
 };
 
+/// Per-frame Gaussian evidence on the trajectory (see the file comment).
+struct TrajectoryEvidence {
+  RowMatrixXd targets;       ///< #T by #D targets ŷ_t (one row per output frame)
+  Eigen::MatrixXd precision; ///< #D by #D symmetric positive semi-definite W = λ R⁻¹ (0: no evidence)
+};
+
+/// Checks evidence for T frames of D dims: the shapes, finite values, a symmetric (to 1e-10
+/// relative) positive semi-definite precision (smallest eigenvalue ≥ −1e-12 of the largest
+/// magnitude entry; W = 0 is allowed and means no evidence).
+/// @throws std::invalid_argument naming `name` and what is wrong.
+void check_trajectory_evidence(const TrajectoryEvidence& evidence, Index n_frames, Index n_dims,
+                               const char* name = "evidence");
+
 /// Largest condition estimate (ratio of the largest to the smallest squared Cholesky pivot, a
 /// lower bound of cond(H)) accepted before a solve throws std::runtime_error.
 constexpr double kTrajectoryMaxCondition = 1e12;
@@ -90,21 +113,28 @@ constexpr double kTrajectoryMaxCondition = 1e12;
 /// when the thread ends. Larger stores are freed after the call.
 /// @param[in] model   per-state blocks
 /// @param[in] states  #T state indices in [0, N)
+/// @param[in] evidence  optional per-frame evidence (targets #T by #D, precision #D by #D);
+///                      nullptr: Brand's solve, unchanged
 /// @return #T by #D trajectory
-/// @throws std::invalid_argument on an empty sequence or an index out of range;
+/// @throws std::invalid_argument on an empty sequence, an index out of range or bad evidence
+///         (check_trajectory_evidence);
 ///         std::runtime_error when the system is numerically singular (message gives the
 ///         condition estimate).
-RowMatrixXd solve_trajectory(const TrajectoryModel& model, const IndexVectorRef& states);
+RowMatrixXd solve_trajectory(const TrajectoryModel& model, const IndexVectorRef& states,
+                             const TrajectoryEvidence* evidence = nullptr);
 
 /// Posterior-weighted trajectory: minimises Σ_t Σ_n γ_tn · (frame t's cost under state n), i.e.
 /// the precision blocks and precision-weighted means are γ-weighted sums over states. Memory as
 /// solve_trajectory.
 /// @param[in] weights  #T by #N non-negative state weights (e.g. forward–backward posteriors);
 ///                     every row must have a positive sum (rows need not be normalised)
+/// @param[in] evidence  optional per-frame evidence as in solve_trajectory (not γ-weighted)
 /// @return #T by #D trajectory; one-hot weights give exactly the hard solve.
-/// @throws std::invalid_argument on a wrong shape, negative or non-finite weights, a zero row;
+/// @throws std::invalid_argument on a wrong shape, negative or non-finite weights, a zero row,
+///         bad evidence;
 ///         std::runtime_error when the system is numerically singular.
-RowMatrixXd solve_trajectory_weighted(const TrajectoryModel& model, const MatrixRef& weights);
+RowMatrixXd solve_trajectory_weighted(const TrajectoryModel& model, const MatrixRef& weights,
+                                      const TrajectoryEvidence* evidence = nullptr);
 
 /// Resamples a state sequence from rate fps_in to fps_out by sample and hold: output frame k
 /// (time k / fps_out) takes the state of input frame floor(k · fps_in / fps_out), and there are

@@ -1,0 +1,222 @@
+// Tests of a puppet file's guide (puppet.hpp: guide/*): the prediction ŷ computed by hand, the
+// guided animation equal to the trajectory solve with the evidence composed by hand (at the
+// puppet's rate and another), λ = 0 equal to the unguided puppet exactly, the format version
+// (2 only with a guide), every bad guide array refused by name, and StreamingPuppet refusing a
+// guided puppet it would otherwise stream unguided.
+#include <doctest/doctest.h>
+
+#include "puppet_arrays.hpp"
+#include "throws_with.hpp"
+
+#include "voicepuppet/hmm.hpp"
+#include "voicepuppet/puppet.hpp"
+#include "voicepuppet/puppet_io.hpp"
+#include "voicepuppet/streaming.hpp"
+
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+using namespace voicepuppet;
+
+namespace {
+
+using voicepuppet::testing::throws_with;
+
+// Three points, one part with a 2-D basis, two states, two audio columns (as test_puppet.cpp's
+// tiny puppet, with K = 2 so that the guide's precision is a matrix).
+PuppetFile unguided() {
+  PuppetFile f;
+  f.metadata = R"({"kind": "test"})";
+  f.arrays["fps"] = testing::arr({1}, {30});
+  f.arrays["audio/mean"] = testing::arr({2}, {1, -1});
+  f.arrays["audio/std"] = testing::arr({2}, {2, 0.5});
+  f.arrays["face/mean_shape"] = testing::arr({3, 2}, {-1, 0, 1, 0, 0, 1});
+  f.arrays["face/mean_pose"] = testing::arr({4}, {0, 0, 0, 0});
+  PuppetArray pts;
+  pts.dtype = PuppetArray::DType::Int64;
+  pts.shape = {3};
+  pts.i64 = {0, 1, 2};
+  f.arrays["face/part0/points"] = pts;
+  f.arrays["face/part0/basis"] = testing::arr({2, 6}, {0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0});
+  f.arrays["hmm/part0/startprob"] = testing::arr({2}, {1, 0});
+  f.arrays["hmm/part0/transmat"] = testing::arr({2, 2}, {0.9, 0.1, 0, 1});
+  f.arrays["hmm/part0/face_means"] = testing::arr({2, 4}, {0, 0, 0, 0, 4, -1, 0, 0});
+  // [pose, velocity] covariances 4 x 4 per state: diagonal plus a pose correlation
+  f.arrays["hmm/part0/face_covars"] = testing::arr({2, 4, 4}, {1, 0.2, 0, 0,  0.2, 0.5, 0, 0,  0, 0, 0.1, 0,  0, 0, 0, 0.1,
+                                                      0.3, 0, 0, 0,  0, 0.3, 0, 0,  0, 0, 0.1, 0,  0, 0, 0, 0.1});
+  f.arrays["hmm/part0/vocal_means"] = testing::arr({2, 2}, {-1, 0, 1, 0});
+  f.arrays["hmm/part0/vocal_covars"] = testing::arr({2, 2}, {0.2, 1, 0.2, 1});
+  return f;
+}
+
+// The guide: ŷ_t = [z_{t−1}, z_t, z_{t+1}] (first column) · map + offset, K = 2.
+PuppetFile guided(double weight = 1.0) {
+  PuppetFile f = unguided();
+  f.arrays["guide/context"] = testing::int_arr(1);
+  f.arrays["guide/columns"] = testing::int_arr(1);
+  f.arrays["guide/map"] = testing::arr({3, 2}, {0.5, 0.1, 1.0, -0.3, -0.25, 0.2});
+  f.arrays["guide/offset"] = testing::arr({2}, {0.1, -0.2});
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {0.4, 0.1, 0.1, 0.2});
+  f.arrays["guide/weight"] = testing::arr({1}, {weight});
+  return f;
+}
+
+RowMatrixXd audio() {
+  RowMatrixXd raw(12, 2);
+  for (Index t = 0; t < 12; ++t) {
+    raw(t, 0) = 1 + 2 * (t < 6 ? -1.0 : 1.0) + 0.3 * std::sin(static_cast<double>(t));
+    raw(t, 1) = -1 + 0.05 * static_cast<double>(t);
+  }
+  return raw;
+}
+
+}  // namespace
+
+TEST_CASE("guide: the prediction of ±k standardised frames, and the guided animation composed by hand") {
+  const Puppet p(guided(0.7));
+  REQUIRE(p.guided());
+  CHECK(p.guide_context() == 1);
+  CHECK(p.guide_columns() == 1);
+  CHECK(p.guide_weight() == 0.7);
+  const RowMatrixXd raw = audio();
+  const RowMatrixXd z = p.standardize(raw);
+  const RowMatrixXd yhat = p.guide_predict(z);
+  REQUIRE(yhat.rows() == 12);
+  REQUIRE(yhat.cols() == 2);
+  const double m[3][2] = {{0.5, 0.1}, {1.0, -0.3}, {-0.25, 0.2}};
+  for (Index t = 0; t < 12; ++t) {
+    for (Index k = 0; k < 2; ++k) {
+      double want = k == 0 ? 0.1 : -0.2;
+      for (Index j = -1; j <= 1; ++j) want += z(std::clamp<Index>(t + j, 0, 11), 0) * m[j + 1][k];
+      CHECK(yhat(t, k) == doctest::Approx(want).epsilon(1e-14));
+    }
+  }
+  // the precision: (R + floor·I)⁻¹, floor = kGuideCovarianceFloor · mean variance
+  const double fl = kGuideCovarianceFloor * 0.3, a = 0.4 + fl, b = 0.1, c = 0.2 + fl, det = a * c - b * b;
+  const Eigen::MatrixXd& prec = p.guide_precision(0);
+  CHECK(prec(0, 0) == doctest::Approx(c / det).epsilon(1e-13));
+  CHECK(prec(0, 1) == doctest::Approx(-b / det).epsilon(1e-13));
+  CHECK(prec(1, 1) == doctest::Approx(a / det).epsilon(1e-13));
+
+  const auto& pt = p.part(0);
+  const VectorXi no_lengths;
+  const RowMatrixXd log_b = p.vocal_log_density(z);
+  const ViterbiResult vit = viterbi(log_b, pt.startprob, pt.transmat, no_lengths);
+  for (double fps : {0.0, 45.0}) {
+    CAPTURE(fps);
+    const double out = fps == 0 ? 30.0 : fps;
+    const TrajectoryEvidence e{out == 30.0 ? yhat : resample_weights(yhat, 30.0, out), 0.7 * prec};
+    AnimateOptions o;
+    o.fps = fps;
+    const RowMatrixXd y = solve_trajectory(p.trajectory_model(fps), resample_states(vit.path, 30.0, out), &e);
+    CHECK((p.animate(raw, o).face - y).cwiseAbs().maxCoeff() < 1e-13);
+    o.posterior = true;
+    const ForwardBackwardResult fb = forward_backward(log_b, pt.startprob, pt.transmat, no_lengths);
+    const RowMatrixXd yw =
+        solve_trajectory_weighted(p.trajectory_model(fps), resample_weights(fb.posteriors, 30.0, out), &e);
+    CHECK((p.animate(raw, o).face - yw).cwiseAbs().maxCoeff() < 1e-13);
+    o.guide_weight = 2.0;  // the override replaces the file's λ
+    const TrajectoryEvidence e2{e.targets, 2.0 * prec};
+    CHECK((p.animate(raw, o).face - solve_trajectory_weighted(p.trajectory_model(fps),
+                                                               resample_weights(fb.posteriors, 30.0, out), &e2))
+              .cwiseAbs()
+              .maxCoeff() < 1e-13);
+  }
+  // the guide changes the face; animate_states stays unguided
+  const Puppet plain(unguided());
+  CHECK((p.animate(raw).face - plain.animate(raw).face).cwiseAbs().maxCoeff() > 1e-3);
+  const IndexMatrix states = p.animate(raw).states;
+  CHECK((p.animate_states(states, 30).face.array() == plain.animate_states(states, 30).face.array()).all());
+}
+
+TEST_CASE("guide: λ = 0 (the override or the file's) is the unguided puppet exactly") {
+  const Puppet p(guided()), zero(guided(0.0)), plain(unguided());
+  const RowMatrixXd raw = audio();
+  for (bool posterior : {false, true}) {
+    for (double fps : {0.0, 60.0}) {
+      AnimateOptions o;
+      o.fps = fps;
+      o.posterior = posterior;
+      const RowMatrixXd ref = plain.animate(raw, o).points;
+      CHECK((zero.animate(raw, o).points.array() == ref.array()).all());
+      o.guide_weight = 0.0;
+      CHECK((p.animate(raw, o).points.array() == ref.array()).all());
+      o.guide_weight = std::nan("");  // NaN: the file's λ (1), not unguided
+      CHECK((p.animate(raw, o).points - ref).cwiseAbs().maxCoeff() > 1e-3);
+    }
+  }
+  AnimateOptions o;
+  o.guide_weight = 1.0;
+  CHECK(throws_with<std::invalid_argument>([&] { plain.animate(raw, o); }, "needs a guided puppet"));
+  o.guide_weight = INFINITY;
+  CHECK(throws_with<std::invalid_argument>([&] { p.animate(raw, o); }, "guide_weight must be finite"));
+  CHECK(throws_with<std::invalid_argument>([&] { plain.guide_predict(plain.standardize(raw)); }, "no guide"));
+}
+
+TEST_CASE("guide: format version 2 only for a file with a guide; both versions read") {
+  const std::string with = encode_puppet(guided()), without = encode_puppet(unguided());
+  CHECK(static_cast<int>(with[8]) == 2);
+  CHECK(static_cast<int>(without[8]) == 1);
+  CHECK(puppet_format_version(guided()) == 2);
+  CHECK(puppet_format_version(unguided()) == 1);
+  const Puppet p(decode_puppet(with)), q(decode_puppet(without));
+  CHECK(p.guided());
+  CHECK(!q.guided());
+  CHECK((p.animate(audio()).face.array() == Puppet(guided()).animate(audio()).face.array()).all());
+}
+
+TEST_CASE("guide: bad guide arrays are refused with the array's name") {
+  auto refused = [](PuppetFile f, const char* what) {
+    CAPTURE(what);
+    CHECK(throws_with<std::invalid_argument>([&] { Puppet p(f); }, what));
+  };
+  PuppetFile f = guided();
+  f.arrays.erase("guide/covariance");
+  refused(f, "guide/covariance");
+  f = guided();
+  f.arrays.erase("guide/map");
+  refused(f, "no 'guide/map'");
+  f = guided();
+  f.arrays["guide/context"] = testing::int_arr(101);
+  refused(f, "guide/context must be in [0, 100]");
+  f = guided();
+  f.arrays["guide/columns"] = testing::int_arr(3);
+  refused(f, "guide/columns must be in [1, 2]");
+  f = guided();
+  f.arrays["guide/map"] = testing::arr({3, 1}, {0.5, 1.0, -0.25});  // one column: K = 2 expected
+  refused(f, "'guide/map' must be float64 of shape (3, 2)");
+  f = guided();
+  f.arrays["guide/offset"] = testing::arr({3}, {0, 0, 0});
+  refused(f, "guide/offset");
+  f = guided();
+  f.arrays["guide/weight"] = testing::arr({1}, {-1});
+  refused(f, "guide/weight must be >= 0");
+  f = guided();
+  f.arrays["guide/weight"] = testing::arr({1}, {NAN});
+  refused(f, "guide/weight");
+  f = guided();
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {0.4, 0.3, 0.1, 0.2});
+  refused(f, "guide/covariance is not symmetric");
+  f = guided();
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {0.1, 0.4, 0.4, 0.1});
+  refused(f, "guide/covariance (rows 0 .. 1) is not positive semi-definite");
+  f = guided();
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {-0.1, 0, 0, 0.2});
+  refused(f, "guide/covariance (rows 0 .. 1) is not positive semi-definite");
+  // a zero covariance (a perfect cross-fitted prediction) is floored absolutely: precision 1e9·I
+  f = guided();
+  f.arrays["guide/covariance"] = testing::arr({2, 2}, {0, 0, 0, 0});
+  const Puppet zero(f);
+  CHECK((zero.guide_precision(0) - Eigen::MatrixXd::Identity(2, 2) / kGuideCovarianceFloor).cwiseAbs().maxCoeff() <
+        1e-3);
+}
+
+TEST_CASE("guide: StreamingPuppet refuses a guided puppet with λ != 0 (it would stream it unguided)") {
+  const Puppet p(guided());
+  CHECK(throws_with<std::invalid_argument>([&] { StreamingPuppet s(p); }, "streaming of guided puppets is not implemented"));
+  CHECK(throws_with<std::invalid_argument>([&] { StreamingPuppet s(p); }, "--guide none"));
+  const Puppet zero(guided(0.0));
+  StreamingPuppet s(zero);  // λ = 0 is Brand's solve: it streams as an unguided puppet
+  CHECK(s.options().delta_lag == 0);
+}
