@@ -63,17 +63,15 @@ def cross_fit(X, Y, lengths, n_folds: int = 5) -> np.ndarray:
     return yhat
 
 
-def _context_ridge(Z, Y, lengths, k: int, n_folds: int):
-    """The ridge from ±k frames of ``Z`` (T, C) to ``Y`` (T, K): the context-stacked rows X
-    (stacked per sequence, edges repeated), the cross-fitted predictions (T, K) and the
-    :class:`RidgeBaseline` fitted on all frames."""
-    bounds = np.concatenate([[0], np.cumsum(lengths)])
-    # Context is stacked per sequence (edges repeated), then frames go to folds.
-    X = np.vstack([context_stack(Z[a:b], k) for a, b in zip(bounds[:-1], bounds[1:])])
-    return X, cross_fit(X, Y, lengths, n_folds), RidgeBaseline(0).fit([X], [Y])
-
-
-def _check_ridge_args(Z, Y, lengths, context, columns, n_folds, what: str, option: str):
+def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, what: str, option: str):
+    """The ridge from ±k frames of the first ``columns`` of ``standardized`` (T, A') to ``face``
+    (T, K), its arguments checked (``option`` names the context in errors, ``what`` the map):
+    ``(Y, k, yhat, full)``, the face as float, k, the cross-fitted predictions (T, K) and the
+    :class:`RidgeBaseline` fitted on all frames (rows context-stacked per sequence, edges
+    repeated)."""
+    Z = np.asarray(standardized, dtype=np.float64)
+    Y = np.asarray(face, dtype=np.float64)
+    lengths = np.asarray(lengths, dtype=np.int64)
     if isinstance(context, bool) or int(context) != context or context < 0:
         raise ValueError(f"{option} must be an integer >= 0, got {context!r}")
     if not 1 <= columns <= Z.shape[1]:
@@ -84,6 +82,12 @@ def _check_ridge_args(Z, Y, lengths, context, columns, n_folds, what: str, optio
     if len(Z) < 2 * n_folds:
         raise ValueError(f"{len(Z)} training frames are too few to cross-fit {what} over "
                          f"{n_folds} folds; give more training audio")
+    k = int(context)
+    Z = Z[:, :columns]
+    bounds = np.concatenate([[0], np.cumsum(lengths)])
+    # Context is stacked per sequence (edges repeated), then frames go to folds.
+    X = np.vstack([context_stack(Z[a:b], k) for a, b in zip(bounds[:-1], bounds[1:])])
+    return Y, k, cross_fit(X, Y, lengths, n_folds), RidgeBaseline(0).fit([X], [Y])
 
 
 #: The guide's weight λ written into a guided puppet's file (guide/weight): 1 is the posterior
@@ -123,12 +127,8 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
     info : dict
         α, folds, context, columns and the residuals' mean variance (for the metadata).
     """
-    Z = np.asarray(standardized, dtype=np.float64)
-    Y = np.asarray(face, dtype=np.float64)
-    lengths = np.asarray(lengths, dtype=np.int64)
-    _check_ridge_args(Z, Y, lengths, context, columns, n_folds, "the guide", "guide_context")
-    k = int(context)
-    X, yhat, full = _context_ridge(Z[:, :columns], Y, lengths, k, n_folds)
+    Y, k, yhat, full = _context_ridge(standardized, face, lengths, context=context, columns=columns,
+                                      n_folds=n_folds, what="the guide", option="guide_context")
     res = Y - yhat
     R = np.cov(res, rowvar=False, bias=True).reshape(Y.shape[1], Y.shape[1])
     arrays = {"guide/map": np.ascontiguousarray(full.W),
@@ -171,12 +171,8 @@ def fit_projection(standardized, face, lengths, *, context: int, columns: int, n
     info : dict
         The ridge's α (of the map on all frames), folds, context, columns (for the metadata).
     """
-    Z = np.asarray(standardized, dtype=np.float64)
-    Y = np.asarray(face, dtype=np.float64)
-    lengths = np.asarray(lengths, dtype=np.int64)
-    _check_ridge_args(Z, Y, lengths, context, columns, n_folds, "the projection", "vocal_context")
-    k = int(context)
-    X, yhat, full = _context_ridge(Z[:, :columns], Y, lengths, k, n_folds)
+    Y, k, yhat, full = _context_ridge(standardized, face, lengths, context=context, columns=columns,
+                                      n_folds=n_folds, what="the projection", option="vocal_context")
     std = Standardizer.fit(yhat)
     P = full.W / std.std
     c = (full.y_mean - full.x_mean @ full.W - std.mean) / std.std

@@ -200,16 +200,10 @@ class Puppet:
                              f"{opt['vocal_covariance']!r}")
         if opt["vocal_features"] not in VOCAL_FEATURES:
             raise ValueError(f"vocal_features must be one of {VOCAL_FEATURES}, got {opt['vocal_features']!r}")
-        k = opt["vocal_context"]
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= 100:
-            raise ValueError(f"vocal_context must be an integer in [0, 100] (frames of audio on each side "
-                             f"the projection reads), got {k!r}")
+        k = _context_option(opt, "vocal_context", "the projection")
         if opt["guide"] not in GUIDES:
             raise ValueError(f"guide must be one of {GUIDES}, got {opt['guide']!r}")
-        kg = opt["guide_context"]
-        if isinstance(kg, bool) or not isinstance(kg, (int, np.integer)) or not 0 <= kg <= 100:
-            raise ValueError(f"guide_context must be an integer in [0, 100] (frames of audio on each side "
-                             f"the guide's ridge reads), got {kg!r}")
+        kg = _context_option(opt, "guide_context", "the guide's ridge")
         if isinstance(points_list, np.ndarray) or not isinstance(points_list, (list, tuple)):
             points_list = [points_list]
         if (audio_list is None) == (features_list is None):
@@ -367,9 +361,6 @@ class Puppet:
             if not (lam >= 0 and np.isfinite(lam)):
                 raise ValueError(f"guide_weight must be None (the puppet's) or a finite number >= 0 "
                                  f"(0: unguided), got {guide_weight!r}")
-            if lam > 0 and not self.guided:
-                raise ValueError(f"guide_weight={lam:g} needs a guided puppet; this one was trained with "
-                                 "guide='none' (pass None or 0, or retrain with guide='ridge')")
             if states is not None and lam > 0:
                 raise ValueError("guide_weight applies to audio or features, not to given states "
                                  "(they are synthesised unguided); drop guide_weight")
@@ -397,6 +388,15 @@ class Puppet:
         p = check_output_path(path, (".vpp",), "puppet file")
         _core.write_puppet_file(os.fspath(p), json.dumps(self.metadata), self.arrays)
         return p
+
+
+def _context_option(opt: dict, name: str, reader: str) -> int:
+    """Training option ``name``: frames of audio on each side ``reader`` reads, an int in [0, 100]."""
+    k = opt[name]
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= 100:
+        raise ValueError(f"{name} must be an integer in [0, 100] (frames of audio on each side "
+                         f"{reader} reads), got {k!r}")
+    return int(k)
 
 
 def _count(value, name: str) -> int:
