@@ -214,6 +214,31 @@ Index resampled_count(Index n, double fps_in, double fps_out) {
   return std::max<Index>(1, static_cast<Index>(std::ceil(x - 1e-9 * std::max(1.0, x))));
 }
 
+/// Where output frame k falls among n known input frames for a linear interpolation, as
+/// trajectory.cpp's resample_weights: input j and weight fr of input j + 1 (u = k · fps_in /
+/// fps_out clamped to the last frame at the end, `final_pass`). False while a frame it needs is
+/// not known yet. At equal rates frame k is input k: k · fps / fps can round just above k and
+/// would wait one frame for a weight of ~1e-16.
+bool interpolation_at(Index k, Index n, double fps_in, double fps_out, bool final_pass, Index& j, double& fr) {
+  if (fps_in == fps_out) {
+    j = k;
+    fr = 0.0;
+    return k < n;
+  }
+  double u = static_cast<double>(k) * fps_in / fps_out;
+  if (final_pass) u = std::min(u, static_cast<double>(n - 1));
+  j = final_pass ? std::min(static_cast<Index>(std::floor(u)), n - 1) : static_cast<Index>(std::floor(u));
+  fr = u - static_cast<double>(j);
+  if (final_pass && j + 1 >= n) fr = 0.0;
+  return j < n && !(fr > 0.0 && j + 1 >= n);
+}
+
+/// (1 − fr) · v[j] + fr · v[j + 1] of a window v of frames first ...
+VectorXd interpolate(const std::vector<VectorXd>& v, Index first, Index j, double fr) {
+  const VectorXd& a = v[static_cast<size_t>(j - first)];
+  return fr > 0.0 ? VectorXd((1.0 - fr) * a + fr * v[static_cast<size_t>(j + 1 - first)]) : a;
+}
+
 constexpr double kLog2Pi = 1.8378770664093454835606594728112;
 
 /// Rows from .. to − 1 of a context map out_s = [z_{s−k}, …, z_{s+k}] (first C columns) · map +
@@ -393,17 +418,10 @@ RowMatrixXd StreamingPuppet::feed(PartStream& ps, const DecodedFrames& f, bool f
       if (j >= n) break;
       out_states.push_back(ps.states[static_cast<size_t>(j - ps.first)]);
     } else {
-      double u = static_cast<double>(k) * fin / fout;
-      if (final_pass) u = std::min(u, static_cast<double>(n - 1));
-      const Index j = final_pass ? std::min(static_cast<Index>(std::floor(u)), n - 1)
-                                 : static_cast<Index>(std::floor(u));
-      const double fr = u - static_cast<double>(j);
-      const bool interp = fr > 0.0 && (final_pass ? j + 1 < n : true);
-      if (j >= n || (interp && j + 1 >= n)) break;
-      const VectorXd& a = ps.weights[static_cast<size_t>(j - ps.first)];
-      out_weights.push_back(interp ? VectorXd((1.0 - fr) * a +
-                                              fr * ps.weights[static_cast<size_t>(j + 1 - ps.first)])
-                                   : a);
+      Index j = 0;
+      double fr = 0.0;
+      if (!interpolation_at(k, n, fin, fout, final_pass, j, fr)) break;
+      out_weights.push_back(interpolate(ps.weights, ps.first, j, fr));
     }
   }
   // Forget input frames no later output frame needs.
@@ -528,22 +546,17 @@ void StreamingPuppet::guide_ready(bool final_pass) {
                                      guide_lag_, known, final_pass, puppet_.guide_map(), puppet_.guide_offset());
   for (Index i = 0; i < y.rows(); ++i) yhat_.emplace_back(y.row(i).transpose());
   guided_ = std::max(guided_, ready);
-  // ŷ at the output rate, as Puppet::animate: resample_weights' linear interpolation at
-  // u = k · fps / out_fps (clamped to the last frame at the end)
+  // ŷ at the output rate, as Puppet::animate: resample_weights' linear interpolation
   const double fin = puppet_.fps(), fout = out_fps_;
   const Index n = guided_;
   const Index m_total = final_pass ? resampled_count(n, fin, fout) : -1;
   for (;; ++yout_next_) {
     const Index k = yout_next_;
     if (final_pass && k >= m_total) break;
-    double u = static_cast<double>(k) * fin / fout;
-    if (final_pass) u = std::min(u, static_cast<double>(n - 1));
-    const Index j = final_pass ? std::min(static_cast<Index>(std::floor(u)), n - 1) : static_cast<Index>(std::floor(u));
-    const double fr = u - static_cast<double>(j);
-    const bool interp = fr > 0.0 && (final_pass ? j + 1 < n : true);
-    if (j >= n || (interp && j + 1 >= n)) break;
-    const VectorXd& a = yhat_[static_cast<size_t>(j - yhat_first_)];
-    yout_.push_back(interp ? VectorXd((1.0 - fr) * a + fr * yhat_[static_cast<size_t>(j + 1 - yhat_first_)]) : a);
+    Index j = 0;
+    double fr = 0.0;
+    if (!interpolation_at(k, n, fin, fout, final_pass, j, fr)) break;
+    yout_.push_back(interpolate(yhat_, yhat_first_, j, fr));
   }
   // forget input frames no later output frame needs
   const double u = static_cast<double>(yout_next_) * fin / fout;

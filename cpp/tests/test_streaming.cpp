@@ -654,9 +654,12 @@ TEST_CASE("streaming puppet: a guided puppet with exact lags streams Puppet::ani
 }
 
 TEST_CASE("streaming puppet: the guide's look-ahead overlaps the decoder's; frame k after input k + latency") {
-  // no deltas; with a projection or without
-  for (Index proj_k : {Index(-1), Index(2)}) {
-    PuppetFile base = random_puppet(5, 3, 2, 43, 30.0, 0);
+  // no deltas; with a projection or without; at 30 fps and at NTSC's 29.97 (where k · fps / fps
+  // can round above k: ŷ must not wait for the next frame then)
+  for (const auto& [proj_k, fps] : {std::pair{Index(-1), 30.0}, std::pair{Index(2), 30.0},
+                                    std::pair{Index(-1), 30000.0 / 1001.0}}) {
+    CAPTURE(fps);
+    PuppetFile base = random_puppet(5, 3, 2, 43, fps, 0);
     const RowMatrixXd X = walk_features(Puppet(base), 50, 7);
     if (proj_k >= 0) base = add_projection(base, proj_k, 3, 3, 10, true, false);
     const Puppet pp(add_guide(base, 5, 3, 2, 1.0, 13));
@@ -673,7 +676,7 @@ TEST_CASE("streaming puppet: the guide's look-ahead overlaps the decoder's; fram
       CAPTURE(proj_k);
       CAPTURE(gl);
       CHECK(sp.options().delta_lag == 0);
-      CHECK(std::abs(sp.latency_seconds() - static_cast<double>(lat) / 30.0) < 1e-12);
+      CHECK(std::abs(sp.latency_seconds() - static_cast<double>(lat) / fps) < 1e-12);
       for (Index t = 0; t < X.rows(); ++t) {
         const StreamedFrames f = sp.push(X.middleRows(t, 1));
         CHECK(f.size() == (t >= lat ? 1 : 0));
