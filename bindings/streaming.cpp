@@ -40,10 +40,13 @@ void bind_streaming(py::module_& m) {
   py::class_<StreamingPuppet>(m, "StreamingPuppet",
                               "A Puppet driven frame by frame with bounded latency (streaming.hpp).")
       .def(py::init([](const Puppet& puppet, Index decode_lag, Index trajectory_lag, double fps,
-                       bool posterior, Index delta_lag, Index projection_lag) {
+                       bool posterior, Index delta_lag, Index projection_lag, Index guide_lag,
+                       double guide_weight) {
              StreamingOptions o;
              o.delta_lag = delta_lag;
              o.projection_lag = projection_lag;
+             o.guide_lag = guide_lag;
+             o.guide_weight = guide_weight;
              o.decode_lag = decode_lag;
              o.trajectory_lag = trajectory_lag;
              o.fps = fps;
@@ -52,7 +55,7 @@ void bind_streaming(py::module_& m) {
            }),
            py::arg("puppet"), py::arg("decode_lag") = 2, py::arg("trajectory_lag") = 2,
            py::arg("fps") = 0.0, py::arg("posterior") = false, py::arg("delta_lag") = -1,
-           py::arg("projection_lag") = -1)
+           py::arg("projection_lag") = -1, py::arg("guide_lag") = -1, py::arg("guide_weight") = -1.0)
       .def("push", &StreamingPuppet::push, py::arg("raw_features"),
            py::call_guard<py::gil_scoped_release>(),
            "Push raw audio feature frames [K, A]; returns the face frames completed.")
@@ -67,6 +70,8 @@ void bind_streaming(py::module_& m) {
       .def_property_readonly("delta_lag", [](const StreamingPuppet& s) { return s.options().delta_lag; })
       .def_property_readonly("projection_lag",
                              [](const StreamingPuppet& s) { return s.options().projection_lag; })
+      .def_property_readonly("guide_lag", [](const StreamingPuppet& s) { return s.options().guide_lag; })
+      .def_property_readonly("guide_weight", [](const StreamingPuppet& s) { return s.options().guide_weight; })
       .def_property_readonly("decode_lag", [](const StreamingPuppet& s) { return s.options().decode_lag; })
       .def_property_readonly("trajectory_lag",
                              [](const StreamingPuppet& s) { return s.options().trajectory_lag; })

@@ -67,12 +67,20 @@ void bind_trajectory(py::module_& m) {
   py::class_<FixedLagTrajectory>(m, "FixedLagTrajectory",
                                  "Streaming synthesis emitting frame t after frame t + lag (trajectory.hpp).")
       .def(py::init<const TrajectoryModel&, Index>(), py::arg("model"), py::arg("lag"))
-      .def("push_states", &FixedLagTrajectory::push_states, py::arg("states"),
-           py::call_guard<py::gil_scoped_release>())
-      .def("push_weights", &FixedLagTrajectory::push_weights, py::arg("weights"),
-           py::call_guard<py::gil_scoped_release>())
+      .def(py::init<const TrajectoryModel&, Index, const Eigen::MatrixXd&>(), py::arg("model"), py::arg("lag"),
+           py::arg("precision"), "A stream with per-frame evidence of precision W (pushes then take targets).")
+      .def("push_states", py::overload_cast<const IndexVectorRef&>(&FixedLagTrajectory::push_states),
+           py::arg("states"), py::call_guard<py::gil_scoped_release>())
+      .def("push_states",
+           py::overload_cast<const IndexVectorRef&, const MatrixRef&>(&FixedLagTrajectory::push_states),
+           py::arg("states"), py::arg("targets"), py::call_guard<py::gil_scoped_release>())
+      .def("push_weights", py::overload_cast<const MatrixRef&>(&FixedLagTrajectory::push_weights),
+           py::arg("weights"), py::call_guard<py::gil_scoped_release>())
+      .def("push_weights", py::overload_cast<const MatrixRef&, const MatrixRef&>(&FixedLagTrajectory::push_weights),
+           py::arg("weights"), py::arg("targets"), py::call_guard<py::gil_scoped_release>())
       .def("flush", &FixedLagTrajectory::flush, py::call_guard<py::gil_scoped_release>())
       .def_property_readonly("lag", &FixedLagTrajectory::lag)
+      .def_property_readonly("has_evidence", &FixedLagTrajectory::has_evidence)
       .def_property_readonly("frames_pushed", &FixedLagTrajectory::frames_pushed)
       .def_property_readonly("frames_emitted", &FixedLagTrajectory::frames_emitted);
 }

@@ -23,6 +23,7 @@ def test_cached_puppet_is_keyed_by_corpus_and_options(tmp_path):
     assert all(np.array_equal(again.arrays[k], first.arrays[k]) for k in first.arrays)
     projected = _cached_puppet(corpus, quick=True, vocal_features="projected", vocal_covariance="tied")
     assert projected._core.projected and not first._core.projected
+    assert first._core.guided and projected._core.guided  # the default training: they stream guided
     assert len(list(tmp_path.glob("puppet-*.vpp"))) == 2
     (tmp_path / "corpus.json").write_text(json.dumps({"key": "bbbb"}))  # the corpus was rebuilt
     _cached_puppet(corpus, quick=True)

@@ -280,10 +280,22 @@ def test_bad_options_and_arrays_are_refused_by_name(puppets, data):
         Puppet(pup.metadata, {**pup.arrays, "guide/covariance": indefinite})
 
 
-def test_a_guided_puppet_does_not_stream_unguided(puppets):
-    with pytest.raises(ValueError, match="streaming of guided puppets is not implemented yet"):
-        _core.StreamingPuppet(puppets[None, "ridge"]._core, 5, 5, 0.0, False)
-    _core.StreamingPuppet(puppets[None, "none"]._core, 5, 5, 0.0, False)
+@pytest.mark.parametrize("parts", [None, "upper_lower"])
+def test_a_guided_puppet_streams_its_offline_animation(puppets, data, parts):
+    """The C++ stream of a trained guided puppet (one and two parts) with lags covering the
+    clip is the offline guided animation; its guide look-ahead defaults to the full ±3."""
+    _, (_, feats) = data
+    feats = np.ascontiguousarray(feats)
+    core = puppets[parts, "ridge"]._core
+    for posterior, fps in ((False, 0.0), (True, 25.0)):
+        ref = np.asarray(core.animate(feats, fps, posterior)["points"])
+        sp = _core.StreamingPuppet(core, 1000, 1000, fps, posterior)
+        assert (sp.guide_lag, sp.guide_weight) == (3, 1.0)
+        got = [np.asarray(sp.push(feats[a:a + 7]).points) for a in range(0, feats.shape[0], 7)]
+        got = np.vstack(got + [np.asarray(sp.flush().points)])
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-8 * np.abs(ref).max())
+    with pytest.raises(ValueError, match="needs a guided puppet"):
+        _core.StreamingPuppet(puppets[parts, "none"]._core, 5, 5, 0.0, False, guide_weight=1.0)
 
 
 def test_trajectory_binding_takes_the_evidence(puppets):

@@ -59,7 +59,8 @@ def puppet(speech, tmp_path_factory):
     from voicepuppet.puppet import Puppet
 
     au, pts = planted_face(speech)
-    p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0, guide="none")  # guided: no streaming yet
+    p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0)
+    assert p._core.guided and p._core.guide_context == 5  # the default: guided by the ridge
     path = tmp_path_factory.mktemp("live") / "test.vpp"
     p.save(path)
     return p, path
@@ -98,6 +99,7 @@ def test_large_lags_give_the_offline_animation(puppet, speech, posterior, fps):
     live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, delta_lag=-1,
                       decode_lag=2000, trajectory_lag=2000)
     assert live.delta_lag == p._core.delta_width == 2
+    assert (live.guide_lag, live.guide_weight) == (5, 1.0)  # the exact guide, as offline
     assert math.isinf(live.latency_s)
     got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED)))
     assert got.shape == ref.shape
@@ -111,6 +113,7 @@ def test_bounded_lag_emits_within_the_latency(puppet, speech):
     # budget 3 frames: formants 0, deltas 1, decoder 1, trajectory 1
     assert (live.formant_lag, live.delta_lag, live.decode_lag, live.trajectory_lag) == \
         (0, 1, 1, 1)
+    assert live.guide_lag == 1  # the decoder's look-ahead, shared at no cost
     n_out = 0
     x = speech[:48000]
     frames = []
@@ -120,7 +123,7 @@ def test_bounded_lag_emits_within_the_latency(puppet, speech):
         n_out += len(f)
         t = (a + 160) / 16000
         # every frame whose sound plus the latency has been heard is out
-        assert n_out >= math.floor((t - live.latency_s) * FPS + 1e-9) + 1 - 1, (t, n_out)
+        assert n_out >= max(0, math.floor((t - live.latency_s) * FPS + 1e-9) + 1), (t, n_out)
     frames.append(live.flush().points)
     got = np.concatenate(frames)
     ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False)).animation.points
@@ -132,19 +135,25 @@ def test_bounded_lag_emits_within_the_latency(puppet, speech):
 
 
 def test_split_lag():
-    # (formant, delta, projection, decode, trajectory); budget = floor((0.150 - 0.026) * 29.97)
-    # = 3 frames
-    assert split_lag(150, FPS, 0.026, True) == (0, 0, 0, 2, 1)
-    assert split_lag(150, FPS, 0.026, True, 2) == (0, 1, 0, 1, 1)
+    # (formant, delta, projection, guide, decode, trajectory); budget = floor((0.150 - 0.026) *
+    # 29.97) = 3 frames
+    assert split_lag(150, FPS, 0.026, True) == (0, 0, 0, 0, 2, 1)
+    assert split_lag(150, FPS, 0.026, True, 2) == (0, 1, 0, 0, 1, 1)
     # budget 9: formants 2, deltas min(2, 7 // 3) = 2, decoder 3, trajectory 2
-    assert split_lag(330, FPS, 0.026, True, 2) == (2, 2, 0, 3, 2)
-    assert split_lag(330, FPS, 0.017, False) == (0, 0, 0, 5, 4)
-    assert split_lag(0, FPS, 0.026, True, 2) == (0, 0, 0, 0, 0)
+    assert split_lag(330, FPS, 0.026, True, 2) == (2, 2, 0, 0, 3, 2)
+    assert split_lag(330, FPS, 0.017, False) == (0, 0, 0, 0, 5, 4)
+    assert split_lag(0, FPS, 0.026, True, 2) == (0, 0, 0, 0, 0, 0)
     # a projection of +-5 frames: half what the formants leave, rounded up (at most 5), then
     # the deltas
-    assert split_lag(150, FPS, 0.026, True, 0, 5) == (0, 0, 2, 1, 0)
-    assert split_lag(330, FPS, 0.026, True, 2, 5) == (2, 1, 4, 1, 1)
-    assert split_lag(1000, FPS, 0.026, True, 0, 5) == (2, 0, 5, 11, 11)
+    assert split_lag(150, FPS, 0.026, True, 0, 5) == (0, 0, 2, 0, 1, 0)
+    assert split_lag(330, FPS, 0.026, True, 2, 5) == (2, 1, 4, 0, 1, 1)
+    assert split_lag(1000, FPS, 0.026, True, 0, 5) == (2, 0, 5, 0, 11, 11)
+    # a guide of +-5 frames takes the projection's and the decoder's look-ahead (at most 5),
+    # leaving the rest of the split as it was
+    assert split_lag(150, FPS, 0.026, True, 2, 0, 5) == (0, 1, 0, 1, 1, 1)
+    assert split_lag(330, FPS, 0.026, True, 2, 0, 5) == (2, 2, 0, 3, 3, 2)
+    assert split_lag(330, FPS, 0.026, True, 2, 5, 5) == (2, 1, 4, 5, 1, 1)
+    assert split_lag(1000, FPS, 0.026, True, 2, 0, 3) == (2, 2, 0, 3, 13, 12)
     with pytest.raises(ValueError, match="lag_ms"):
         split_lag(-5, FPS, 0.026, True)
 
@@ -179,6 +188,65 @@ def test_bad_input(puppet, tmp_path):
     with pytest.raises(ValueError, match="NaN"):
         live.push(np.array([0.1, np.inf]))
     assert len(live.flush()) == 0  # nothing pushed
+
+
+# ------------------------------------------------------------------ the guide on the stream
+def test_guide_weight_zero_streams_brands_trajectory(puppet, speech):
+    """guide_weight=0: the stream is the offline animate(guide_weight=0), and the guide moved
+    the face (so the guided comparisons above test the guide's stream)."""
+    p, _ = puppet
+    x = speech[:40000]
+    au = prepare(x, 16000, target_rate=None, remove_dc=False)
+    ref0 = p.animate(au, guide_weight=0).animation.points
+    guided = p.animate(au).animation.points
+    assert np.abs(guided - ref0).max() > 0.05
+    live = LivePuppet(p, guide_weight=0, formant_lag=-1, delta_lag=-1, decode_lag=2000,
+                      trajectory_lag=2000)
+    assert (live.guide_lag, live.guide_weight) == (0, 0.0)  # nothing waits for an unused guide
+    got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED + 5)))
+    np.testing.assert_allclose(got, ref0, rtol=0, atol=1e-8 * np.abs(ref0).max())
+    # another weight is the offline solve with that weight
+    ref2 = p.animate(au, guide_weight=2.5).animation.points
+    live = LivePuppet(p, guide_weight=2.5, posterior=False, formant_lag=-1, delta_lag=-1,
+                      decode_lag=2000, trajectory_lag=2000)
+    got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED + 6)))
+    np.testing.assert_allclose(got, ref2, rtol=0, atol=1e-8 * np.abs(ref2).max())
+
+
+def test_guide_lag_and_latency(puppet):
+    """The guide's look-ahead up to the decoder's is free; beyond it, it is latency."""
+    p, _ = puppet
+    window = LivePuppet(p).features.lookahead_s()
+    live = LivePuppet(p, lag_ms=150)  # deltas 1, decoder 1, trajectory 1, guide 1
+    assert live.latency_s == pytest.approx(window + 3 / FPS, abs=1e-12)
+    exact = LivePuppet(p, lag_ms=150, guide_lag=-1)
+    assert exact.guide_lag == 5
+    # delta 1 + max(decoder 1, guide 5) + trajectory 1
+    assert exact.latency_s == pytest.approx(window + 7 / FPS, abs=1e-12)
+    assert LivePuppet(p, lag_ms=150, guide_lag=0).latency_s == pytest.approx(live.latency_s)
+    # an explicit decoder lag carries the free guide look-ahead with it
+    assert LivePuppet(p, lag_ms=150, decode_lag=3).guide_lag == 3
+    assert LivePuppet(p, lag_ms=150, decode_lag=9).guide_lag == 5
+    with pytest.raises(ValueError, match="guide context 5"):
+        LivePuppet(p, guide_lag=6)
+    with pytest.raises(ValueError, match="guide_lag must be a whole number"):
+        LivePuppet(p, guide_lag=-2)
+    for bad in (-1.0, math.nan, math.inf, "1"):
+        with pytest.raises(ValueError, match="guide_weight must be a finite number"):
+            LivePuppet(p, guide_weight=bad)
+
+
+def test_unguided_puppet_streams_without_a_guide(speech):
+    from voicepuppet.puppet import Puppet
+
+    au, pts = planted_face(speech[:48000])
+    p = Puppet.train([pts], [au], fps=FPS, n_states=4, n_iter=4, seed=0, guide="none")
+    live = LivePuppet(p, lag_ms=150)
+    assert (live.guide_lag, live.guide_weight) == (0, 0.0)
+    with pytest.raises(ValueError, match="needs a guided puppet"):
+        LivePuppet(p, guide_weight=1)
+    with pytest.raises(ValueError, match="guide context 0"):
+        LivePuppet(p, guide_lag=1)
 
 
 def test_puppet_with_a_feature_set_the_stream_cannot_make(speech):
@@ -238,6 +306,19 @@ def test_cli_file_json_lines(puppet, speech, tmp_path):
     summary = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
     assert summary["frames"] == ref.shape[0]
     assert summary["algorithmic_latency_ms"] <= 150
+    assert (summary["guide_lag"], summary["guide_weight"]) == (1, 1.0)
+    # --guide-weight 0: Brand's unguided stream; --guide-lag -1: the exact guide, reported
+    for extra, want in ((["--guide-weight", "0"], dict(guide_weight=0.0)),
+                        (["--guide-lag", "-1"], dict(guide_lag=-1))):
+        r = run_cli([str(path), "--input", str(wav), "--no-realtime", "--lag-ms", "150", *extra])
+        assert r.returncode == 0, r.stderr.decode()
+        got = np.array([json.loads(s)["points"] for s in r.stdout.decode().splitlines()])
+        own = stream_all(LivePuppet(p, lag_ms=150, **want), x_loaded,
+                         [(a, a + 160) for a in range(0, x_loaded.shape[0], 160)])
+        np.testing.assert_allclose(got, own, atol=0.006)
+        assert np.abs(got - pts).max() > 0.05  # not the default stream
+        summary = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
+        assert summary["guide_lag"] == (0 if "guide_weight" in want else 5)
 
 
 def test_cli_raw_pcm_on_stdin(puppet, speech):
@@ -394,7 +475,8 @@ def projected(speech, tmp_path_factory):
 
     au, pts = planted_face(speech)
     p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0, vocal_features="projected",
-                     vocal_covariance="tied", guide="none")  # guided: no streaming yet
+                     vocal_covariance="tied")
+    assert p._core.guided
     assert p._core.projected and p._core.projection_context == 5 and p._core.delta_width == 2
     path = tmp_path_factory.mktemp("live_projected") / "projected.vpp"
     p.save(path)
@@ -451,10 +533,11 @@ def test_projected_puppet_latency(projected, puppet):
     live = LivePuppet(p, lag_ms=150)
     assert (live.formant_lag, live.delta_lag, live.projection_lag, live.decode_lag,
             live.trajectory_lag) == (0, 0, 2, 1, 0)
+    assert live.guide_lag == 3  # the projection's and the decoder's look-ahead: no latency
     assert live.latency_s == pytest.approx(window + 3 / FPS, abs=1e-12)
-    # exact vocal features: 5 frames (167 ms) on top of the decoder's
+    # exact vocal features: 5 frames (167 ms) on top of the decoder's; the guide follows
     exact = LivePuppet(p, lag_ms=150, projection_lag=-1)
-    assert exact.projection_lag == 5
+    assert (exact.projection_lag, exact.guide_lag) == (5, 5)
     assert exact.latency_s == pytest.approx(window + 6 / FPS, abs=1e-12)
     with pytest.raises(ValueError, match="projection context 5"):
         LivePuppet(p, projection_lag=6)

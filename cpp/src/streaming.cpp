@@ -214,7 +214,53 @@ Index resampled_count(Index n, double fps_in, double fps_out) {
   return std::max<Index>(1, static_cast<Index>(std::ceil(x - 1e-9 * std::max(1.0, x))));
 }
 
+/// Where output frame k falls among n known input frames for a linear interpolation, as
+/// trajectory.cpp's resample_weights: input j and weight fr of input j + 1 (u = k · fps_in /
+/// fps_out clamped to the last frame at the end, `final_pass`). False while a frame it needs is
+/// not known yet. At equal rates frame k is input k: k · fps / fps can round just above k and
+/// would wait one frame for a weight of ~1e-16.
+bool interpolation_at(Index k, Index n, double fps_in, double fps_out, bool final_pass, Index& j, double& fr) {
+  if (fps_in == fps_out) {
+    j = k;
+    fr = 0.0;
+    return k < n;
+  }
+  double u = static_cast<double>(k) * fps_in / fps_out;
+  if (final_pass) u = std::min(u, static_cast<double>(n - 1));
+  j = final_pass ? std::min(static_cast<Index>(std::floor(u)), n - 1) : static_cast<Index>(std::floor(u));
+  fr = u - static_cast<double>(j);
+  if (final_pass && j + 1 >= n) fr = 0.0;
+  return j < n && !(fr > 0.0 && j + 1 >= n);
+}
+
+/// (1 − fr) · v[j] + fr · v[j + 1] of a window v of frames first ...
+VectorXd interpolate(const std::vector<VectorXd>& v, Index first, Index j, double fr) {
+  const VectorXd& a = v[static_cast<size_t>(j - first)];
+  return fr > 0.0 ? VectorXd((1.0 - fr) * a + fr * v[static_cast<size_t>(j + 1 - first)]) : a;
+}
+
 constexpr double kLog2Pi = 1.8378770664093454835606594728112;
+
+/// Rows from .. to − 1 of a context map out_s = [z_{s−k}, …, z_{s+k}] (first C columns) · map +
+/// offset over the ring z (frames z_first ..), the context clamped to the first frame and to the
+/// newest one frame s may read (s + lag; the last known frame at the end), as Puppet::project
+/// and Puppet::guide_predict clamp to the recording's edges: with lag = k the row is the
+/// offline one. Shared by the projection and the guide.
+RowMatrixXd context_rows(const std::vector<VectorXd>& z, Index z_first, Index from, Index to, Index k, Index C,
+                         Index lag, Index known, bool final_pass, const RowMatrixXd& map, const VectorXd& offset) {
+  const Index n = std::max<Index>(to - from, 0);
+  RowMatrixXd x(n, C * (2 * k + 1));
+  for (Index s = from; s < to; ++s) {
+    const Index hi = final_pass ? known - 1 : s + lag;
+    for (Index j = -k; j <= k; ++j) {
+      const Index u = std::clamp<Index>(s + j, 0, hi);
+      x.row(s - from).segment((j + k) * C, C) = z[static_cast<size_t>(u - z_first)].head(C).transpose();
+    }
+  }
+  RowMatrixXd v = x * map;
+  v.rowwise() += offset.transpose();
+  return v;
+}
 
 std::vector<TrajectoryModel> part_models(const Puppet& puppet, double fps) {
   std::vector<TrajectoryModel> m;
@@ -240,9 +286,27 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
                   " frames, got ", options.delta_lag);
   }
   const Index k = puppet_.projection_context();
-  // A projection of the features alone never reads the deltas: waiting for them would only add
-  // latency (Puppet::vocal_delta_width).
-  delta_lag_ = options.delta_lag < 0 ? puppet_.vocal_delta_width() : options.delta_lag;
+  // λ of the guide (as Puppet::animate's guide_weight: negative or NaN the file's, 0 unguided)
+  double lambda = options.guide_weight;
+  if (std::isnan(lambda) || lambda < 0) lambda = puppet_.guide_weight();
+  if (!std::isfinite(lambda)) fail_argument("guide_weight must be finite, got ", options.guide_weight);
+  if (lambda > 0 && !puppet_.guided()) {
+    fail_argument("guide_weight = ", lambda, " needs a guided puppet, but this one has no guide; "
+                  "train it with guide=\"ridge\" or pass 0");
+  }
+  guide_on_ = lambda > 0;
+  options_.guide_weight = lambda;
+  const Index kg = puppet_.guided() ? puppet_.guide_context() : 0;
+  if (options.guide_lag < -1 || options.guide_lag > kg) {
+    fail_argument("guide_lag must be -1 (the puppet's guide context, ", kg, ") or 0 .. ", kg, " frames",
+                  puppet_.guided() ? "" : " (this puppet has no guide)", ", got ", options.guide_lag);
+  }
+  guide_lag_ = guide_on_ ? (options.guide_lag < 0 ? kg : options.guide_lag) : 0;
+  options_.guide_lag = guide_lag_;
+  // A projection (or a guide) of the features alone never reads the deltas: waiting for them
+  // would only add latency (Puppet::vocal_delta_width).
+  const bool guide_deltas = guide_on_ && puppet_.guide_columns() > puppet_.n_features();
+  delta_lag_ = options.delta_lag < 0 ? (guide_deltas ? w : puppet_.vocal_delta_width()) : options.delta_lag;
   options_.delta_lag = delta_lag_;
   if (options.projection_lag < -1 || options.projection_lag > k) {
     fail_argument("projection_lag must be -1 (the puppet's projection context, ", k, ") or 0 .. ", k,
@@ -250,11 +314,9 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
                   options.projection_lag);
   }
   projection_lag_ = options.projection_lag < 0 ? k : options.projection_lag;
-  if (puppet_.guided() && puppet_.guide_weight() != 0) {
-    fail_argument("streaming of guided puppets is not implemented yet: train with --guide none "
-                  "(guide=\"none\"), or animate this puppet offline (voicepuppet animate)");
-  }
   options_.projection_lag = projection_lag_;
+  ring_columns_ = std::max<Index>(puppet_.projected() ? puppet_.projection_columns() : 0,
+                                  guide_on_ ? puppet_.guide_columns() : 0);
   mean_ = puppet_.file().at("audio/mean").matrix().row(0).transpose();
   std_ = puppet_.file().at("audio/std").matrix().row(0).transpose();
   const auto models = part_models(puppet_, out_fps_);
@@ -279,15 +341,19 @@ StreamingPuppet::StreamingPuppet(const Puppet& puppet, const StreamingOptions& o
                                  2.0 * vm.chol.back().diagonal().array().log().sum());
       }
     }
+    const TrajectoryModel& tm = models[static_cast<size_t>(p)];
     parts_.push_back(PartStream{std::move(vm), FixedLagDecoder(pt.startprob, pt.transmat, options.decode_lag),
-                                FixedLagTrajectory(models[static_cast<size_t>(p)], options.trajectory_lag),
-                                {}, {}, 0, 0, 0});
+                                guide_on_ ? FixedLagTrajectory(tm, options.trajectory_lag, lambda * puppet_.guide_precision(p))
+                                          : FixedLagTrajectory(tm, options.trajectory_lag),
+                                {}, {}, 0, 0, 0, {}, {}, 0, 0});
+    parts_.back().col = p == 0 ? 0 : parts_[static_cast<size_t>(p - 1)].col + puppet_.part(p - 1).n_dims();
   }
 }
 
 double StreamingPuppet::latency_seconds() const {
-  return static_cast<double>(delta_lag_ + projection_lag_ + options_.decode_lag) / puppet_.fps() +
-         static_cast<double>(options_.trajectory_lag) / out_fps_;
+  // the guide's look-ahead runs alongside the projection's and the decoder's
+  const Index audio = delta_lag_ + std::max<Index>(projection_lag_ + options_.decode_lag, guide_lag_);
+  return static_cast<double>(audio) / puppet_.fps() + static_cast<double>(options_.trajectory_lag) / out_fps_;
 }
 
 double StreamingPuppet::log_likelihood() const {
@@ -303,11 +369,17 @@ void StreamingPuppet::reset() {
     ps.states.clear();
     ps.weights.clear();
     ps.first = ps.decided = ps.next_out = 0;
+    ps.pending_states.clear();
+    ps.pending_weights.clear();
+    ps.in_trajectory = 0;
   }
   raw_.clear();
   raw_first_ = standardized_ = 0;
   z_.clear();
   z_first_ = projected_ = vocal_ = 0;
+  yhat_.clear();
+  yout_.clear();
+  guided_ = yhat_first_ = yout_first_ = yout_next_ = 0;
   pushed_ = emitted_ = 0;
 }
 
@@ -346,17 +418,10 @@ RowMatrixXd StreamingPuppet::feed(PartStream& ps, const DecodedFrames& f, bool f
       if (j >= n) break;
       out_states.push_back(ps.states[static_cast<size_t>(j - ps.first)]);
     } else {
-      double u = static_cast<double>(k) * fin / fout;
-      if (final_pass) u = std::min(u, static_cast<double>(n - 1));
-      const Index j = final_pass ? std::min(static_cast<Index>(std::floor(u)), n - 1)
-                                 : static_cast<Index>(std::floor(u));
-      const double fr = u - static_cast<double>(j);
-      const bool interp = fr > 0.0 && (final_pass ? j + 1 < n : true);
-      if (j >= n || (interp && j + 1 >= n)) break;
-      const VectorXd& a = ps.weights[static_cast<size_t>(j - ps.first)];
-      out_weights.push_back(interp ? VectorXd((1.0 - fr) * a +
-                                              fr * ps.weights[static_cast<size_t>(j + 1 - ps.first)])
-                                   : a);
+      Index j = 0;
+      double fr = 0.0;
+      if (!interpolation_at(k, n, fin, fout, final_pass, j, fr)) break;
+      out_weights.push_back(interpolate(ps.weights, ps.first, j, fr));
     }
   }
   // Forget input frames no later output frame needs.
@@ -371,16 +436,9 @@ RowMatrixXd StreamingPuppet::feed(PartStream& ps, const DecodedFrames& f, bool f
     }
     ps.first = keep;
   }
-  RowMatrixXd face;
-  if (post) {
-    RowMatrixXd w(static_cast<Index>(out_weights.size()), ps.decoder.n_states());
-    for (size_t i = 0; i < out_weights.size(); ++i) w.row(static_cast<Index>(i)) = out_weights[i].transpose();
-    face = ps.trajectory.push_weights(w);
-  } else {
-    VectorXi st(static_cast<Index>(out_states.size()));
-    for (size_t i = 0; i < out_states.size(); ++i) st[static_cast<Index>(i)] = out_states[i];
-    face = ps.trajectory.push_states(st);
-  }
+  ps.pending_states.insert(ps.pending_states.end(), out_states.begin(), out_states.end());
+  ps.pending_weights.insert(ps.pending_weights.end(), out_weights.begin(), out_weights.end());
+  RowMatrixXd face = push_ready(ps);
   if (final_pass) {
     const RowMatrixXd rest = ps.trajectory.flush();
     RowMatrixXd all(face.rows() + rest.rows(), rest.cols());
@@ -388,6 +446,35 @@ RowMatrixXd StreamingPuppet::feed(PartStream& ps, const DecodedFrames& f, bool f
     if (rest.rows()) all.bottomRows(rest.rows()) = rest;
     face = std::move(all);
   }
+  return face;
+}
+
+RowMatrixXd StreamingPuppet::push_ready(PartStream& ps) {
+  const bool post = options_.posterior;
+  const Index pending = static_cast<Index>(post ? ps.pending_weights.size() : ps.pending_states.size());
+  // a frame enters the trajectory once its state (or posterior row) and its ŷ are known
+  const Index n = guide_on_ ? std::min(pending, yout_next_ - ps.in_trajectory) : pending;
+  RowMatrixXd face;
+  const Index K = ps.trajectory.model().n_dims();
+  RowMatrixXd targets;
+  if (guide_on_) {
+    targets.resize(n, K);
+    for (Index i = 0; i < n; ++i) {
+      targets.row(i) = yout_[static_cast<size_t>(ps.in_trajectory + i - yout_first_)].segment(ps.col, K).transpose();
+    }
+  }
+  if (post) {
+    RowMatrixXd w(n, ps.decoder.n_states());
+    for (Index i = 0; i < n; ++i) w.row(i) = ps.pending_weights[static_cast<size_t>(i)].transpose();
+    face = guide_on_ ? ps.trajectory.push_weights(w, targets) : ps.trajectory.push_weights(w);
+    ps.pending_weights.erase(ps.pending_weights.begin(), ps.pending_weights.begin() + static_cast<std::ptrdiff_t>(n));
+  } else {
+    VectorXi st(n);
+    for (Index i = 0; i < n; ++i) st[i] = ps.pending_states[static_cast<size_t>(i)];
+    face = guide_on_ ? ps.trajectory.push_states(st, targets) : ps.trajectory.push_states(st);
+    ps.pending_states.erase(ps.pending_states.begin(), ps.pending_states.begin() + static_cast<std::ptrdiff_t>(n));
+  }
+  ps.in_trajectory += n;
   return face;
 }
 
@@ -440,32 +527,63 @@ RowMatrixXd StreamingPuppet::standardized_ready(bool final_pass) {
 
 RowMatrixXd StreamingPuppet::vocal_ready(const RowMatrixXd& z, bool final_pass) {
   if (!puppet_.projected()) return z;
-  const Index k = puppet_.projection_context(), C = puppet_.projection_columns();
-  for (Index t = 0; t < z.rows(); ++t) z_.emplace_back(z.row(t).head(C).transpose());
-  // z holds the frames standardised by this call: standardized_ frames are known in all
-  const Index known = standardized_;
   // frame s is ready once frame s + projection_lag is standardised (all frames at the end)
+  const Index known = standardized_;
   const Index ready = final_pass ? known : std::max<Index>(0, known - projection_lag_);
-  const Index n = std::max<Index>(ready - projected_, 0);
-  RowMatrixXd x(n, C * (2 * k + 1));
-  for (Index s = projected_; s < ready; ++s) {
-    // context s − k .. s + k, clamped to the first frame and to the newest one it may read
-    // (s + projection_lag; the last frame at the end), as Puppet::project clamps to the
-    // recording's edges: with projection_lag = k the row is the offline one
-    const Index hi = final_pass ? known - 1 : s + projection_lag_;
-    for (Index j = -k; j <= k; ++j) {
-      const Index u = std::clamp<Index>(s + j, 0, hi);
-      x.row(s - projected_).segment((j + k) * C, C) = z_[static_cast<size_t>(u - z_first_)].transpose();
-    }
+  RowMatrixXd v = context_rows(z_, z_first_, projected_, ready, puppet_.projection_context(),
+                               puppet_.projection_columns(), projection_lag_, known, final_pass,
+                               puppet_.projection(), puppet_.projection_offset());
+  projected_ = std::max(projected_, ready);
+  return v;
+}
+
+void StreamingPuppet::guide_ready(bool final_pass) {
+  if (!guide_on_) return;
+  // ŷ of frame s once frame s + guide_lag is standardised (all frames at the end)
+  const Index known = standardized_;
+  const Index ready = final_pass ? known : std::max<Index>(0, known - guide_lag_);
+  const RowMatrixXd y = context_rows(z_, z_first_, guided_, ready, puppet_.guide_context(), puppet_.guide_columns(),
+                                     guide_lag_, known, final_pass, puppet_.guide_map(), puppet_.guide_offset());
+  for (Index i = 0; i < y.rows(); ++i) yhat_.emplace_back(y.row(i).transpose());
+  guided_ = std::max(guided_, ready);
+  // ŷ at the output rate, as Puppet::animate: resample_weights' linear interpolation
+  const double fin = puppet_.fps(), fout = out_fps_;
+  const Index n = guided_;
+  const Index m_total = final_pass ? resampled_count(n, fin, fout) : -1;
+  for (;; ++yout_next_) {
+    const Index k = yout_next_;
+    if (final_pass && k >= m_total) break;
+    Index j = 0;
+    double fr = 0.0;
+    if (!interpolation_at(k, n, fin, fout, final_pass, j, fr)) break;
+    yout_.push_back(interpolate(yhat_, yhat_first_, j, fr));
   }
-  projected_ = ready;
-  RowMatrixXd v = x * puppet_.projection();
-  v.rowwise() += puppet_.projection_offset().transpose();
+  // forget input frames no later output frame needs
+  const double u = static_cast<double>(yout_next_) * fin / fout;
+  const Index keep = std::max<Index>(yhat_first_, std::min<Index>(static_cast<Index>(std::floor(u)) - 1, guided_));
+  yhat_.erase(yhat_.begin(), yhat_.begin() + static_cast<std::ptrdiff_t>(keep - yhat_first_));
+  yhat_first_ = keep;
+}
+
+void StreamingPuppet::trim_ring() {
+  if (ring_columns_ == 0) return;  // neither a projection nor a guide: the ring is unused
   // forget standardised frames no later context needs (those before the next frame's)
-  const Index keep = std::max<Index>(z_first_, std::min<Index>(projected_ - k, known));
+  Index keep = standardized_;
+  if (puppet_.projected()) keep = std::min(keep, projected_ - puppet_.projection_context());
+  if (guide_on_) keep = std::min(keep, guided_ - puppet_.guide_context());
+  keep = std::max(keep, z_first_);
   z_.erase(z_.begin(), z_.begin() + static_cast<std::ptrdiff_t>(keep - z_first_));
   z_first_ = keep;
-  return v;
+}
+
+StreamedFrames StreamingPuppet::advance(const RowMatrixXd& z, bool final_pass) {
+  if (ring_columns_ > 0) {
+    for (Index t = 0; t < z.rows(); ++t) z_.emplace_back(z.row(t).head(ring_columns_).transpose());
+  }
+  RowMatrixXd v = vocal_ready(z, final_pass);
+  guide_ready(final_pass);
+  trim_ring();
+  return decode(std::move(v), final_pass);
 }
 
 StreamedFrames StreamingPuppet::decode(RowMatrixXd v, bool final_pass) {
@@ -489,6 +607,12 @@ StreamedFrames StreamingPuppet::decode(RowMatrixXd v, bool final_pass) {
     }
     faces.push_back(feed(ps, f, final_pass));
   }
+  if (guide_on_) {  // forget output-rate ŷ every part has pushed
+    Index keep = yout_next_;
+    for (const auto& ps : parts_) keep = std::min(keep, ps.in_trajectory);
+    yout_.erase(yout_.begin(), yout_.begin() + static_cast<std::ptrdiff_t>(keep - yout_first_));
+    yout_first_ = keep;
+  }
   StreamedFrames out = assemble(faces);
   out.first_vocal = vocal_;
   vocal_ += v.rows();
@@ -504,7 +628,7 @@ StreamedFrames StreamingPuppet::push(const MatrixRef& raw_features) {
   require_finite(raw_features, "raw_features");
   for (Index t = 0; t < raw_features.rows(); ++t) raw_.emplace_back(raw_features.row(t).transpose());
   pushed_ += raw_features.rows();
-  return decode(vocal_ready(standardized_ready(false), false), false);
+  return advance(standardized_ready(false), false);
 }
 
 StreamedFrames StreamingPuppet::flush() {
@@ -515,7 +639,7 @@ StreamedFrames StreamingPuppet::flush() {
     out = assemble(faces);
     out.vocal.resize(0, puppet_.n_vocal());
   } else {
-    out = decode(vocal_ready(standardized_ready(true), true), true);
+    out = advance(standardized_ready(true), true);
   }
   reset();
   return out;

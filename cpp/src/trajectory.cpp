@@ -899,9 +899,17 @@ FixedLagTrajectory::FixedLagTrajectory(const TrajectoryModel& model, Index lag)
   }
 }
 
+FixedLagTrajectory::FixedLagTrajectory(const TrajectoryModel& model, Index lag, const Eigen::MatrixXd& precision)
+    : FixedLagTrajectory(model, lag) {
+  const Index d = model.n_dims();
+  check_trajectory_evidence(TrajectoryEvidence{RowMatrixXd(0, d), precision}, 0, d, "precision");
+  w_ = 0.5 * (precision + precision.transpose());
+  evidence_ = true;
+}
+
 FixedLagTrajectory::Slot& FixedLagTrajectory::slot(Index t) { return ring_[static_cast<size_t>(t % (lag_ + 2))]; }
 
-void FixedLagTrajectory::push_frame(const double* w, Index state, std::vector<VectorXd>& out) {
+void FixedLagTrajectory::push_frame(const double* w, Index state, const double* target, std::vector<VectorXd>& out) {
   const Index j = pushed_;
   const Index d = model_.n_dims();
   // this frame's terms
@@ -928,6 +936,10 @@ void FixedLagTrajectory::push_frame(const double* w, Index state, std::vector<Ve
       rnext_.noalias() += w[n] * b.r_next;
     }
   }
+  if (target != nullptr) {  // the evidence term: H[t,t] += W, r[t] += W ŷ_t
+    dg_ += w_;
+    rh_.noalias() += w_ * Eigen::Map<const VectorXd>(target, d);
+  }
   Slot& cur = slot(j);
   if (j > 0) {  // the previous frame's block is complete now that its successor is known
     Slot& prev = slot(j - 1);
@@ -948,7 +960,6 @@ void FixedLagTrajectory::push_frame(const double* w, Index state, std::vector<Ve
   }
   cur.up = up_;
   pushed_ = j + 1;
-  (void)d;
   if (j >= lag_) emit_back_to(j - lag_, false, out);
 }
 
@@ -991,7 +1002,43 @@ RowMatrixXd stack_rows(const std::vector<VectorXd>& rows, Index d) {
 }
 }  // namespace
 
+void FixedLagTrajectory::check_targets(const MatrixRef& targets, Index rows) const {
+  if (!evidence_) {
+    fail_argument("targets were given, but this stream has no evidence: construct it with a precision "
+                  "(FixedLagTrajectory(model, lag, precision)) or push without targets");
+  }
+  if (targets.rows() != rows || targets.cols() != model_.n_dims()) {
+    fail_argument("targets must be ", rows, " x ", model_.n_dims(), " (one row per pushed frame), got ",
+                  shape_of(targets), "; nothing was pushed");
+  }
+  require_finite(targets, "targets");
+}
+
 RowMatrixXd FixedLagTrajectory::push_states(const IndexVectorRef& states) {
+  if (evidence_) {
+    fail_argument("this stream has evidence: push_states needs the frames' targets (push_states(states, targets))");
+  }
+  return push_states_checked(states, nullptr);
+}
+
+RowMatrixXd FixedLagTrajectory::push_states(const IndexVectorRef& states, const MatrixRef& targets) {
+  check_targets(targets, states.size());
+  return push_states_checked(states, &targets);
+}
+
+RowMatrixXd FixedLagTrajectory::push_weights(const MatrixRef& weights) {
+  if (evidence_) {
+    fail_argument("this stream has evidence: push_weights needs the frames' targets (push_weights(weights, targets))");
+  }
+  return push_weights_checked(weights, nullptr);
+}
+
+RowMatrixXd FixedLagTrajectory::push_weights(const MatrixRef& weights, const MatrixRef& targets) {
+  check_targets(targets, weights.rows());
+  return push_weights_checked(weights, &targets);
+}
+
+RowMatrixXd FixedLagTrajectory::push_states_checked(const IndexVectorRef& states, const MatrixRef* targets) {
   for (Index t = 0; t < states.size(); ++t) {
     if (states[t] < 0 || states[t] >= model_.n_states()) {
       fail_argument("states[", t, "] = ", states[t], " is out of range: the model has ", model_.n_states(),
@@ -999,17 +1046,21 @@ RowMatrixXd FixedLagTrajectory::push_states(const IndexVectorRef& states) {
     }
   }
   std::vector<VectorXd> out;
-  for (Index t = 0; t < states.size(); ++t) push_frame(nullptr, states[t], out);
+  for (Index t = 0; t < states.size(); ++t) {
+    push_frame(nullptr, states[t], targets ? targets->row(t).data() : nullptr, out);
+  }
   return stack_rows(out, model_.n_dims());
 }
 
-RowMatrixXd FixedLagTrajectory::push_weights(const MatrixRef& weights) {
+RowMatrixXd FixedLagTrajectory::push_weights_checked(const MatrixRef& weights, const MatrixRef* targets) {
   if (weights.cols() != model_.n_states()) {
     fail_argument("weights must have ", model_.n_states(), " columns (one per state), got ", shape_of(weights));
   }
   for (Index t = 0; t < weights.rows(); ++t) check_weight_row(weights.row(t).data(), model_.n_states(), t, "weights");
   std::vector<VectorXd> out;
-  for (Index t = 0; t < weights.rows(); ++t) push_frame(weights.row(t).data(), 0, out);
+  for (Index t = 0; t < weights.rows(); ++t) {
+    push_frame(weights.row(t).data(), 0, targets ? targets->row(t).data() : nullptr, out);
+  }
   return stack_rows(out, model_.n_dims());
 }
 

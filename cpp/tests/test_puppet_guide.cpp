@@ -1,8 +1,8 @@
 // Tests of a puppet file's guide (puppet.hpp: guide/*): the prediction ŷ computed by hand, the
 // guided animation equal to the trajectory solve with the evidence composed by hand (at the
 // puppet's rate and another), λ = 0 equal to the unguided puppet exactly, the format version
-// (2 only with a guide), every bad guide array refused by name, and StreamingPuppet refusing a
-// guided puppet it would otherwise stream unguided.
+// (2 only with a guide), every bad guide array refused by name, and StreamingPuppet streaming a
+// guided puppet as Puppet::animate (the two-part cases are in test_streaming.cpp).
 #include <doctest/doctest.h>
 
 #include "puppet_arrays.hpp"
@@ -212,11 +212,51 @@ TEST_CASE("guide: bad guide arrays are refused with the array's name") {
         1e-3);
 }
 
-TEST_CASE("guide: StreamingPuppet refuses a guided puppet with λ != 0 (it would stream it unguided)") {
-  const Puppet p(guided());
-  CHECK(throws_with<std::invalid_argument>([&] { StreamingPuppet s(p); }, "streaming of guided puppets is not implemented"));
-  CHECK(throws_with<std::invalid_argument>([&] { StreamingPuppet s(p); }, "--guide none"));
-  const Puppet zero(guided(0.0));
-  StreamingPuppet s(zero);  // λ = 0 is Brand's solve: it streams as an unguided puppet
+TEST_CASE("guide: StreamingPuppet streams a one-part guided puppet as Puppet::animate; λ = 0 as unguided") {
+  const Puppet p(guided(0.7)), plain(unguided()), zero(guided(0.0));
+  const RowMatrixXd raw = audio();
+  for (bool posterior : {false, true}) {
+    for (double fps : {0.0, 45.0}) {
+      CAPTURE(posterior);
+      CAPTURE(fps);
+      StreamingOptions o;
+      o.decode_lag = 20;  // exact: lags covering the 12 frames (18 at 45 fps)
+      o.trajectory_lag = 30;
+      o.fps = fps;
+      o.posterior = posterior;
+      AnimateOptions ao;
+      ao.fps = fps;
+      ao.posterior = posterior;
+      const RowMatrixXd ref = p.animate(raw, ao).face;
+      StreamingPuppet s(p, o);
+      CHECK(s.options().guide_lag == 1);
+      CHECK(s.options().guide_weight == 0.7);
+      for (Index chunk : {Index(1), Index(7), Index(12)}) {
+        CAPTURE(chunk);
+        RowMatrixXd got(0, 2);
+        auto take = [&](const StreamedFrames& f) {
+          RowMatrixXd both(got.rows() + f.size(), 2);
+          both << got, f.face;
+          got = both;
+        };
+        for (Index t = 0; t < raw.rows(); t += chunk) take(s.push(raw.middleRows(t, std::min(chunk, raw.rows() - t))));
+        take(s.flush());
+        REQUIRE(got.rows() == ref.rows());
+        CHECK((got - ref).cwiseAbs().maxCoeff() < 1e-8 * (1.0 + ref.cwiseAbs().maxCoeff()));
+      }
+      // λ = 0 (the file's or the option) streams Brand's solve, bit for bit the unguided puppet's
+      StreamingPuppet a(plain, o), b(zero, o);
+      o.guide_weight = 0.0;
+      StreamingPuppet c(p, o);
+      const RowMatrixXd ya = a.push(raw).face, yb = b.push(raw).face, yc = c.push(raw).face;
+      CHECK((ya.array() == yb.array()).all());
+      CHECK((ya.array() == yc.array()).all());
+      const RowMatrixXd fa = a.flush().face, fb = b.flush().face, fc = c.flush().face;
+      CHECK((fa.array() == fb.array()).all());
+      CHECK((fa.array() == fc.array()).all());
+    }
+  }
+  StreamingPuppet s(zero);
   CHECK(s.options().delta_lag == 0);
+  CHECK(s.options().guide_lag == 0);
 }

@@ -577,3 +577,197 @@ TEST_CASE("streaming puppet: without a projection the vocal features are the sta
   o.projection_lag = 1;
   CHECK_THROWS_WITH_AS(StreamingPuppet(pp, o), doctest::Contains("has no projection"), std::invalid_argument);
 }
+
+// ------------------------------------------------------------------ guided puppets
+namespace {
+
+/// The puppet of `f` with a guide of ±kg frames of the first Cg standardised columns: random map
+/// and offset to the 2K face coordinates of both parts, a random SPD residual covariance R.
+PuppetFile add_guide(PuppetFile f, Index kg, Index Cg, Index K, double weight, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const Index M = Cg * (2 * kg + 1), KK = 2 * K;
+  std::vector<double> G, c, R;
+  for (Index i = 0; i < M * KK; ++i) G.push_back(2.0 * g(rng) / std::sqrt(static_cast<double>(M)));
+  for (Index i = 0; i < KK; ++i) c.push_back(0.5 * g(rng));
+  Eigen::MatrixXd B(KK, KK);
+  for (Index i = 0; i < KK; ++i)
+    for (Index j = 0; j < KK; ++j) B(i, j) = g(rng);
+  const Eigen::MatrixXd S = 0.2 * (B * B.transpose() / static_cast<double>(KK) + 0.5 * Eigen::MatrixXd::Identity(KK, KK));
+  for (Index i = 0; i < KK; ++i)
+    for (Index j = 0; j < KK; ++j) R.push_back(S(i, j));
+  auto int1 = [](Index v) {
+    PuppetArray a;
+    a.dtype = PuppetArray::DType::Int64;
+    a.shape = {1};
+    a.i64 = {v};
+    return a;
+  };
+  const auto kk = static_cast<std::uint64_t>(KK);
+  f.arrays["guide/map"] = f64({static_cast<std::uint64_t>(M), kk}, G);
+  f.arrays["guide/offset"] = f64({kk}, c);
+  f.arrays["guide/context"] = int1(kg);
+  f.arrays["guide/columns"] = int1(Cg);
+  f.arrays["guide/covariance"] = f64({kk, kk}, R);
+  f.arrays["guide/weight"] = f64({1}, {weight});
+  return f;
+}
+
+}  // namespace
+
+TEST_CASE("streaming puppet: a guided puppet with exact lags streams Puppet::animate (1e-8)") {
+  struct Config {
+    Index width;       // delta width of the audio
+    Index proj_k;      // projection context (-1: no projection)
+  };
+  for (const Config cf : {Config{0, -1}, Config{2, -1}, Config{2, 3}}) {
+    PuppetFile base = random_puppet(5, 3, 2, 41, 30.0, cf.width);
+    const RowMatrixXd X = walk_features(Puppet(base), 45, 6);
+    if (cf.proj_k >= 0) base = add_projection(base, cf.proj_k, 3, 3, 9, false, false);
+    const Puppet pp(add_guide(base, 5, 3, 2, 1.5, 12));
+    REQUIRE(pp.guided());
+    const Puppet plain(base);
+    for (bool posterior : {false, true}) {
+      for (double fps : {0.0, 25.0, 60.0}) {
+        CAPTURE(cf.width);
+        CAPTURE(cf.proj_k);
+        CAPTURE(posterior);
+        CAPTURE(fps);
+        StreamingPuppet sp(pp, covering_lags(fps, posterior));
+        CHECK(sp.options().guide_lag == 5);
+        CHECK(sp.options().guide_weight == 1.5);
+        AnimateOptions ao;
+        ao.fps = fps;
+        ao.posterior = posterior;
+        const RowMatrixXd ref = pp.animate(X, ao).points;
+        // the guide changes the offline face: the comparison below tests the guide's stream
+        CHECK((ref - plain.animate(X, ao).points).cwiseAbs().maxCoeff() > 1e-3);
+        for (Index chunk : {Index(1), Index(7), Index(0)}) {
+          CAPTURE(chunk);
+          const Streamed s = stream_all(sp, X, chunk);
+          REQUIRE(s.points.rows() == ref.rows());
+          CHECK((s.points - ref).cwiseAbs().maxCoeff() < 1e-8 * (1.0 + ref.cwiseAbs().maxCoeff()));
+        }
+      }
+    }
+  }
+}
+
+TEST_CASE("streaming puppet: the guide's look-ahead overlaps the decoder's; frame k after input k + latency") {
+  // no deltas; with a projection or without; at 30 fps and at NTSC's 29.97 (where k · fps / fps
+  // can round above k: ŷ must not wait for the next frame then)
+  for (const auto& [proj_k, fps] : {std::pair{Index(-1), 30.0}, std::pair{Index(2), 30.0},
+                                    std::pair{Index(-1), 30000.0 / 1001.0}}) {
+    CAPTURE(fps);
+    PuppetFile base = random_puppet(5, 3, 2, 43, fps, 0);
+    const RowMatrixXd X = walk_features(Puppet(base), 50, 7);
+    if (proj_k >= 0) base = add_projection(base, proj_k, 3, 3, 10, true, false);
+    const Puppet pp(add_guide(base, 5, 3, 2, 1.0, 13));
+    const RowMatrixXd yhat = pp.guide_predict(pp.standardize(X));
+    for (Index gl : {Index(0), Index(2), Index(5)}) {
+      StreamingOptions o;
+      o.projection_lag = proj_k >= 0 ? 1 : -1;
+      o.guide_lag = gl;
+      o.decode_lag = 2;
+      o.trajectory_lag = 1;
+      StreamingPuppet sp(pp, o);
+      const Index pl = proj_k >= 0 ? 1 : 0;
+      const Index lat = std::max<Index>(pl + 2, gl) + 1;  // delta_lag 0
+      CAPTURE(proj_k);
+      CAPTURE(gl);
+      CHECK(sp.options().delta_lag == 0);
+      CHECK(std::abs(sp.latency_seconds() - static_cast<double>(lat) / fps) < 1e-12);
+      for (Index t = 0; t < X.rows(); ++t) {
+        const StreamedFrames f = sp.push(X.middleRows(t, 1));
+        CHECK(f.size() == (t >= lat ? 1 : 0));
+        if (f.size()) CHECK(f.first_frame == t - lat);
+      }
+      CHECK(sp.flush().size() == lat);
+      // chunking is invisible; guide_lag < k is an approximation of the exact stream
+      const Streamed one = stream_all(sp, X, 1), all = stream_all(sp, X, 0), seven = stream_all(sp, X, 7);
+      CHECK((one.points - all.points).cwiseAbs().maxCoeff() < 1e-10);
+      CHECK((one.points - seven.points).cwiseAbs().maxCoeff() < 1e-10);
+      StreamingOptions exact_guide = o;
+      exact_guide.guide_lag = -1;
+      StreamingPuppet exact_stream(pp, exact_guide);
+      const Streamed ex = stream_all(exact_stream, X, 1);
+      if (gl < 5) {
+        CHECK((one.points - ex.points).cwiseAbs().maxCoeff() > 1e-6);
+      } else {
+        CHECK((one.points - ex.points).cwiseAbs().maxCoeff() == 0.0);
+      }
+    }
+  }
+}
+
+TEST_CASE("streaming puppet: ŷ with guide_lag g is the guide of the frames 0 .. t + g (the newest repeated)") {
+  // a trajectory far more certain of the evidence than of the model: the face is ŷ to ~1e-6,
+  // so the streamed face shows which ŷ the stream used
+  const PuppetFile base = random_puppet(4, 3, 2, 47, 30.0, 0);
+  const RowMatrixXd X = walk_features(Puppet(base), 40, 8);
+  const Puppet pp(add_guide(base, 4, 3, 2, 1e9, 14));
+  const RowMatrixXd Z = pp.standardize(X);
+  for (Index gl : {Index(0), Index(3)}) {
+    StreamingOptions o;
+    o.guide_lag = gl;
+    o.decode_lag = 1;
+    o.trajectory_lag = 0;
+    StreamingPuppet sp(pp, o);
+    std::vector<StreamedFrames> got;
+    for (Index t = 0; t < X.rows(); ++t) got.push_back(sp.push(X.middleRows(t, 1)));
+    for (const auto& f : got) {
+      for (Index i = 0; i < f.size(); ++i) {
+        const Index t = f.first_frame + i;
+        const RowMatrixXd prefix = pp.guide_predict(Z.topRows(t + gl + 1));
+        CAPTURE(t);
+        CHECK((f.face.row(i) - prefix.row(t)).cwiseAbs().maxCoeff() < 1e-5);
+      }
+    }
+    CHECK(got.back().first_frame + got.back().size() == X.rows() - std::max<Index>(1, gl));
+  }
+}
+
+TEST_CASE("streaming puppet: a guided puppet streamed with λ = 0 is the unguided stream bit for bit") {
+  const PuppetFile base = random_puppet(5, 3, 2, 53, 30.0, 2);
+  const RowMatrixXd X = walk_features(Puppet(base), 40, 2);
+  const Puppet plain(base), guided(add_guide(base, 5, 3, 2, 1.0, 15)), zero(add_guide(base, 5, 3, 2, 0.0, 15));
+  for (bool posterior : {false, true}) {
+    for (double fps : {0.0, 25.0}) {
+      StreamingOptions o;
+      o.posterior = posterior;
+      o.fps = fps;
+      StreamingPuppet a(plain, o), c(zero, o);
+      o.guide_weight = 0.0;
+      StreamingPuppet b(guided, o);
+      CHECK(b.options().guide_lag == 0);  // nothing waits for an unused guide
+      CHECK(b.latency_seconds() == a.latency_seconds());
+      CHECK(c.latency_seconds() == a.latency_seconds());
+      const Streamed sa = stream_all(a, X, 3), sb = stream_all(b, X, 3), sc = stream_all(c, X, 3);
+      CHECK((sa.points.array() == sb.points.array()).all());
+      CHECK((sa.points.array() == sc.points.array()).all());
+      o.guide_weight = -1;
+      StreamingPuppet d(guided, o);
+      CHECK((stream_all(d, X, 3).points - sa.points).cwiseAbs().maxCoeff() > 1e-3);
+    }
+  }
+}
+
+TEST_CASE("streaming puppet: bad guide options") {
+  const PuppetFile base = random_puppet(4, 3, 1, 5);
+  const Puppet plain(base), guided(add_guide(base, 3, 2, 1, 1.0, 4));
+  StreamingOptions o;
+  o.guide_lag = 4;
+  CHECK_THROWS_WITH_AS(StreamingPuppet(guided, o), doctest::Contains("guide_lag must be -1 (the puppet's guide context, 3)"),
+                       std::invalid_argument);
+  o.guide_lag = -2;
+  CHECK_THROWS_WITH_AS(StreamingPuppet(guided, o), doctest::Contains("guide_lag"), std::invalid_argument);
+  o.guide_lag = 1;
+  CHECK_THROWS_WITH_AS(StreamingPuppet(plain, o), doctest::Contains("has no guide"), std::invalid_argument);
+  o.guide_lag = -1;
+  o.guide_weight = 2.0;
+  CHECK_THROWS_WITH_AS(StreamingPuppet(plain, o), doctest::Contains("needs a guided puppet"), std::invalid_argument);
+  o.guide_weight = std::numeric_limits<double>::infinity();
+  CHECK_THROWS_WITH_AS(StreamingPuppet(guided, o), doctest::Contains("guide_weight must be finite"), std::invalid_argument);
+  o.guide_weight = std::nan("");  // NaN: the file's λ
+  CHECK(StreamingPuppet(guided, o).options().guide_weight == 1.0);
+}

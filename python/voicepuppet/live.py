@@ -13,8 +13,11 @@ Latency. A face frame ``k`` shows the sound at time ``k / fps``. It can be emitt
 analysis windows around that time are full (``window_s``: about 17 ms after it for the spectra,
 26 ms for the formants), plus the look-ahead given to the formant tracker, the audio deltas, a
 projected puppet's vocal features (``vocal_features="projected"``: ±k frames of audio), the state
-decoder and the trajectory solve. ``lag_ms`` is the budget for all of it: the windows take what
-they need and the rest (whole frames) is split between the look-aheads (see :func:`split_lag`).
+decoder and the trajectory solve. A guided puppet's guide (the ridge's prediction of the face from
+±k_g frames of audio, docs/puppet.md) looks ahead alongside the projection and the decoder, so
+its look-ahead up to theirs costs no latency. ``lag_ms`` is the budget for all of it: the windows
+take what they need and the rest (whole frames) is split between the look-aheads (see
+:func:`split_lag`).
 Below the windows' own look-ahead (``lag_ms`` under ~26 ms) nothing is left to split and the
 latency is the windows'.
 
@@ -83,7 +86,7 @@ class LiveFrames:
 
 
 def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
-              delta_width: int = 0, projection_context: int = 0) -> tuple:
+              delta_width: int = 0, projection_context: int = 0, guide_context: int = 0) -> tuple:
     """Split a latency budget into look-aheads (frames at ``fps``).
 
     The analysis windows take ``window_s``; the whole frames left, ``B = floor((lag_ms / 1000 -
@@ -92,11 +95,14 @@ def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
     half the rest, rounded up (at most ``projection_context`` k), to its look-ahead (measured
     better than a third, docs/streaming.md); if they read audio deltas (``delta_width`` w > 0),
     a third of the rest (at most w) to theirs; the remainder to the state decoder and the
-    trajectory solve, half each (the decoder gets the odd frame).
+    trajectory solve, half each (the decoder gets the odd frame). A guided puppet's guide
+    (``guide_context`` k_g > 0) reads the audio alongside the projection and the decoder, so it
+    gets their look-ahead for free: ``guide_lag = min(k_g, projection_lag + decode_lag)``
+    (giving it more of the budget was measured not to pay, docs/streaming.md).
 
     Returns
     -------
-    (formant_lag, delta_lag, projection_lag, decode_lag, trajectory_lag) : tuple of int
+    (formant_lag, delta_lag, projection_lag, guide_lag, decode_lag, trajectory_lag) : tuple of int
     """
     if not (isinstance(lag_ms, (int, float)) and math.isfinite(lag_ms) and lag_ms >= 0):
         raise ValueError(f"lag_ms must be a non-negative number of milliseconds, got {lag_ms!r}")
@@ -108,7 +114,8 @@ def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
     dl = min(int(delta_width), rest // 3)
     rest -= dl
     decode = (rest + 1) // 2
-    return f, dl, pl, decode, rest - decode
+    gl = min(int(guide_context), pl + decode)
+    return f, dl, pl, gl, decode, rest - decode
 
 
 class LivePuppet:
@@ -130,19 +137,24 @@ class LivePuppet:
     rate : int
         Sample rate of the pushed audio; other rates than 16000 are resampled on the stream with
         ``resample_poly``'s filter.
-    formant_lag, delta_lag, projection_lag, decode_lag, trajectory_lag : int, optional
+    formant_lag, delta_lag, projection_lag, guide_lag, decode_lag, trajectory_lag : int, optional
         Explicit look-aheads in frames. ``formant_lag=-1`` waits for the formant tracker's
         exact decisions (unbounded latency), ``delta_lag=-1`` uses the delta look-ahead the
         vocal features need to be exact (the puppet's delta width; 0 when they are a projection
         of the features alone, as ``vocal_features="projected"`` trains them),
         ``projection_lag=-1`` a projected puppet's full context k (0 .. k; missing future frames
-        repeat the newest one); with all three at -1 and large decode and trajectory lags the
-        output is exactly ``puppet.animate`` of the same audio.
+        repeat the newest one), ``guide_lag=-1`` a guided puppet's full guide context k_g (0 ..
+        k_g, likewise); with all four at -1 and large decode and trajectory lags the output is
+        exactly ``puppet.animate`` of the same audio.
+    guide_weight : float, optional
+        λ of a guided puppet's guide (default: the file's, 1); 0 streams Brand's unguided
+        trajectory, as ``animate(guide_weight=0)``.
     """
 
     def __init__(self, puppet, lag_ms: float = 150.0, *, fps: float | None = None,
                  posterior: bool = False, rate: int = ANALYSIS_RATE, formant_lag: int | None = None,
                  delta_lag: int | None = None, projection_lag: int | None = None,
+                 guide_lag: int | None = None, guide_weight: float | None = None,
                  decode_lag: int | None = None, trajectory_lag: int | None = None):
         from voicepuppet import _core
 
@@ -170,20 +182,37 @@ class LivePuppet:
         window = self.features.lookahead_s()
         width = int(core.delta_width)
         k = int(core.projection_context)
+        if guide_weight is None:
+            lam = float(core.guide_weight) if core.guided else 0.0
+        elif not (isinstance(guide_weight, (int, float, np.number)) and math.isfinite(guide_weight)
+                  and guide_weight >= 0):
+            raise ValueError(f"guide_weight must be a finite number >= 0, got {guide_weight!r}")
+        else:
+            lam = float(guide_weight)
+        if lam > 0 and not core.guided:
+            raise ValueError(f"guide_weight = {lam:g} needs a guided puppet, but this one has no "
+                             "guide; train it with guide='ridge' (the default) or pass 0")
+        kg = int(core.guide_context) if lam > 0 else 0
         # the delta look-ahead the vocal features need (none for a projection of the features
         # alone, a projected puppet's default with context)
-        f, dl, pl, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants,
-                                    int(core.vocal_delta_width), k)
+        f, dl, pl, gl, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants,
+                                        int(core.vocal_delta_width), k, kg)
         f = f if formant_lag is None else formant_lag
         dl = dl if delta_lag is None else delta_lag
         pl = pl if projection_lag is None else projection_lag
         d = d if decode_lag is None else decode_lag
         t = t if trajectory_lag is None else trajectory_lag
+        if guide_lag is not None:
+            gl = guide_lag
+        elif projection_lag is not None or decode_lag is not None:
+            # the free look-ahead follows explicit projection / decoder lags
+            gl = min(kg, max(0, (k if pl < 0 else pl) + d))
         for name, v in (("formant_lag", f), ("delta_lag", dl), ("projection_lag", pl),
-                        ("decode_lag", d), ("trajectory_lag", t)):
+                        ("guide_lag", gl), ("decode_lag", d), ("trajectory_lag", t)):
             if not isinstance(v, (int, np.integer)) or v < (-1 if name in ("formant_lag",
                                                                           "delta_lag",
-                                                                          "projection_lag")
+                                                                          "projection_lag",
+                                                                          "guide_lag")
                                                              else 0):
                 raise ValueError(f"{name} must be a whole number of frames >= 0, got {v!r}")
         if dl > width:
@@ -193,6 +222,10 @@ class LivePuppet:
             raise ValueError(f"projection_lag must be at most the puppet's projection context "
                              f"{k} (frames of audio on each side its vocal features read), got "
                              f"{pl}")
+        if guide_lag is not None and guide_lag > int(core.guide_context):
+            raise ValueError(f"guide_lag must be at most the puppet's guide context "
+                             f"{int(core.guide_context)} (frames of audio on each side its guide "
+                             f"reads; 0 for a puppet without a guide), got {guide_lag}")
         self.formant_lag = None if f < 0 else int(f)
         if has_formants:
             self.features = StreamingFeatures(fset, fps=puppet.fps, rate=ANALYSIS_RATE,
@@ -201,7 +234,7 @@ class LivePuppet:
         if fps is not None and not (math.isfinite(out_fps) and out_fps > 0):
             raise ValueError(f"fps must be positive, got {fps!r}")
         self.core = _core.StreamingPuppet(core, int(d), int(t), out_fps, bool(posterior), int(dl),
-                                          int(pl))
+                                          int(pl), int(gl), lam)
         self.fps = float(self.core.output_fps)
         try:
             rate_i = int(rate)
@@ -225,6 +258,16 @@ class LivePuppet:
         return int(self.core.projection_lag)
 
     @property
+    def guide_lag(self) -> int:
+        """The guide's look-ahead (0 for an unguided stream)."""
+        return int(self.core.guide_lag)
+
+    @property
+    def guide_weight(self) -> float:
+        """λ of the guide on this stream (0: unguided)."""
+        return float(self.core.guide_weight)
+
+    @property
     def decode_lag(self) -> int:
         return int(self.core.decode_lag)
 
@@ -234,8 +277,9 @@ class LivePuppet:
 
     @property
     def latency_s(self) -> float:
-        """Algorithmic latency in seconds: analysis windows + formant tracker bound + delta,
-        projection, decoder and trajectory look-aheads (compute time not included). Unbounded
+        """Algorithmic latency in seconds: analysis windows + formant tracker bound + delta
+        look-ahead + the longer of (projection + decoder) and the guide's look-ahead + the
+        trajectory's (compute time not included). Unbounded
         (inf) when the formant tracker waits for exact decisions."""
         if self.formant_lag is None and "formants" in self.puppet.feature_set.features:
             return math.inf
@@ -423,7 +467,9 @@ def run_live(args, out=None) -> int:
     out = out or sys.stdout
     live = LivePuppet(args.puppet, lag_ms=args.lag_ms, fps=args.fps, posterior=args.posterior,
                       rate=args.rate if args.input == "-" else ANALYSIS_RATE,
-                      projection_lag=getattr(args, "projection_lag", None))
+                      projection_lag=getattr(args, "projection_lag", None),
+                      guide_lag=getattr(args, "guide_lag", None),
+                      guide_weight=getattr(args, "guide_weight", None))
     ws = _WebSocketOut(*_host_port(args.websocket, "websocket")) if args.websocket else None
     osc = _OscOut(*_host_port(args.osc, "osc")) if args.osc else None
     if ws is not None:
@@ -512,7 +558,8 @@ def run_live(args, out=None) -> int:
                "lag_ms": live.lag_ms,
                "algorithmic_latency_ms": round(live.latency_s * 1e3, 2),
                "formant_lag": live.formant_lag, "delta_lag": live.delta_lag,
-               "projection_lag": live.projection_lag, "decode_lag": live.decode_lag,
+               "projection_lag": live.projection_lag, "guide_lag": live.guide_lag,
+               "guide_weight": live.guide_weight, "decode_lag": live.decode_lag,
                "trajectory_lag": live.trajectory_lag,
                "latency_ms_p50": round(float(np.percentile(lat, 50)), 2),
                "latency_ms_p99": round(float(np.percentile(lat, 99)), 2),
@@ -538,6 +585,13 @@ def add_parser(sub) -> None:
     p.add_argument("--projection-lag", type=int, default=None, metavar="FRAMES",
                    help="look-ahead of a projected puppet's vocal features (0 .. its context k, "
                         "-1 for k: exact); default: its share of --lag-ms")
+    p.add_argument("--guide-lag", type=int, default=None, metavar="FRAMES",
+                   help="look-ahead of a guided puppet's guide (0 .. its guide context, -1 for "
+                        "all of it: exact); default: the projection's and decoder's look-ahead, "
+                        "which it shares at no cost")
+    p.add_argument("--guide-weight", type=float, default=None, metavar="LAMBDA",
+                   help="weight of a guided puppet's guide (default: the puppet's; 0: Brand's "
+                        "unguided trajectory)")
     p.add_argument("--posterior", action="store_true",
                    help="posterior-weighted synthesis instead of the fixed-lag Viterbi path")
     p.add_argument("--rate", type=int, default=ANALYSIS_RATE,

@@ -218,7 +218,7 @@ def add_parser(sub) -> None:
     p.add_argument("--guide", choices=["ridge", "none"],
                    help="ridge (default): the ridge's prediction of the face from the audio joins the "
                         "trajectory solve as evidence, weighted by its residuals' inverse covariance; none: "
-                        "Brand's solve alone (docs/puppet.md). A guided puppet does not stream live yet")
+                        "Brand's solve alone (docs/puppet.md)")
     p.add_argument("--guide-context", type=int, metavar="K",
                    help="frames of audio on each side the guide's ridge reads (default 5)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")

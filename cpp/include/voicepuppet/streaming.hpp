@@ -94,6 +94,14 @@ struct StreamingOptions {
   /// offline projection repeats the last frame at the end of a recording. A puppet without a
   /// projection has k = 0.
   Index projection_lag = -1;
+  /// look-ahead of a guided puppet's guide (Puppet::guided(): ŷ_t reads the standardised frames
+  /// t − k_g .. t + k_g), frames at the puppet's rate, 0 .. k_g; −1: the full context k_g, as
+  /// offline. Missing future frames repeat the newest standardised one (as projection_lag). An
+  /// unguided stream (no guide, or guide_weight 0) resolves it to 0.
+  Index guide_lag = -1;
+  /// λ of the guide's evidence: negative or NaN: the file's guide/weight; 0: Brand's unguided
+  /// stream; positive: needs a guided puppet. Resolved to the λ used.
+  double guide_weight = -1;
   Index decode_lag = 2;      ///< look-ahead of the state decoder, frames at the puppet's rate
   Index trajectory_lag = 2;  ///< look-ahead of the trajectory solve, frames at the output rate
   double fps = 0;            ///< output frame rate; 0: the puppet's own rate
@@ -119,25 +127,34 @@ struct StreamedFrames {
 /// the latest repeated for the missing ones. A projected puppet's vocal features of frame t
 /// (Puppet::project: [z_{t−k}, …, z_{t+k}] · P + c over the standardised frames z, edges
 /// repeated) are computed once z_{t + projection_lag} is known, the newest standardised frame
-/// repeated for the later ones; without a projection the vocal features are z. Then per face
-/// part: vocal log densities → FixedLagDecoder (frame t decided after
+/// repeated for the later ones; without a projection the vocal features are z. A guided
+/// puppet's prediction ŷ_t (Puppet::guide_predict, from the same ring of standardised frames
+/// and the same context code) is computed once z_{t + guide_lag} is known, likewise, and
+/// interpolated to the output rate as Puppet::animate does (linearly, at the resample_weights
+/// positions). Then per face part: vocal log densities → FixedLagDecoder (frame t decided after
 /// t + decode_lag) → states (or posteriors) resampled to the output rate as they are decided
 /// (sample and hold, or linear interpolation, exactly as resample_states / resample_weights) →
-/// FixedLagTrajectory (output frame k emitted after k + trajectory_lag) → face coordinates →
-/// Puppet::to_points. Work per frame is O((2k + 1) · C · V + decode_lag · arcs + D³ +
-/// trajectory_lag · D²) (C projected columns, V vocal dimensions),
-/// independent of the stream's length. With lags covering the whole stream (or for the frames
-/// still held back at `flush`) the output equals Puppet::animate.
+/// FixedLagTrajectory (output frame k enters once its state and its ŷ_k are known, with the
+/// evidence precision λ R[sl, sl]⁻¹ = λ Puppet::guide_precision(p), and is emitted after
+/// k + trajectory_lag) → face coordinates → Puppet::to_points. Work per frame is
+/// O((2k + 1) · C · V + (2k_g + 1) · C_g · K + decode_lag · arcs + D³ + trajectory_lag · D²)
+/// (C projected columns, V vocal dimensions, C_g guide columns), independent of the stream's
+/// length. With lags covering the whole stream (or for the frames still held back at `flush`)
+/// the output equals Puppet::animate.
 ///
 /// Latency (seconds of audio after a frame's time before it is emitted):
-/// (delta_lag + projection_lag + decode_lag) / puppet fps + trajectory_lag / output fps (+ the
-/// feature window's look-ahead, which is the front end's).
+/// (delta_lag + max(projection_lag + decode_lag, guide_lag)) / puppet fps + trajectory_lag /
+/// output fps (guide_lag 0 for an unguided stream; + the feature window's look-ahead, which
+/// is the front end's): the guide's look-ahead overlaps the decoder's. At an output rate other
+/// than the puppet's, an output frame between two input frames also waits for the later one's
+/// posterior or ŷ (the interpolation's), up to one input frame more.
 class StreamingPuppet {
  public:
   /// @param[in] puppet   copied: the stream does not depend on the caller's object
   /// @param[in] options  lags (≥ 0), output rate (≥ 0), synthesis mode
   /// @throws std::invalid_argument for a negative lag, a delta_lag above the puppet's delta
-  ///         width, a projection_lag above its projection context, or a bad rate.
+  ///         width, a projection_lag above its projection context, a guide_lag above its guide
+  ///         context, a positive guide_weight for a puppet without a guide, or a bad rate.
   explicit StreamingPuppet(const Puppet& puppet, const StreamingOptions& options = {});
 
   /// Pushes raw (unstandardised) audio feature frames at the puppet's rate.
@@ -158,8 +175,8 @@ class StreamingPuppet {
   double output_fps() const { return out_fps_; }
   Index frames_pushed() const { return pushed_; }
   Index frames_emitted() const { return emitted_; }
-  /// Algorithmic latency in seconds: (delta_lag + projection_lag + decode_lag) / fps +
-  /// trajectory_lag / output fps.
+  /// Algorithmic latency in seconds: (delta_lag + max(projection_lag + decode_lag, guide_lag)) /
+  /// fps + trajectory_lag / output fps.
   double latency_seconds() const;
   /// log p(features so far) under each part's vocal HMM, summed over parts.
   double log_likelihood() const;
@@ -184,15 +201,28 @@ class StreamingPuppet {
     Index first = 0;                     ///< input index of states[0] / weights[0]
     Index decided = 0;                   ///< input frames decided so far
     Index next_out = 0;                  ///< next output frame to resample
+    std::vector<Index> pending_states;   ///< resampled output frames waiting for their ŷ
+    std::vector<VectorXd> pending_weights;
+    Index in_trajectory = 0;             ///< output frames pushed into the trajectory
+    Index col = 0;                       ///< the part's first face column
   };
   RowMatrixXd feed(PartStream& ps, const DecodedFrames& f, bool final_pass);
+  /// Pushes a part's pending output frames whose ŷ is known (all of them unguided).
+  RowMatrixXd push_ready(PartStream& ps);
+  /// The guide's ŷ of the frames whose context is now known (all of them at the end), and its
+  /// resampling to the output rate.
+  void guide_ready(bool final_pass);
+  /// Forgets standardised frames of the ring no later projection or ŷ needs.
+  void trim_ring();
+  /// Standardised frames z in: the ring, the vocal features, the guide, the decoders.
+  StreamedFrames advance(const RowMatrixXd& z, bool final_pass);
   StreamedFrames assemble(std::vector<RowMatrixXd>& faces);
   /// Standardised [features, deltas] of the frames whose deltas are now known (all of them at
   /// the end of the stream).
   RowMatrixXd standardized_ready(bool final_pass);
   /// A projected puppet's vocal features of the frames whose projection context is now known
-  /// (all of them at the end), given the newly standardised frames z; z itself without a
-  /// projection.
+  /// (all of them at the end), the newly standardised frames z already in the ring; z itself
+  /// without a projection.
   RowMatrixXd vocal_ready(const RowMatrixXd& z, bool final_pass);
   /// Decodes the vocal features v of the next input frames; the result carries them.
   StreamedFrames decode(RowMatrixXd v, bool final_pass);
@@ -207,8 +237,19 @@ class StreamingPuppet {
   VectorXd mean_, std_;
   // The projection (Puppet::projection): v_t = [z_{t−k}, …, z_{t+k}] (first C columns) · P + c.
   Index projection_lag_ = 0;
-  std::vector<VectorXd> z_;       ///< first C standardised columns of frames z_first_ .. standardized_ − 1
+  /// first max(C, C_g) standardised columns of frames z_first_ .. standardized_ − 1 (the ring
+  /// the projection and the guide share; empty for a puppet with neither)
+  std::vector<VectorXd> z_;
+  Index ring_columns_ = 0;
   Index z_first_ = 0, projected_ = 0;
+  // The guide (a guided puppet streamed with λ > 0): ŷ_t = [z_{t−k_g}, …, z_{t+k_g}] · G + g.
+  bool guide_on_ = false;
+  Index guide_lag_ = 0;
+  Index guided_ = 0;                   ///< input frames whose ŷ is computed
+  std::vector<VectorXd> yhat_;         ///< ŷ of input frames yhat_first_ .. guided_ − 1
+  Index yhat_first_ = 0;
+  std::vector<VectorXd> yout_;         ///< ŷ at the output rate, frames yout_first_ .. yout_next_ − 1
+  Index yout_first_ = 0, yout_next_ = 0;
   Index vocal_ = 0;               ///< input frames whose vocal features are computed
   Index pushed_ = 0, emitted_ = 0;
 };

@@ -151,20 +151,39 @@ RowMatrixXd resample_weights(const MatrixRef& weights, double fps_in, double fps
 /// memory is O((lag + 1)·D²). `flush` ends the stream: the remaining frames come from the full
 /// solve (so with lag ≥ T − 1 the output equals solve_trajectory exactly), and the object is
 /// ready for a new stream.
+///
+/// With evidence (the constructor taking a precision W, as TrajectoryEvidence::precision, the
+/// same for every frame): each frame is pushed with its target ŷ_t, which adds W to its diagonal
+/// block and W ŷ_t to its right-hand side; frame t emitted is then the value at t of the exact
+/// solution of the guided system truncated to 0 .. t + lag, `flush` gives the batch guided solve
+/// (solve_trajectory(_weighted) with the evidence {targets, W}). W = 0 is the unguided stream.
 class FixedLagTrajectory {
  public:
   /// @param[in] model  copied; the stream is independent of the caller's object afterwards
   /// @param[in] lag    frames of look-ahead L ≥ 0
   FixedLagTrajectory(const TrajectoryModel& model, Index lag);
+  /// A stream with per-frame evidence of precision W (#D by #D, symmetric PSD, λ folded in).
+  /// @throws std::invalid_argument on a bad W (check_trajectory_evidence) or a negative lag.
+  FixedLagTrajectory(const TrajectoryModel& model, Index lag, const Eigen::MatrixXd& precision);
 
   /// Pushes hard states; returns the frames emitted by these pushes (#K by #D, K may be 0).
+  /// @throws std::invalid_argument on a state out of range, or on a stream with evidence
+  ///         (which needs the targets overload).
   RowMatrixXd push_states(const IndexVectorRef& states);
   /// Pushes per-frame weights (#K by #N, rows as in solve_trajectory_weighted).
   RowMatrixXd push_weights(const MatrixRef& weights);
+  /// The same with the frames' evidence targets ŷ (#K by #D, finite), for a stream constructed
+  /// with a precision (a stream without evidence refuses them).
+  RowMatrixXd push_states(const IndexVectorRef& states, const MatrixRef& targets);
+  RowMatrixXd push_weights(const MatrixRef& weights, const MatrixRef& targets);
   /// Emits the frames still held back and resets the stream.
   RowMatrixXd flush();
 
   Index lag() const { return lag_; }
+  /// Whether frames carry evidence (constructed with a precision).
+  bool has_evidence() const { return evidence_; }
+  /// W (#D by #D, symmetrised; empty without evidence).
+  const Eigen::MatrixXd& precision() const { return w_; }
   Index frames_pushed() const { return pushed_; }
   Index frames_emitted() const { return emitted_; }
   const TrajectoryModel& model() const { return model_; }
@@ -177,7 +196,10 @@ class FixedLagTrajectory {
     VectorXd z;             ///< forward-substituted right-hand side (once finalised)
     Eigen::MatrixXd up;     ///< H[t−1, t]
   };
-  void push_frame(const double* weights, Index state, std::vector<VectorXd>& out);
+  void push_frame(const double* weights, Index state, const double* target, std::vector<VectorXd>& out);
+  void check_targets(const MatrixRef& targets, Index rows) const;
+  RowMatrixXd push_states_checked(const IndexVectorRef& states, const MatrixRef* targets);
+  RowMatrixXd push_weights_checked(const MatrixRef& weights, const MatrixRef* targets);
   void emit_back_to(Index first, bool whole, std::vector<VectorXd>& out);
   Slot& slot(Index t);
 
@@ -185,6 +207,8 @@ class FixedLagTrajectory {
   std::vector<TrajectoryModel::FullBlocks> blocks_;  ///< full blocks (diagonal models expanded)
   Eigen::MatrixXd dg_, next_, up_;                     ///< scratch for the weighted terms
   VectorXd rh_, rnext_;
+  bool evidence_ = false;
+  Eigen::MatrixXd w_;  ///< evidence precision W (evidence_ only)
   Index lag_ = 0;
   Index pushed_ = 0, emitted_ = 0;
   std::vector<Slot> ring_;

@@ -19,7 +19,8 @@ Cases (medians of interleaved repeats; per-frame percentiles over every frame of
 
 ``python -m voicepuppet.bench.live --table`` prints the accuracy table of docs/streaming.md
 (streamed vs offline animation for each latency budget, Err of eq. 7 and landmark RMSE / IOD);
-``--projection-table`` the price of a projected puppet's shorter projection look-ahead.
+``--projection-table`` the price of a projected puppet's shorter projection look-ahead,
+``--guide-table`` the price of a guided puppet's shorter guide look-ahead.
 """
 
 from __future__ import annotations
@@ -66,8 +67,7 @@ def _cached_puppet(corpus, quick: bool, **options):
 
     with open(os.path.join(corpus.out_dir, "corpus.json")) as fh:
         key = json.load(fh)["key"]
-    # guide="none": a guided puppet does not stream yet (StreamingPuppet refuses it).
-    opts = dict(n_states=12 if quick else 26, n_iter=10 if quick else 20, guide="none", **options)
+    opts = dict(n_states=12 if quick else 26, n_iter=10 if quick else 20, **options)
     tag = hashlib.sha256(json.dumps([key, opts], sort_keys=True).encode()).hexdigest()[:12]
     path = os.path.join(corpus.out_dir, f"puppet-{tag}.vpp")
     if os.path.exists(path):
@@ -144,9 +144,9 @@ def run(quick: bool = False, repeats: int = 3) -> list:
     T = feats.shape[0]
     cpp_frames = []
 
-    def stream_frames(core, dl, tl, x, times):
+    def stream_frames(core, dl, tl, x, times, guide_weight=-1.0):
         """Push x one feature frame at a time; returns the points, appends each push's time."""
-        sp = _core.StreamingPuppet(core, dl, tl, 0.0, False)
+        sp = _core.StreamingPuppet(core, dl, tl, 0.0, False, guide_weight=guide_weight)
         out = []
         for t in range(x.shape[0]):
             c0 = time.perf_counter()
@@ -170,6 +170,24 @@ def run(quick: bool = False, repeats: int = 3) -> list:
                       rel_diff(exact, res["peer"]),
                       frame_ms_p50=float(np.percentile(cf, 50)),
                       frame_ms_p99=float(np.percentile(cf, 99))))
+
+    # 2a. the guide's cost: the guided stream (ŷ from +-5 frames, its evidence in the trajectory)
+    #     against the same puppet streamed unguided (guide_weight 0), same lags
+    guided_frames = []
+    med, _ = timeit_interleaved({"ours": lambda: stream_frames(puppet._core, 2, 1, feats,
+                                                               guided_frames),
+                                 "peer": lambda: stream_frames(puppet._core, 2, 1, feats, [],
+                                                               guide_weight=0.0)},
+                                repeats)
+    gf = np.array(guided_frames) * 1e3
+    cases.append(case("puppet_stream_cpp_guided_vs_unguided",
+                      f"T={T}, N={puppet.n_states(0)}, k_g=5, lags 2+1",
+                      med["ours"], "the same StreamingPuppet with guide_weight 0", med["peer"],
+                      rel_diff(stream_frames(puppet._core, T + 1, T + 1, feats, [], guide_weight=0.0),
+                               np.asarray(puppet._core.animate(np.ascontiguousarray(feats), 0.0, False,
+                                                               guide_weight=0.0)["points"])),
+                      frame_ms_p50=float(np.percentile(gf, 50)),
+                      frame_ms_p99=float(np.percentile(gf, 99))))
 
     # 2b. a projected puppet's stream (the projection's +-5 frames computed per frame) against
     #     the unprojected one's, both one feature frame per push
@@ -230,7 +248,7 @@ def error_table(quick: bool = False) -> str:
     from voicepuppet.metrics import err, landmark_rmse_iod
 
     corpus, puppet = _corpus(quick)
-    rows = ["| lag budget (ms) | latency (ms) | look-aheads (formant, deltas, decoder, trajectory) | mode "
+    rows = ["| lag budget (ms) | latency (ms) | look-aheads (formant, deltas, guide, decoder, trajectory) | mode "
             "| Err vs offline | RMSE/IOD vs offline | Err vs truth | RMSE/IOD vs truth |",
             "|---|---|---|---|---|---|---|---|"]
     clips = corpus.test
@@ -256,7 +274,8 @@ def error_table(quick: bool = False) -> str:
                 n = min(len(pts), len(c.points))
                 e_tr.append(err(pts[:n], c.points[:n]))
                 r_tr.append(landmark_rmse_iod(pts[:n], c.points[:n]))
-            la = (live.formant_lag, live.delta_lag, live.decode_lag, live.trajectory_lag)
+            la = (live.formant_lag, live.delta_lag, live.guide_lag, live.decode_lag,
+                  live.trajectory_lag)
             rows.append(f"| {lag} | {live.latency_s * 1e3:.0f} | {la} | "
                         f"{'posterior' if posterior else 'Viterbi'} | {np.mean(e_off):.4f} | "
                         f"{np.mean(r_off):.4f} | {np.mean(e_tr):.3f} | {np.mean(r_tr):.4f} |")
@@ -265,37 +284,34 @@ def error_table(quick: bool = False) -> str:
     return "\n".join(rows)
 
 
-def projection_table(quick: bool = False) -> str:
-    """Markdown table: the price of ``projection_lag`` < k for the projected puppet of
-    ``_projected``: each projection look-ahead with the other look-aheads of the 150 ms and
-    330 ms budgets, and with exact formants and decoder and trajectory lags covering the clips
-    (the projection's price alone); Err / RMSE as in :func:`error_table`, Viterbi."""
+def _lag_price_table(puppet, clips, option: str, values, settings, guide_weight=None) -> str:
+    """Markdown table: the ``clips`` streamed with the LivePuppet keyword ``option`` at each of
+    ``values`` under each ``(label, LivePuppet keywords)`` of ``settings`` (and ``guide_weight``,
+    the offline animation too); Err / RMSE against the offline animation and the truth as in
+    :func:`error_table`, Viterbi, means over the clips."""
     from voicepuppet.audio import load_audio
     from voicepuppet.live import LivePuppet
     from voicepuppet.metrics import err, landmark_rmse_iod
 
-    corpus, _ = _corpus(quick)
-    proj = _projected(corpus, quick)
-    clips = corpus.test
-    offline = {c.audio: proj.animate(load_audio(c.audio)).animation.points for c in clips}
-    rows = ["| other look-aheads | look-aheads (formant, deltas, projection, decoder, trajectory) "
-            "| latency (ms) | Err vs offline | RMSE/IOD vs offline | Err vs truth | RMSE/IOD vs truth |",
+    offline = {c.audio: puppet.animate(load_audio(c.audio), guide_weight=guide_weight
+                                       ).animation.points for c in clips}
+    rows = ["| other look-aheads | look-aheads (formant, deltas, projection, guide, decoder, "
+            "trajectory) | latency (ms) | Err vs offline | RMSE/IOD vs offline | Err vs truth | "
+            "RMSE/IOD vs truth |",
             "|---|---|---|---|---|---|---|"]
-    settings = (("150 ms budget", dict(lag_ms=150)), ("330 ms budget", dict(lag_ms=330)),
-                ("covering", dict(formant_lag=-1, decode_lag=2000, trajectory_lag=2000)))
-    k = int(proj._core.projection_context)
     for label, kw in settings:
-        for pl in range(k + 1):
+        for v in values:
             r = []
             for c in clips:
-                live = LivePuppet(proj, projection_lag=pl, **kw)
+                live = LivePuppet(puppet, **{option: v}, **kw, guide_weight=guide_weight)
                 pts, _, _ = _stream_live(live, load_audio(c.audio).samples)
                 o = offline[c.audio]
                 n = min(len(pts), len(c.points))
                 r.append((err(pts, o), landmark_rmse_iod(pts, o), err(pts[:n], c.points[:n]),
                           landmark_rmse_iod(pts[:n], c.points[:n])))
             m = np.mean(r, axis=0)
-            la = (live.formant_lag, live.delta_lag, pl, live.decode_lag, live.trajectory_lag)
+            la = (live.formant_lag, live.delta_lag, live.projection_lag, live.guide_lag,
+                  live.decode_lag, live.trajectory_lag)
             lat = f"{live.latency_s * 1e3:.0f}" if math.isfinite(live.latency_s) else "unbounded"
             rows.append(f"| {label} | {la} | {lat} | {m[0]:.4f} | {m[1]:.4f} | {m[2]:.3f} | "
                         f"{m[3]:.4f} |")
@@ -309,6 +325,46 @@ def projection_table(quick: bool = False) -> str:
     return "\n".join(rows)
 
 
+#: Other look-aheads of the price tables: two budgets' splits, and exact formants with decoder
+#: and trajectory lags covering the clips (the one look-ahead's price alone).
+_PRICE_SETTINGS = (("150 ms budget", dict(lag_ms=150)), ("330 ms budget", dict(lag_ms=330)),
+                   ("covering", dict(formant_lag=-1, delta_lag=-1, decode_lag=2000,
+                                     trajectory_lag=2000)))
+
+
+def projection_table(quick: bool = False) -> str:
+    """Markdown table: the price of ``projection_lag`` < k for the projected puppet of
+    ``_projected``, streamed without its guide (``guide_weight=0``, the table of
+    docs/streaming.md was measured before guided puppets streamed): each projection look-ahead
+    with the other look-aheads of the 150 ms and 330 ms budgets, and covering."""
+    corpus, _ = _corpus(quick)
+    proj = _projected(corpus, quick)
+    return _lag_price_table(proj, corpus.test, "projection_lag",
+                            range(int(proj._core.projection_context) + 1), _PRICE_SETTINGS,
+                            guide_weight=0)
+
+
+def guide_table(quick: bool = False) -> str:
+    """Markdown table: the price of ``guide_lag`` < k_g for the bench's (guided) puppet: each
+    guide look-ahead with the other look-aheads of the 150 ms and 330 ms budgets (where the
+    split gives the guide the decoder's look-ahead for free; more costs latency), and
+    covering; then, at each budget's latency, splits that give the guide and the decoder more
+    by taking from the trajectory and the deltas."""
+    corpus, puppet = _corpus(quick)
+    kg = int(puppet._core.guide_context)
+    table = _lag_price_table(puppet, corpus.test, "guide_lag", range(kg + 1), _PRICE_SETTINGS)
+    # same latency, other splits: (deltas, decoder = guide, trajectory)
+    resplit = []
+    for label, lag, splits in (("150 ms, re-split", 150, ((0, 2, 1), (1, 2, 0), (0, 3, 0))),
+                               ("330 ms, re-split", 330, ((1, 4, 2), (2, 4, 1), (1, 5, 1),
+                                                          (0, 5, 2)))):
+        for dl, d, t in splits:
+            resplit.append((label, dict(lag_ms=lag, delta_lag=dl, decode_lag=d, trajectory_lag=t,
+                                        guide_lag=min(kg, d))))
+    extra = _lag_price_table(puppet, corpus.test, "posterior", (False,), resplit)
+    return table + "\n" + "\n".join(extra.splitlines()[2:-1])
+
+
 if __name__ == "__main__":  # pragma: no cover
     import argparse
 
@@ -316,10 +372,14 @@ if __name__ == "__main__":  # pragma: no cover
     ap.add_argument("--table", action="store_true")
     ap.add_argument("--projection-table", action="store_true",
                     help="the price of projection_lag < k for a projected puppet")
+    ap.add_argument("--guide-table", action="store_true",
+                    help="the price of guide_lag < k_g for the (guided) puppet, and other splits")
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args()
     if a.projection_table:
         print(projection_table(a.quick))
+    elif a.guide_table:
+        print(guide_table(a.quick))
     elif a.table:
         print(error_table(a.quick))
     else:
