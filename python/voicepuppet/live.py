@@ -591,7 +591,7 @@ def add_parser(sub) -> None:
                         "which it shares at no cost")
     p.add_argument("--guide-weight", type=float, default=None, metavar="LAMBDA",
                    help="weight of a guided puppet's guide (default: the puppet's; 0: Brand's "
-                        "unguided trajectory)")
+                        "unguided trajectory; 8 for a voice the puppet never heard)")
     p.add_argument("--posterior", action="store_true",
                    help="posterior-weighted synthesis instead of the fixed-lag Viterbi path")
     p.add_argument("--rate", type=int, default=ANALYSIS_RATE,
