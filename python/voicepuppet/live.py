@@ -147,7 +147,7 @@ class LivePuppet:
         k_g, likewise); with all four at -1 and large decode and trajectory lags the output is
         exactly ``puppet.animate`` of the same audio.
     guide_weight : float, optional
-        λ of a guided puppet's guide (default: the file's, 1); 0 streams Brand's unguided
+        λ of a guided puppet's guide (default: the file's, 4); 0 streams Brand's unguided
         trajectory, as ``animate(guide_weight=0)``.
     """
 
@@ -189,10 +189,8 @@ class LivePuppet:
             raise ValueError(f"guide_weight must be a finite number >= 0, got {guide_weight!r}")
         else:
             lam = float(guide_weight)
-        if lam > 0 and not core.guided:
-            raise ValueError(f"guide_weight = {lam:g} needs a guided puppet, but this one has no "
-                             "guide; train it with guide='ridge' (the default) or pass 0")
-        kg = int(core.guide_context) if lam > 0 else 0
+        kg = int(core.guide_context) if lam > 0 else 0  # (a positive λ for an unguided puppet:
+        # StreamingPuppet says it needs a guided one)
         # the delta look-ahead the vocal features need (none for a projection of the features
         # alone, a projected puppet's default with context)
         f, dl, pl, gl, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants,
