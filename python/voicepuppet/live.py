@@ -467,7 +467,9 @@ def run_live(args, out=None) -> int:
                       rate=args.rate if args.input == "-" else ANALYSIS_RATE,
                       projection_lag=getattr(args, "projection_lag", None),
                       guide_lag=getattr(args, "guide_lag", None),
-                      guide_weight=getattr(args, "guide_weight", None))
+                      guide_weight=getattr(args, "guide_weight", None),
+                      decode_lag=getattr(args, "decode_lag", None),
+                      trajectory_lag=getattr(args, "trajectory_lag", None))
     ws = _WebSocketOut(*_host_port(args.websocket, "websocket")) if args.websocket else None
     osc = _OscOut(*_host_port(args.osc, "osc")) if args.osc else None
     if ws is not None:
@@ -590,6 +592,12 @@ def add_parser(sub) -> None:
     p.add_argument("--guide-weight", type=float, default=None, metavar="LAMBDA",
                    help="weight of a guided puppet's guide (default: the puppet's; 0: Brand's "
                         "unguided trajectory; 8 for a voice the puppet never heard)")
+    p.add_argument("--decode-lag", type=int, default=None, metavar="FRAMES",
+                   help="look-ahead of the state decoder (default: its share of --lag-ms; a guided "
+                        "puppet's guide shares it)")
+    p.add_argument("--trajectory-lag", type=int, default=None, metavar="FRAMES",
+                   help="look-ahead of the trajectory solve, frames at the output rate (default: its "
+                        "share of --lag-ms)")
     p.add_argument("--posterior", action="store_true",
                    help="posterior-weighted synthesis instead of the fixed-lag Viterbi path")
     p.add_argument("--rate", type=int, default=ANALYSIS_RATE,
