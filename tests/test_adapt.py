@@ -155,6 +155,14 @@ def puppet():
                         audio_deltas=0, guide="none")
 
 
+@pytest.fixture(scope="module")
+def guided():
+    """The same performance trained with the default guide (the ridge's ŷ in the solve)."""
+    pts, x, _ = _performer(np.random.default_rng(7), 900)
+    return Puppet.train([pts], features_list=[x], fps=30.0, n_states=6, n_iter=20, n_components=3,
+                        audio_deltas=0)
+
+
 def _purity(decoded, states):
     return sum(np.bincount(states[decoded == s]).max() for s in np.unique(decoded)) / len(states)
 
@@ -296,3 +304,30 @@ def test_animate_switch_and_live_refuses(tmp_path, capsys):
         main(["live", str(tmp_path / "p.vpp"), "--adapt", "full"])
     assert e.value.code == 2
     assert "unrecognized arguments: --adapt" in capsys.readouterr().err
+
+
+def test_a_guided_puppets_guide_reads_the_inputs_own_features(guided):
+    """The transform adapts the decoder's input; the guide's ŷ reads the input's own z (feeding
+    it A z + b was measured and not adopted: docs/results.md, "Adaptation reaching the guide").
+    The face is Brand's solve of the decoded states with the evidence ŷ(z), recomposed from the
+    parts; τ = ∞ is no adaptation bit for bit, guide included."""
+    from voicepuppet import _core
+
+    assert guided._core.guided and not guided._core.projected
+    pts, heard, _ = _performer(np.random.default_rng(8), 900, VOICE)
+    truth, _ = guided.face_space.encode(pts)
+    plain = guided.animate(features=heard)
+    r = guided.animate(features=heard, adapt="full", adapt_tau=5.0, adapt_iter=8)
+    assert np.sum((r.face - truth) ** 2) < 0.8 * np.sum((plain.face - truth) ** 2)
+    core = guided._core
+    (t,) = r.transforms
+    z = np.asarray(core.standardize(np.ascontiguousarray(heard)))
+    W = core.guide_weight * np.asarray(core.guide_precision(0))
+    model = core.trajectory_model(0.0, 0)
+    face = _core.solve_trajectory(model, r.states[:, 0], np.asarray(core.guide_predict(z)), W)
+    np.testing.assert_allclose(r.face, face, rtol=0, atol=1e-8 * np.abs(face).max())
+    adapted = _core.solve_trajectory(model, r.states[:, 0], np.asarray(core.guide_predict(
+        z @ np.asarray(t["A"]).T + np.asarray(t["b"]))), W)
+    assert np.abs(adapted - face).max() > 1e-3  # the two readings differ: the test tells them apart
+    inf = guided.animate(features=heard, adapt="full", adapt_tau=np.inf)
+    np.testing.assert_array_equal(inf.face, plain.face)

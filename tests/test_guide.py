@@ -11,7 +11,7 @@ import pytest
 from voicepuppet import _core
 from voicepuppet.evaluation import RidgeBaseline, context_stack, ridge_input
 from voicepuppet.face import IBUG68_RIGID
-from voicepuppet.projection import cross_fit
+from voicepuppet.projection import GUIDE_WEIGHT, cross_fit
 from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, load
 
 FPS = 30.0
@@ -133,7 +133,7 @@ def _reference(pup, feats, *, posterior, fps):
 def test_guided_animation_is_the_dense_solve_of_the_guided_objective(puppets, data, parts, posterior, fps):
     pup = puppets[parts, "ridge"]
     _, (_, feats) = data
-    assert pup.guided and pup.guide_weight == 1.0 and pup._core.n_parts == (1 if parts is None else 2)
+    assert pup.guided and pup.guide_weight == GUIDE_WEIGHT == 4.0 and pup._core.n_parts == (1 if parts is None else 2)
     face = pup.animate(features=feats, posterior=posterior, fps=fps).face
     ref = _reference(pup, feats, posterior=posterior, fps=fps)
     assert face.shape == ref.shape
@@ -153,10 +153,10 @@ def test_weight_zero_is_the_unguided_puppet_of_the_same_seed(puppets, data, part
             a = guided.animate(features=feats, posterior=posterior, fps=fps, guide_weight=0).face
             b = plain.animate(features=feats, posterior=posterior, fps=fps).face
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
-            # None is the file's λ, and an explicit λ = 1 the same
+            # None is the file's λ, and the same λ given explicitly the same
             np.testing.assert_array_equal(guided.animate(features=feats, posterior=posterior, fps=fps).face,
                                           guided.animate(features=feats, posterior=posterior, fps=fps,
-                                                         guide_weight=1.0).face)
+                                                         guide_weight=GUIDE_WEIGHT).face)
     # given states are synthesised unguided, as by the unguided puppet
     s = guided.animate(features=feats).states
     np.testing.assert_allclose(guided.animate(states=s).face, plain.animate(states=s).face, atol=1e-12)
@@ -290,7 +290,7 @@ def test_a_guided_puppet_streams_its_offline_animation(puppets, data, parts):
     for posterior, fps in ((False, 0.0), (True, 25.0)):
         ref = np.asarray(core.animate(feats, fps, posterior)["points"])
         sp = _core.StreamingPuppet(core, 1000, 1000, fps, posterior)
-        assert (sp.guide_lag, sp.guide_weight) == (3, 1.0)
+        assert (sp.guide_lag, sp.guide_weight) == (3, GUIDE_WEIGHT)
         got = [np.asarray(sp.push(feats[a:a + 7]).points) for a in range(0, feats.shape[0], 7)]
         got = np.vstack(got + [np.asarray(sp.flush().points)])
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-8 * np.abs(ref).max())

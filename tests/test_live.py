@@ -99,7 +99,7 @@ def test_large_lags_give_the_offline_animation(puppet, speech, posterior, fps):
     live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, delta_lag=-1,
                       decode_lag=2000, trajectory_lag=2000)
     assert live.delta_lag == p._core.delta_width == 2
-    assert (live.guide_lag, live.guide_weight) == (5, 1.0)  # the exact guide, as offline
+    assert (live.guide_lag, live.guide_weight) == (5, 4.0)  # the exact guide, as offline
     assert math.isinf(live.latency_s)
     got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED)))
     assert got.shape == ref.shape
@@ -306,10 +306,12 @@ def test_cli_file_json_lines(puppet, speech, tmp_path):
     summary = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
     assert summary["frames"] == ref.shape[0]
     assert summary["algorithmic_latency_ms"] <= 150
-    assert (summary["guide_lag"], summary["guide_weight"]) == (1, 1.0)
+    assert (summary["guide_lag"], summary["guide_weight"]) == (1, 4.0)
     # --guide-weight 0: Brand's unguided stream; --guide-lag -1: the exact guide, reported
     for extra, want in ((["--guide-weight", "0"], dict(guide_weight=0.0)),
-                        (["--guide-lag", "-1"], dict(guide_lag=-1))):
+                        (["--guide-lag", "-1"], dict(guide_lag=-1)),
+                        (["--decode-lag", "2", "--trajectory-lag", "0"],
+                         dict(decode_lag=2, trajectory_lag=0))):
         r = run_cli([str(path), "--input", str(wav), "--no-realtime", "--lag-ms", "150", *extra])
         assert r.returncode == 0, r.stderr.decode()
         got = np.array([json.loads(s)["points"] for s in r.stdout.decode().splitlines()])
@@ -318,7 +320,9 @@ def test_cli_file_json_lines(puppet, speech, tmp_path):
         np.testing.assert_allclose(got, own, atol=0.006)
         assert np.abs(got - pts).max() > 0.05  # not the default stream
         summary = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
-        assert summary["guide_lag"] == (0 if "guide_weight" in want else 5)
+        assert summary["guide_lag"] == {"guide_weight": 0, "guide_lag": 5, "decode_lag": 2}[next(iter(want))]
+        assert summary["decode_lag"] == want.get("decode_lag", 1)
+        assert summary["trajectory_lag"] == want.get("trajectory_lag", 1)
 
 
 def test_cli_raw_pcm_on_stdin(puppet, speech):

@@ -35,13 +35,17 @@ def dwell_states(rng, T, n, max_dwell=6):
     return np.array(out[:T], dtype=np.int64)
 
 
-def dense_solve(weights, means, vel, covars):
-    """Minimise sum_t sum_n w_tn cost_t(n) by a dense solve; covars full [N, 2D, 2D]."""
+def dense_solve(weights, means, vel, covars, targets=None, W=None):
+    """Minimise sum_t sum_n w_tn cost_t(n) (+ sum_t (y_t - targets_t)' W (y_t - targets_t)) by a
+    dense solve; covars full [N, 2D, 2D]."""
     T, n = weights.shape
     d = means.shape[1]
     H = np.zeros((T * d, T * d))
     r = np.zeros(T * d)
     for t in range(T):
+        if W is not None:
+            H[t * d:(t + 1) * d, t * d:(t + 1) * d] += W
+            r[t * d:(t + 1) * d] += W @ targets[t]
         for s in range(n):
             w = weights[t, s]
             if w == 0:
@@ -262,6 +266,78 @@ def test_fixed_lag_weights_equal_batch_weighted():
     s = tr.FixedLagTrajectory(means, vel, covars, 100)
     assert s.push_weights(gamma).shape == (0, 2)
     assert rel(s.flush(), tr.solve_trajectory_weighted(gamma, means, vel, covars)) < 1e-12
+
+
+def random_evidence(rng, T, d):
+    """Targets [T, d] and a PSD precision of rank d - 1 (a singular W must work too)."""
+    B = rng.normal(size=(d, d - 1))
+    return rng.normal(size=(T, d)), 2.0 * B @ B.T
+
+
+def test_evidence_matches_dense_solve_hard_and_weighted():
+    rng = np.random.default_rng(SEED + 20)
+    n, d, T = 4, 3, 25
+    means, vel, covars = random_model(rng, n, d)
+    states = dwell_states(rng, T, n)
+    y, W = random_evidence(rng, T, d)
+    got = tr.solve_trajectory(states, means, vel, covars, evidence_targets=y, evidence_precision=W)
+    truth = dense_solve(one_hot(states, n), means, vel, covars, y, W)
+    assert rel(got, truth) < 1e-10
+    assert rel(got, tr.solve_trajectory(states, means, vel, covars)) > 1e-3  # the evidence moved it
+    gamma = rng.dirichlet(np.ones(n), size=T)
+    got = tr.solve_trajectory_weighted(gamma, means, vel, covars, evidence_targets=y,
+                                       evidence_precision=W)
+    assert rel(got, dense_solve(gamma, means, vel, covars, y, W)) < 1e-10
+    # W = 0 is the plain solve exactly; a huge W gives the targets
+    np.testing.assert_array_equal(
+        tr.solve_trajectory(states, means, vel, covars, evidence_targets=y,
+                            evidence_precision=np.zeros((d, d))),
+        tr.solve_trajectory(states, means, vel, covars))
+    big = tr.solve_trajectory(states, means, vel, covars, evidence_targets=y,
+                              evidence_precision=1e10 * np.eye(d))
+    assert np.max(np.abs(big - y)) < 1e-6
+
+
+def test_evidence_targets_are_at_the_output_rate():
+    rng = np.random.default_rng(SEED + 21)
+    means, vel, covars = random_model(rng, 3, 2)
+    states = dwell_states(rng, 30, 3)
+    y60 = rng.normal(size=(60, 2))  # 30 frames at 30 fps -> 60 at 60 fps
+    out = tr.solve_trajectory(states, means, vel, covars, model_fps=30, out_fps=60,
+                              evidence_targets=y60, evidence_precision=np.eye(2))
+    assert out.shape == (60, 2)
+    with pytest.raises(ValueError, match="60"):
+        tr.solve_trajectory(states, means, vel, covars, model_fps=30, out_fps=60,
+                            evidence_targets=y60[:30], evidence_precision=np.eye(2))
+    with pytest.raises(ValueError, match="both or neither"):
+        tr.solve_trajectory(states, means, vel, covars, evidence_targets=y60[:30])
+
+
+@pytest.mark.parametrize("lag", [0, 3])
+def test_fixed_lag_with_evidence_frames_are_truncated_dense_solves(lag):
+    rng = np.random.default_rng(SEED + 22)
+    n, d, T = 3, 2, 30
+    means, vel, covars = random_model(rng, n, d)
+    states = dwell_states(rng, T, n)
+    y, W = random_evidence(rng, T, d)
+    stream = tr.FixedLagTrajectory(means, vel, covars, lag, evidence_precision=W)
+    assert stream.has_evidence
+    parts = [stream.push_states(states[i:i + 7], y[i:i + 7]) for i in range(0, T, 7)]
+    out = np.vstack(parts + [stream.flush()])
+    for t in range(T - lag):
+        truth = dense_solve(one_hot(states[:t + lag + 1], n), means, vel, covars, y, W)[t]
+        assert np.max(np.abs(out[t] - truth)) < 1e-10 * np.max(np.abs(truth))
+    full = tr.solve_trajectory(states, means, vel, covars, evidence_targets=y, evidence_precision=W)
+    assert rel(out[T - lag - 1:], full[T - lag - 1:]) < 1e-12
+    gamma = rng.dirichlet(np.ones(n), size=T)
+    stream = tr.FixedLagTrajectory(means, vel, covars, 100, evidence_precision=W)
+    assert stream.push_weights(gamma, y).shape == (0, d)
+    assert rel(stream.flush(), tr.solve_trajectory_weighted(
+        gamma, means, vel, covars, evidence_targets=y, evidence_precision=W)) < 1e-12
+    with pytest.raises(ValueError, match="needs the frames' targets"):
+        stream.push_states(states[:3])
+    with pytest.raises(ValueError, match="no evidence"):
+        tr.FixedLagTrajectory(means, vel, covars, 2).push_states(states[:3], y[:3])
 
 
 def test_other_frame_rate_is_the_documented_change_of_variables():

@@ -104,4 +104,11 @@ inline Eigen::MatrixXd one_hot(const VectorXi& s, Index n) {
   return w;
 }
 
+/// A random SPD d x d matrix (an evidence precision): scale · (a aᵀ / d + 0.2 I).
+inline Eigen::MatrixXd random_spd(Index d, std::mt19937& rng, double scale) {
+  std::normal_distribution<double> g(0.0, 1.0);
+  Eigen::MatrixXd a = Eigen::MatrixXd::NullaryExpr(d, d, [&] { return g(rng); });
+  return scale * (a * a.transpose() / static_cast<double>(d) + 0.2 * Eigen::MatrixXd::Identity(d, d));
+}
+
 }  // namespace voicepuppet::testing

@@ -156,6 +156,15 @@ PuppetArray f64(std::vector<std::uint64_t> shape, std::vector<double> v) {
   return a;
 }
 
+/// A one-element int64 array (the files' scalar options).
+PuppetArray int1(Index v) {
+  PuppetArray a;
+  a.dtype = PuppetArray::DType::Int64;
+  a.shape = {1};
+  a.i64 = {v};
+  return a;
+}
+
 /// A random two-part puppet: 6 points (parts {0,2,4} and {1,3,5}), N states, A audio columns,
 /// K face coordinates per part; sticky transitions, random SPD covariances.
 PuppetFile random_puppet(Index N, Index A, Index K, unsigned seed, double fps = 30.0,
@@ -179,13 +188,7 @@ PuppetFile random_puppet(Index N, Index A, Index K, unsigned seed, double fps = 
     mean.push_back(a < A ? g(rng) : 0.1 * g(rng));
     sd.push_back(a < A ? 0.5 + u(rng) : 0.2 + 0.3 * u(rng));
   }
-  if (delta_width > 0) {
-    PuppetArray w;
-    w.dtype = PuppetArray::DType::Int64;
-    w.shape = {1};
-    w.i64 = {delta_width};
-    f.arrays["audio/delta_width"] = w;
-  }
+  if (delta_width > 0) f.arrays["audio/delta_width"] = int1(delta_width);
   f.arrays["audio/mean"] = f64({static_cast<std::uint64_t>(A2)}, mean);
   f.arrays["audio/std"] = f64({static_cast<std::uint64_t>(A2)}, sd);
   std::vector<double> shape;
@@ -377,13 +380,6 @@ PuppetFile add_projection(PuppetFile f, Index k, Index C, Index V, unsigned seed
   std::vector<double> P, c;
   for (Index i = 0; i < M * V; ++i) P.push_back(g(rng) / std::sqrt(static_cast<double>(M)));
   for (Index i = 0; i < V; ++i) c.push_back(0.2 * g(rng));
-  auto int1 = [](Index v) {
-    PuppetArray a;
-    a.dtype = PuppetArray::DType::Int64;
-    a.shape = {1};
-    a.i64 = {v};
-    return a;
-  };
   const auto v_ = static_cast<std::uint64_t>(V);
   f.arrays["audio/projection"] = f64({static_cast<std::uint64_t>(M), v_}, P);
   f.arrays["audio/projection_offset"] = f64({v_}, c);
@@ -596,13 +592,6 @@ PuppetFile add_guide(PuppetFile f, Index kg, Index Cg, Index K, double weight, u
   const Eigen::MatrixXd S = 0.2 * (B * B.transpose() / static_cast<double>(KK) + 0.5 * Eigen::MatrixXd::Identity(KK, KK));
   for (Index i = 0; i < KK; ++i)
     for (Index j = 0; j < KK; ++j) R.push_back(S(i, j));
-  auto int1 = [](Index v) {
-    PuppetArray a;
-    a.dtype = PuppetArray::DType::Int64;
-    a.shape = {1};
-    a.i64 = {v};
-    return a;
-  };
   const auto kk = static_cast<std::uint64_t>(KK);
   f.arrays["guide/map"] = f64({static_cast<std::uint64_t>(M), kk}, G);
   f.arrays["guide/offset"] = f64({kk}, c);

@@ -22,17 +22,12 @@ using testing::dense_solve;
 using testing::diag_of;
 using testing::one_hot;
 using testing::random_model;
+using testing::random_spd;
 using testing::random_states;
 using testing::RandomModel;
 using testing::rel;
 
 namespace {
-
-MatrixXd random_spd(Index d, std::mt19937& rng, double scale) {
-  std::normal_distribution<double> g(0.0, 1.0);
-  MatrixXd a = MatrixXd::NullaryExpr(d, d, [&] { return g(rng); });
-  return scale * (a * a.transpose() / static_cast<double>(d) + 0.2 * MatrixXd::Identity(d, d));
-}
 
 MatrixXd soft(Index T, Index n, std::mt19937& rng) {
   std::uniform_real_distribution<double> u(0.0, 1.0);

@@ -23,18 +23,13 @@ using testing::dense_solve;
 using testing::diag_of;
 using testing::one_hot;
 using testing::random_model;
+using testing::random_spd;
 using testing::random_states;
 using testing::RandomModel;
 using testing::rel;
 using testing::throws_with;
 
 namespace {
-
-MatrixXd random_spd(Index d, std::mt19937& rng, double scale) {
-  std::normal_distribution<double> g(0.0, 1.0);
-  MatrixXd a = MatrixXd::NullaryExpr(d, d, [&] { return g(rng); });
-  return scale * (a * a.transpose() / static_cast<double>(d) + 0.2 * MatrixXd::Identity(d, d));
-}
 
 /// Pushes frames [0, T) in chunks of `chunk` (hard states, or weights if `weights` is given),
 /// then flushes; returns every emitted row in order and checks the emission counts.

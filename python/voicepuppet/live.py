@@ -147,7 +147,7 @@ class LivePuppet:
         k_g, likewise); with all four at -1 and large decode and trajectory lags the output is
         exactly ``puppet.animate`` of the same audio.
     guide_weight : float, optional
-        λ of a guided puppet's guide (default: the file's, 1); 0 streams Brand's unguided
+        λ of a guided puppet's guide (default: the file's, 4); 0 streams Brand's unguided
         trajectory, as ``animate(guide_weight=0)``.
     """
 
@@ -189,10 +189,8 @@ class LivePuppet:
             raise ValueError(f"guide_weight must be a finite number >= 0, got {guide_weight!r}")
         else:
             lam = float(guide_weight)
-        if lam > 0 and not core.guided:
-            raise ValueError(f"guide_weight = {lam:g} needs a guided puppet, but this one has no "
-                             "guide; train it with guide='ridge' (the default) or pass 0")
-        kg = int(core.guide_context) if lam > 0 else 0
+        kg = int(core.guide_context) if lam > 0 else 0  # (a positive λ for an unguided puppet:
+        # StreamingPuppet says it needs a guided one)
         # the delta look-ahead the vocal features need (none for a projection of the features
         # alone, a projected puppet's default with context)
         f, dl, pl, gl, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants,
@@ -469,7 +467,9 @@ def run_live(args, out=None) -> int:
                       rate=args.rate if args.input == "-" else ANALYSIS_RATE,
                       projection_lag=getattr(args, "projection_lag", None),
                       guide_lag=getattr(args, "guide_lag", None),
-                      guide_weight=getattr(args, "guide_weight", None))
+                      guide_weight=getattr(args, "guide_weight", None),
+                      decode_lag=getattr(args, "decode_lag", None),
+                      trajectory_lag=getattr(args, "trajectory_lag", None))
     ws = _WebSocketOut(*_host_port(args.websocket, "websocket")) if args.websocket else None
     osc = _OscOut(*_host_port(args.osc, "osc")) if args.osc else None
     if ws is not None:
@@ -591,7 +591,13 @@ def add_parser(sub) -> None:
                         "which it shares at no cost")
     p.add_argument("--guide-weight", type=float, default=None, metavar="LAMBDA",
                    help="weight of a guided puppet's guide (default: the puppet's; 0: Brand's "
-                        "unguided trajectory)")
+                        "unguided trajectory; 8 for a voice the puppet never heard)")
+    p.add_argument("--decode-lag", type=int, default=None, metavar="FRAMES",
+                   help="look-ahead of the state decoder (default: its share of --lag-ms; a guided "
+                        "puppet's guide shares it)")
+    p.add_argument("--trajectory-lag", type=int, default=None, metavar="FRAMES",
+                   help="look-ahead of the trajectory solve, frames at the output rate (default: its "
+                        "share of --lag-ms)")
     p.add_argument("--posterior", action="store_true",
                    help="posterior-weighted synthesis instead of the fixed-lag Viterbi path")
     p.add_argument("--rate", type=int, default=ANALYSIS_RATE,

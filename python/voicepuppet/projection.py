@@ -90,9 +90,11 @@ def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, wh
     return Y, k, cross_fit(X, Y, lengths, n_folds), RidgeBaseline(0).fit([X], [Y])
 
 
-#: The guide's weight λ written into a guided puppet's file (guide/weight): 1 is the posterior
-#: of the face given both the vocal HMM's trajectory and the ridge's prediction.
-GUIDE_WEIGHT = 1.0
+#: The guide's weight λ written into a guided puppet's file (guide/weight). 1 would be the
+#: posterior of the face given both the vocal HMM's trajectory and the ridge's prediction; 4 was
+#: selected (the largest costing the voice heard in training at most +0.005 Err) and confirmed on
+#: voices never heard (docs/results.md, "The guide's weight for voices never heard").
+GUIDE_WEIGHT = 4.0
 
 
 def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5):
@@ -123,7 +125,7 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
         map + offset, the ridge fitted on all frames with its own α), ``guide/context`` [1] and
         ``guide/columns`` [1] (int), ``guide/covariance`` [K, K] (R: the covariance of the
         cross-fitted residuals y − ŷ_cf, as large as novel audio makes them), ``guide/weight``
-        [1] (λ = :data:`GUIDE_WEIGHT`).
+        [1] (λ = :data:`GUIDE_WEIGHT`, 4).
     info : dict
         α, folds, context, columns and the residuals' mean variance (for the metadata).
     """

@@ -18,8 +18,8 @@ Training (:meth:`Puppet.train`), one pass, no back and forth:
    frames (:mod:`voicepuppet.projection`), stored in the file and applied by C++.
 5. Guide (``guide="ridge"``, the default): the ridge's prediction ŷ of the face from
    ±``guide_context`` frames of audio and the covariance R of its cross-fitted residuals; at
-   synthesis the trajectory solve adds ``λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)`` (λ = 1: the
-   posterior given both; ``animate(guide_weight=0)`` is Brand's solve). ``guide="none"``: none.
+   synthesis the trajectory solve adds ``λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)`` (λ = 4, the file's
+   ``guide/weight``, measured; ``animate(guide_weight=0)`` is Brand's solve). ``guide="none"``: none.
 
 Animation runs in C++ (:class:`voicepuppet._core.Puppet`, ``cpp/include/voicepuppet/puppet.hpp``):
 features → standardise (→ projection) → vocal log densities → Viterbi (or posteriors) → closed-form trajectory at
@@ -337,8 +337,12 @@ class Puppet:
             EM iterations (>= 1).
         guide_weight : float, optional
             λ of a guided puppet's evidence (the ridge's prediction of the face, weighted by the
-            inverse covariance of its residuals): None (default) the file's (1), 0 Brand's
-            unguided solve, any λ >= 0. A positive value needs a guided puppet (:attr:`guided`).
+            inverse covariance of its residuals): None (default) the file's (4 since
+            stop 20; 1 in older files), 0 Brand's unguided solve, any λ >= 0. A positive value
+            needs a guided puppet (:attr:`guided`). For a voice the puppet never heard, 8 is the
+            measured better choice (real readers left out and the ARCTIC speakers: Err −0.07 to
+            −0.21, LVE −6 to −14 against 1; the heard voice loses 0.014 Err at 8 against 1, 0.004
+            at 4: docs/results.md, "The guide's weight for voices never heard").
             Given states (``states=``) are always synthesised unguided.
         """
         out_fps = float(fps) if fps is not None else self.fps

@@ -247,8 +247,8 @@ def add_parser(sub) -> None:
     a.add_argument("--adapt-iter", type=int, metavar="N",
                    help="adaptation EM iterations (default: puppet.ADAPT_DEFAULTS, 1)")
     a.add_argument("--guide-weight", type=float, metavar="W",
-                   help="weight of a guided puppet's evidence (default: the puppet's, 1; 0: Brand's unguided "
-                        "solve)")
+                   help="weight of a guided puppet's evidence (default: the puppet's, 4; 0: Brand's unguided "
+                        "solve; for a voice the puppet never heard 8 was measured better, docs/results.md)")
     a.add_argument("--states-out", metavar="S.csv", help="also write the facial state sequence (for editing)")
     a.add_argument("--states-in", metavar="S.csv", help="synthesise from this (edited) state sequence instead of audio")
     a.add_argument("--quiet", action="store_true", help="no progress bars")

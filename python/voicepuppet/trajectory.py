@@ -159,6 +159,15 @@ def _check_weights(weights, n_states: int) -> np.ndarray:
     return w
 
 
+def _evidence(targets, precision) -> tuple:
+    """The optional evidence as float arrays for the C++ solve (which checks shapes, finiteness,
+    symmetry and that both or neither are given)."""
+    def f64(a):
+        return None if a is None else np.ascontiguousarray(a, dtype=np.float64)
+
+    return f64(targets), f64(precision)
+
+
 def _rates(model_fps, states_fps, out_fps) -> tuple[float, float | None, float | None]:
     """(velocity scale, fps_in, fps_out); fps_in/out None when no resampling is asked for."""
     if model_fps is None:
@@ -174,7 +183,8 @@ def _rates(model_fps, states_fps, out_fps) -> tuple[float, float | None, float |
 
 def solve_trajectory(states, means, vel_means, covars, *, covariance_type: str = "full",
                      model_fps: float | None = None, states_fps: float | None = None,
-                     out_fps: float | None = None) -> np.ndarray:
+                     out_fps: float | None = None, evidence_targets=None,
+                     evidence_precision=None) -> np.ndarray:
     """Most probable trajectory for a state sequence (Brand's eq. 5-6).
 
     Parameters
@@ -191,6 +201,12 @@ def solve_trajectory(states, means, vel_means, covars, *, covariance_type: str =
         Frame rate of the output (default ``states_fps``). The states are resampled by sample
         and hold (:func:`resample_states`) and the velocity terms scaled by
         ``model_fps / out_fps`` (:func:`velocity_scale`).
+    evidence_targets, evidence_precision : array_like, optional
+        Per-frame evidence (both or neither): targets ŷ of shape ``(T_out, D)`` at the output
+        rate and one precision W ``(D, D)`` (symmetric positive semi-definite, any weight λ
+        folded in). The objective gains ``Σ_t (y_t − ŷ_t)ᵀ W (y_t − ŷ_t)`` (a guided puppet's
+        ridge prediction, docs/trajectory.md); the system stays block tridiagonal. W = 0 is the
+        plain solve.
 
     Returns
     -------
@@ -215,12 +231,13 @@ def solve_trajectory(states, means, vel_means, covars, *, covariance_type: str =
     s = _check_states(states, model.n_states)
     if fps_in is not None and fps_in != fps_out:
         s = _core.resample_states(s, fps_in, fps_out)
-    return _core.solve_trajectory(model, s)
+    return _core.solve_trajectory(model, s, *_evidence(evidence_targets, evidence_precision))
 
 
 def solve_trajectory_weighted(weights, means, vel_means, covars, *, covariance_type: str = "full",
                               model_fps: float | None = None, states_fps: float | None = None,
-                              out_fps: float | None = None) -> np.ndarray:
+                              out_fps: float | None = None, evidence_targets=None,
+                              evidence_precision=None) -> np.ndarray:
     """Posterior-weighted trajectory: the "weighted combination of all sequences" (§5).
 
     Minimises the expected cost ``sum_t sum_n weights[t, n] * cost_t(n)``: each frame's
@@ -234,6 +251,8 @@ def solve_trajectory_weighted(weights, means, vel_means, covars, *, covariance_t
     means, vel_means, covars, covariance_type, model_fps, states_fps, out_fps
         As in :func:`solve_trajectory`; weights are resampled by linear interpolation
         (:func:`resample_weights`).
+    evidence_targets, evidence_precision : array_like, optional
+        As in :func:`solve_trajectory`.
 
     Returns
     -------
@@ -244,7 +263,7 @@ def solve_trajectory_weighted(weights, means, vel_means, covars, *, covariance_t
     w = _check_weights(weights, model.n_states)
     if fps_in is not None and fps_in != fps_out:
         w = _core.resample_weights(w, fps_in, fps_out)
-    return _core.solve_trajectory_weighted(model, w)
+    return _core.solve_trajectory_weighted(model, w, *_evidence(evidence_targets, evidence_precision))
 
 
 def resample_states(states, fps_in: float, fps_out: float) -> np.ndarray:
@@ -305,14 +324,22 @@ class FixedLagTrajectory:
         Frames of look-ahead (>= 0). Latency is ``lag / out_fps`` seconds.
     velocity_scale : float
         ``model_fps / out_fps`` when the stream runs at another rate than the training video.
+    evidence_precision : array_like, optional
+        W ``(D, D)`` of per-frame evidence (as :func:`solve_trajectory`): every push then takes
+        the frames' targets, and frame t emitted is the value at t of the exact guided solve of
+        frames 0 .. t + lag; :meth:`flush` gives the batch guided solve.
     """
 
     def __init__(self, means, vel_means, covars, lag: int, *, covariance_type: str = "full",
-                 velocity_scale: float = 1.0):
+                 velocity_scale: float = 1.0, evidence_precision=None):
         if isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0:
             raise ValueError(f"lag must be a non-negative integer number of frames, got {lag!r}")
         self._model = make_model(means, vel_means, covars, covariance_type, velocity_scale)
-        self._stream = _core.FixedLagTrajectory(self._model, int(lag))
+        if evidence_precision is None:
+            self._stream = _core.FixedLagTrajectory(self._model, int(lag))
+        else:
+            self._stream = _core.FixedLagTrajectory(self._model, int(lag),
+                                                    _evidence(None, evidence_precision)[1])
 
     @property
     def lag(self) -> int:
@@ -329,17 +356,29 @@ class FixedLagTrajectory:
         """Frames emitted since the stream (re)started."""
         return self._stream.frames_emitted
 
-    def push_states(self, states) -> np.ndarray:
-        """Push state indices (shape (K,)); returns the frames emitted, shape (K', D)."""
-        arr = np.atleast_1d(np.asarray(states))
-        return self._stream.push_states(_check_states(arr, self._model.n_states))
+    @property
+    def has_evidence(self) -> bool:
+        """Whether pushes carry evidence targets (constructed with ``evidence_precision``)."""
+        return self._stream.has_evidence
 
-    def push_weights(self, weights) -> np.ndarray:
-        """Push state weights (shape (K, N), or (N,) for one frame); returns the frames emitted."""
+    def push_states(self, states, targets=None) -> np.ndarray:
+        """Push state indices (shape (K,)) and, for a stream with evidence, their targets (K, D);
+        returns the frames emitted, shape (K', D)."""
+        arr = _check_states(np.atleast_1d(np.asarray(states)), self._model.n_states)
+        if targets is None:
+            return self._stream.push_states(arr)
+        return self._stream.push_states(arr, np.atleast_2d(_evidence(targets, None)[0]))
+
+    def push_weights(self, weights, targets=None) -> np.ndarray:
+        """Push state weights (shape (K, N), or (N,) for one frame) and, for a stream with
+        evidence, their targets (K, D); returns the frames emitted."""
         w = np.asarray(weights, dtype=np.float64)
         if w.ndim == 1:
             w = w[None, :]
-        return self._stream.push_weights(_check_weights(w, self._model.n_states))
+        w = _check_weights(w, self._model.n_states)
+        if targets is None:
+            return self._stream.push_weights(w)
+        return self._stream.push_weights(w, np.atleast_2d(_evidence(targets, None)[0]))
 
     def flush(self) -> np.ndarray:
         """Emit the held-back frames (shape (K, D)) and reset the stream for a new utterance."""

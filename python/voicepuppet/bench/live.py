@@ -63,12 +63,14 @@ def _cached_puppet(corpus, quick: bool, **options):
     import json
     import os
 
+    from voicepuppet.projection import GUIDE_WEIGHT
     from voicepuppet.puppet import Puppet, load
 
     with open(os.path.join(corpus.out_dir, "corpus.json")) as fh:
         key = json.load(fh)["key"]
     opts = dict(n_states=12 if quick else 26, n_iter=10 if quick else 20, **options)
-    tag = hashlib.sha256(json.dumps([key, opts], sort_keys=True).encode()).hexdigest()[:12]
+    # the guide's weight is written at training: a new default trains the puppet again
+    tag = hashlib.sha256(json.dumps([key, opts, GUIDE_WEIGHT], sort_keys=True).encode()).hexdigest()[:12]
     path = os.path.join(corpus.out_dir, f"puppet-{tag}.vpp")
     if os.path.exists(path):
         return load(path)
