@@ -233,6 +233,13 @@ bool interpolation_at(Index k, Index n, double fps_in, double fps_out, bool fina
   return j < n && !(fr > 0.0 && j + 1 >= n);
 }
 
+/// The first input frame an output stream resampled up to (not including) output frame
+/// `next_out` may still read: the window [first, n) is trimmed to it.
+Index first_needed(Index next_out, double fps_in, double fps_out, Index first, Index n) {
+  const double u = static_cast<double>(next_out) * fps_in / fps_out;
+  return std::max<Index>(first, std::min<Index>(static_cast<Index>(std::floor(u)) - 1, n));
+}
+
 /// (1 − fr) · v[j] + fr · v[j + 1] of a window v of frames first ...
 VectorXd interpolate(const std::vector<VectorXd>& v, Index first, Index j, double fr) {
   const VectorXd& a = v[static_cast<size_t>(j - first)];
@@ -426,8 +433,7 @@ RowMatrixXd StreamingPuppet::feed(PartStream& ps, const DecodedFrames& f, bool f
   }
   // Forget input frames no later output frame needs.
   {
-    const double u = static_cast<double>(ps.next_out) * fin / fout;
-    const Index keep = std::max<Index>(ps.first, std::min<Index>(static_cast<Index>(std::floor(u)) - 1, n));
+    const Index keep = first_needed(ps.next_out, fin, fout, ps.first, n);
     const auto drop = static_cast<std::ptrdiff_t>(keep - ps.first);
     if (post) {
       ps.weights.erase(ps.weights.begin(), ps.weights.begin() + std::min<std::ptrdiff_t>(drop, ps.weights.size()));
@@ -559,8 +565,7 @@ void StreamingPuppet::guide_ready(bool final_pass) {
     yout_.push_back(interpolate(yhat_, yhat_first_, j, fr));
   }
   // forget input frames no later output frame needs
-  const double u = static_cast<double>(yout_next_) * fin / fout;
-  const Index keep = std::max<Index>(yhat_first_, std::min<Index>(static_cast<Index>(std::floor(u)) - 1, guided_));
+  const Index keep = first_needed(yout_next_, fin, fout, yhat_first_, guided_);
   yhat_.erase(yhat_.begin(), yhat_.begin() + static_cast<std::ptrdiff_t>(keep - yhat_first_));
   yhat_first_ = keep;
 }

@@ -286,11 +286,12 @@ def error_table(quick: bool = False) -> str:
     return "\n".join(rows)
 
 
-def _lag_price_table(puppet, clips, option: str, values, settings, guide_weight=None) -> str:
-    """Markdown table: the ``clips`` streamed with the LivePuppet keyword ``option`` at each of
-    ``values`` under each ``(label, LivePuppet keywords)`` of ``settings`` (and ``guide_weight``,
-    the offline animation too); Err / RMSE against the offline animation and the truth as in
-    :func:`error_table`, Viterbi, means over the clips."""
+def _lag_price_table(puppet, clips, settings, sweep=(None, (None,)), guide_weight=None) -> str:
+    """Markdown table: the ``clips`` streamed under each ``(label, LivePuppet keywords)`` of
+    ``settings``, for each value of the LivePuppet keyword ``sweep = (option, values)`` if given
+    (and with ``guide_weight``, the offline animation too); Err / RMSE against the offline
+    animation and the truth as in :func:`error_table`, Viterbi, means over the clips."""
+    option, values = sweep
     from voicepuppet.audio import load_audio
     from voicepuppet.live import LivePuppet
     from voicepuppet.metrics import err, landmark_rmse_iod
@@ -305,7 +306,8 @@ def _lag_price_table(puppet, clips, option: str, values, settings, guide_weight=
         for v in values:
             r = []
             for c in clips:
-                live = LivePuppet(puppet, **{option: v}, **kw, guide_weight=guide_weight)
+                swept = {} if option is None else {option: v}
+                live = LivePuppet(puppet, **swept, **kw, guide_weight=guide_weight)
                 pts, _, _ = _stream_live(live, load_audio(c.audio).samples)
                 o = offline[c.audio]
                 n = min(len(pts), len(c.points))
@@ -341,8 +343,8 @@ def projection_table(quick: bool = False) -> str:
     with the other look-aheads of the 150 ms and 330 ms budgets, and covering."""
     corpus, _ = _corpus(quick)
     proj = _projected(corpus, quick)
-    return _lag_price_table(proj, corpus.test, "projection_lag",
-                            range(int(proj._core.projection_context) + 1), _PRICE_SETTINGS,
+    return _lag_price_table(proj, corpus.test, _PRICE_SETTINGS,
+                            ("projection_lag", range(int(proj._core.projection_context) + 1)),
                             guide_weight=0)
 
 
@@ -354,7 +356,7 @@ def guide_table(quick: bool = False) -> str:
     by taking from the trajectory and the deltas."""
     corpus, puppet = _corpus(quick)
     kg = int(puppet._core.guide_context)
-    table = _lag_price_table(puppet, corpus.test, "guide_lag", range(kg + 1), _PRICE_SETTINGS)
+    table = _lag_price_table(puppet, corpus.test, _PRICE_SETTINGS, ("guide_lag", range(kg + 1)))
     # same latency, other splits: (deltas, decoder = guide, trajectory)
     resplit = []
     for label, lag, splits in (("150 ms, re-split", 150, ((0, 2, 1), (1, 2, 0), (0, 3, 0))),
@@ -363,7 +365,7 @@ def guide_table(quick: bool = False) -> str:
         for dl, d, t in splits:
             resplit.append((label, dict(lag_ms=lag, delta_lag=dl, decode_lag=d, trajectory_lag=t,
                                         guide_lag=min(kg, d))))
-    extra = _lag_price_table(puppet, corpus.test, "posterior", (False,), resplit)
+    extra = _lag_price_table(puppet, corpus.test, resplit)
     return table + "\n" + "\n".join(extra.splitlines()[2:-1])
 
 
