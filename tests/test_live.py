@@ -99,7 +99,7 @@ def test_large_lags_give_the_offline_animation(puppet, speech, posterior, fps):
     live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, delta_lag=-1,
                       decode_lag=2000, trajectory_lag=2000)
     assert live.delta_lag == p._core.delta_width == 2
-    assert (live.guide_lag, live.guide_weight) == (5, 4.0)  # the exact guide, as offline
+    assert (live.guide_lag, live.guide_weight) == (5, p.guide_weight)  # the exact guide at the file's λ, as offline
     assert math.isinf(live.latency_s)
     got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED)))
     assert got.shape == ref.shape
@@ -306,7 +306,7 @@ def test_cli_file_json_lines(puppet, speech, tmp_path):
     summary = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
     assert summary["frames"] == ref.shape[0]
     assert summary["algorithmic_latency_ms"] <= 150
-    assert (summary["guide_lag"], summary["guide_weight"]) == (1, 4.0)
+    assert (summary["guide_lag"], summary["guide_weight"]) == (1, p.guide_weight)
     # --guide-weight 0: Brand's unguided stream; --guide-lag -1: the exact guide, reported
     for extra, want in ((["--guide-weight", "0"], dict(guide_weight=0.0)),
                         (["--guide-lag", "-1"], dict(guide_lag=-1)),

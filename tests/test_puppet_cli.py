@@ -156,8 +156,16 @@ def test_guide_switches(workdir, tmp_path, capsys):
     common = ["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"), "--states", "6",
               "--iterations", "12", "--quiet"]
     assert main(common + ["-o", str(tmp_path / "none.vpp"), "--guide", "none"]) == 0
+    capsys.readouterr()
     assert main(common + ["-o", str(tmp_path / "k2.vpp"), "--guide", "ridge", "--guide-context", "2"]) == 0
+    k2_out = capsys.readouterr().out
+    assert main(common + ["-o", str(tmp_path / "w3.vpp"), "--guide-weight", "3"]) == 0
     none, k2, default = load(tmp_path / "none.vpp"), load(tmp_path / "k2.vpp"), load(d / "p.vpp")
+    # the weight: chosen by cross-validation (and said so), or fixed by --guide-weight
+    assert f"guide weight {k2.guide_weight:g}, chosen by cross-validation" in k2_out
+    assert k2.metadata["training"]["guide"]["weight"] == k2.guide_weight
+    w3 = load(tmp_path / "w3.vpp")
+    assert w3.guide_weight == 3.0 and "weight_cv" not in w3.metadata["training"]["guide"]
     assert not none.guided and none.metadata["training"]["options"]["guide"] == "none"
     assert k2.guided and k2._core.guide_context == 2 and default.guided and default._core.guide_context == 5
     # --guide-weight 0 on the default (guided) puppet is the unguided puppet's animation
@@ -175,6 +183,12 @@ def test_guide_switches(workdir, tmp_path, capsys):
     assert "--guide-context" in capsys.readouterr().err
     assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-context", "101"]) == 2
     assert "guide_context" in capsys.readouterr().err
+    assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-weight", "auto"]) == 2
+    assert "--guide-weight must be 'cv' or a number" in capsys.readouterr().err
+    assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-weight", "-2"]) == 2
+    assert "guide_weight must be 'cv'" in capsys.readouterr().err
+    assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide", "none", "--guide-weight", "2"]) == 2
+    assert "--guide-weight" in capsys.readouterr().err
     assert main(["animate", str(tmp_path / "none.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "x.npz"),
                  "--guide-weight", "1", "--quiet"]) == 2
     assert "needs a guided puppet" in capsys.readouterr().err

@@ -147,7 +147,7 @@ class LivePuppet:
         k_g, likewise); with all four at -1 and large decode and trajectory lags the output is
         exactly ``puppet.animate`` of the same audio.
     guide_weight : float, optional
-        λ of a guided puppet's guide (default: the file's, 4); 0 streams Brand's unguided
+        λ of a guided puppet's guide (default: the file's, chosen at training); 0 streams Brand's unguided
         trajectory, as ``animate(guide_weight=0)``.
     """
 
@@ -590,8 +590,8 @@ def add_parser(sub) -> None:
                         "all of it: exact); default: the projection's and decoder's look-ahead, "
                         "which it shares at no cost")
     p.add_argument("--guide-weight", type=float, default=None, metavar="LAMBDA",
-                   help="weight of a guided puppet's guide (default: the puppet's; 0: Brand's "
-                        "unguided trajectory; 8 for a voice the puppet never heard)")
+                   help="weight of a guided puppet's guide (default: the puppet's, chosen at training; "
+                        "0: Brand's unguided trajectory)")
     p.add_argument("--decode-lag", type=int, default=None, metavar="FRAMES",
                    help="look-ahead of the state decoder (default: its share of --lag-ms; a guided "
                         "puppet's guide shares it)")

@@ -90,14 +90,20 @@ def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, wh
     return Y, k, cross_fit(X, Y, lengths, n_folds), RidgeBaseline(0).fit([X], [Y])
 
 
-#: The guide's weight λ written into a guided puppet's file (guide/weight). 1 would be the
-#: posterior of the face given both the vocal HMM's trajectory and the ridge's prediction; 4 was
-#: selected (the largest costing the voice heard in training at most +0.005 Err) and confirmed on
-#: voices never heard (docs/results.md, "The guide's weight for voices never heard").
+#: The guide's fixed weight λ (training option ``guide_weight`` given as a number; the default
+#: of :func:`fit_guide`). 1 would be the posterior of the face given both the vocal HMM's
+#: trajectory and the ridge's prediction; 4 was selected (the largest costing the voice heard in
+#: training at most +0.005 Err) and confirmed on voices never heard (docs/results.md, "The
+#: guide's weight for voices never heard").
 GUIDE_WEIGHT = 4.0
 
+#: The weights ``Puppet.train(guide_weight="cv")`` chooses from by cross-validation on its
+#: training audio (docs/results.md, "The guide's weight chosen at training by cross-validation").
+GUIDE_WEIGHTS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
 
-def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5):
+
+def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5,
+              weight: float = GUIDE_WEIGHT):
     """Fit the guide: the ridge's prediction ŷ of the face from ±k frames of audio and the
     covariance R of its cross-fitted residuals, used as evidence in the trajectory solve
     (``+ λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)``, ``cpp/include/voicepuppet/puppet.hpp``).
@@ -117,6 +123,8 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
         their deltas, as the ridge baseline hears them).
     n_folds : int
         Cross-fitting folds (:func:`cross_fit_folds`).
+    weight : float
+        λ written as ``guide/weight`` (>= 0).
 
     Returns
     -------
@@ -125,7 +133,7 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
         map + offset, the ridge fitted on all frames with its own α), ``guide/context`` [1] and
         ``guide/columns`` [1] (int), ``guide/covariance`` [K, K] (R: the covariance of the
         cross-fitted residuals y − ŷ_cf, as large as novel audio makes them), ``guide/weight``
-        [1] (λ = :data:`GUIDE_WEIGHT`, 4).
+        [1] (λ = ``weight``).
     info : dict
         α, folds, context, columns and the residuals' mean variance (for the metadata).
     """
@@ -138,7 +146,7 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
               "guide/context": np.array([k], dtype=np.int64),
               "guide/columns": np.array([int(columns)], dtype=np.int64),
               "guide/covariance": np.ascontiguousarray(0.5 * (R + R.T)),
-              "guide/weight": np.array([GUIDE_WEIGHT])}
+              "guide/weight": np.array([float(weight)])}
     info = {"alpha": float(full.alpha), "folds": int(n_folds), "context": k, "columns": int(columns),
             "residual_variance": float(np.trace(R) / len(R))}
     return arrays, info

@@ -18,8 +18,13 @@ Training (:meth:`Puppet.train`), one pass, no back and forth:
    frames (:mod:`voicepuppet.projection`), stored in the file and applied by C++.
 5. Guide (``guide="ridge"``, the default): the ridge's prediction ŷ of the face from
    ±``guide_context`` frames of audio and the covariance R of its cross-fitted residuals; at
-   synthesis the trajectory solve adds ``λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)`` (λ = 4, the file's
-   ``guide/weight``, measured; ``animate(guide_weight=0)`` is Brand's solve). ``guide="none"``: none.
+   synthesis the trajectory solve adds ``λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)`` (λ, the file's
+   ``guide/weight``; ``animate(guide_weight=0)`` is Brand's solve). ``guide="none"``: none.
+6. Guide weight (``guide_weight="cv"``, the default): λ from :data:`GUIDE_WEIGHTS` by
+   cross-validation on the training audio — the guide and the vocal side refitted on 4 of 5
+   folds, the held-out fold animated at every λ, the least squared face error wins (how far the
+   vocal HMM generalises on this speaker's own audio decides how much the ridge is trusted);
+   or a number.
 
 Animation runs in C++ (:class:`voicepuppet._core.Puppet`, ``cpp/include/voicepuppet/puppet.hpp``):
 features → standardise (→ projection) → vocal log densities → Viterbi (or posteriors) → closed-form trajectory at
@@ -39,7 +44,8 @@ import numpy as np
 from voicepuppet import _core
 from voicepuppet.animation import Animation, check_output_path
 from voicepuppet.face import FaceSpace, check_landmarks, observations
-from voicepuppet.projection import GUIDES, VOCAL_FEATURES, fit_guide, fit_projection
+from voicepuppet.projection import (GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES, cross_fit_folds,
+                                     fit_guide, fit_projection)
 
 #: What ``Puppet.train`` uses unless told otherwise (recorded in each puppet's metadata).
 TRAIN_DEFAULTS = {
@@ -59,8 +65,10 @@ TRAIN_DEFAULTS = {
                                 # (with "tied": better across real voices, worse on espeak: docs/results.md)
     "vocal_context": 5,      # +-frames of audio the projection reads (projected only; latency)
     "guide": "ridge",        # or "none": the ridge's prediction of the face as evidence in the
-                             # trajectory solve (lambda = 1), or Brand's solve alone (docs/puppet.md)
+                             # trajectory solve, or Brand's solve alone (docs/puppet.md)
     "guide_context": 5,      # +-frames of audio the guide's ridge reads (guide="ridge" only)
+    "guide_weight": "cv",    # the guide's lambda: chosen from GUIDE_WEIGHTS by cross-validation on
+                             # the training audio, or a number >= 0 (4 before stop 21)
     "min_covar": 0.1,        # facial variance floor, x the mean data variance: chosen by CV (docs/results.md)
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
     "seed": 0,
@@ -200,10 +208,18 @@ class Puppet:
                              f"{opt['vocal_covariance']!r}")
         if opt["vocal_features"] not in VOCAL_FEATURES:
             raise ValueError(f"vocal_features must be one of {VOCAL_FEATURES}, got {opt['vocal_features']!r}")
-        k = _context_option(opt, "vocal_context", "the projection")
+        _context_option(opt, "vocal_context", "the projection")
         if opt["guide"] not in GUIDES:
             raise ValueError(f"guide must be one of {GUIDES}, got {opt['guide']!r}")
-        kg = _context_option(opt, "guide_context", "the guide's ridge")
+        _context_option(opt, "guide_context", "the guide's ridge")
+        gw = opt["guide_weight"]
+        if gw != "cv" and (isinstance(gw, bool) or not isinstance(gw, (int, float, np.integer, np.floating))
+                           or not (np.isfinite(gw) and gw >= 0)):
+            raise ValueError(f"guide_weight must be 'cv' (chosen by cross-validation) or a finite number "
+                             f">= 0, got {gw!r}")
+        if opt["guide"] == "none" and "guide_weight" in options:
+            raise ValueError("guide_weight weighs the guide's evidence; with guide='none' there is none: "
+                             "drop guide_weight")
         if isinstance(points_list, np.ndarray) or not isinstance(points_list, (list, tuple)):
             points_list = [points_list]
         if (audio_list is None) == (features_list is None):
@@ -246,17 +262,7 @@ class Puppet:
         arrays = {"fps": np.array([float(fps)]), "audio/mean": std.mean, "audio/std": std.std,
                   "audio/delta_width": np.array([w], dtype=np.int64)}
         arrays.update(fs.to_arrays())
-        if opt["guide"] == "ridge":
-            # The ridge baseline's map (features without deltas, its own alpha) and the covariance
-            # of its cross-fitted residuals, in the puppet's face space: evidence in the solve.
-            guide, guide_info = fit_guide(A, Y, lengths, context=int(kg), columns=raw[0].shape[1])
-            arrays.update(guide)
-        if opt["vocal_features"] == "projected":
-            # With context the map reads the features alone (its context can form their deltas).
-            cols = raw[0].shape[1] if k != 0 else A.shape[1]
-            A, proj, proj_info = fit_projection(A, Y, lengths, context=k, columns=cols)
-            arrays.update(proj)
-        report = []
+        report, gammas = [], []
         z = anneal_schedule(opt["n_iter"]) * opt["z"] if opt["anneal"] else opt["z"]
         prior = dict(prior="entropic", z=z, trim=True) if opt["prior"] == "entropic" else {}
         for k, sl in enumerate(fs.part_slices):
@@ -269,17 +275,17 @@ class Puppet:
                 from voicepuppet import distributed
 
                 distributed.fit(hmm, O, lengths, client=client)
-            gamma = hmm.predict_proba(O, lengths)
-            vm, vc = remap(gamma, A, opt["vocal_covariance"], shrinkage=opt["vocal_shrinkage"] * A.shape[1])
+            gammas.append(hmm.predict_proba(O, lengths))
             pre = f"hmm/part{k}/"
             arrays.update({pre + "startprob": hmm.startprob_, pre + "transmat": hmm.transmat_,
-                           pre + "face_means": hmm.means_, pre + "face_covars": hmm.covars_,
-                           pre + "vocal_means": vm, pre + "vocal_covars": vc})
+                           pre + "face_means": hmm.means_, pre + "face_covars": hmm.covars_})
             diag = diagnostics(hmm, O, lengths)
             report.append({"part": fs.part_names[k], "states": hmm.n_states,
                            "arcs": int(np.count_nonzero(hmm.transmat_)), "face_dims": sl.stop - sl.start,
                            "iterations": len(hmm.history_),
                            **{key: float(v) for key, v in diag.items() if np.isscalar(v)}})
+        vocal, vocal_info = _fit_vocal_side(A, Y, lengths, gammas, opt, columns=raw[0].shape[1])
+        arrays.update(vocal)
         from voicepuppet import __version__
 
         metadata = {"format": "voicepuppet puppet", "created_by": f"voicepuppet {__version__}",
@@ -288,10 +294,13 @@ class Puppet:
                     "feature_names": names, "training": {
                         "frames": int(lengths.sum()), "sequences": int(len(lengths)),
                         "options": _jsonable(opt), "parts": report}}
-        if opt["vocal_features"] == "projected":
-            metadata["training"]["projection"] = proj_info
-        if opt["guide"] == "ridge":
-            metadata["training"]["guide"] = guide_info
+        metadata["training"].update(vocal_info)
+        if opt["guide"] == "ridge" and opt["guide_weight"] == "cv":
+            lam, mse = _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt,
+                                                     progress=progress)
+            arrays["guide/weight"] = np.array([lam])
+            metadata["training"]["guide"]["weight"] = lam
+            metadata["training"]["guide"]["weight_cv"] = {"weights": list(GUIDE_WEIGHTS), "mse": mse}
         return cls(metadata, arrays)
 
     # -------------------------------------------------------------------------- animation
@@ -337,12 +346,12 @@ class Puppet:
             EM iterations (>= 1).
         guide_weight : float, optional
             λ of a guided puppet's evidence (the ridge's prediction of the face, weighted by the
-            inverse covariance of its residuals): None (default) the file's (4 since
-            stop 20; 1 in older files), 0 Brand's unguided solve, any λ >= 0. A positive value
-            needs a guided puppet (:attr:`guided`). For a voice the puppet never heard, 8 is the
-            measured better choice (real readers left out and the ARCTIC speakers: Err −0.07 to
-            −0.21, LVE −6 to −14 against 1; the heard voice loses 0.014 Err at 8 against 1, 0.004
-            at 4: docs/results.md, "The guide's weight for voices never heard").
+            inverse covariance of its residuals): None (default) the file's — chosen at training
+            by cross-validation on the training audio since stop 21 (4 in files of stop 20, 1
+            before) — 0 Brand's unguided solve, any λ >= 0. A positive value needs a guided
+            puppet (:attr:`guided`). The choice is made on the voices of the training audio; a
+            voice the puppet never heard may want a larger λ (docs/results.md, "The guide's
+            weight chosen at training by cross-validation").
             Given states (``states=``) are always synthesised unguided.
         """
         out_fps = float(fps) if fps is not None else self.fps
@@ -401,6 +410,74 @@ def _context_option(opt: dict, name: str, reader: str) -> int:
         raise ValueError(f"{name} must be an integer in [0, 100] (frames of audio on each side "
                          f"{reader} reads), got {k!r}")
     return int(k)
+
+
+def _fit_vocal_side(A, Y, lengths, gammas, opt: dict, *, columns: int) -> tuple[dict, dict]:
+    """Everything of a puppet that maps audio to the facial states, given the facial HMMs'
+    occupancies ``gammas`` (one (T, N) per part) of the training frames: the guide (option
+    ``guide``), the projection (``vocal_features``) and each part's vocal Gaussians (§4.3).
+    ``A`` are the standardised features (T, A'), ``Y`` the face coordinates of all parts and
+    ``columns`` the features' count without deltas. Returns (arrays, metadata entries)."""
+    arrays, info = {}, {}
+    if opt["guide"] == "ridge":
+        # The ridge baseline's map (features without deltas, its own alpha) and the covariance
+        # of its cross-fitted residuals, in the puppet's face space: evidence in the solve.
+        weight = GUIDE_WEIGHT if opt["guide_weight"] == "cv" else float(opt["guide_weight"])
+        guide, info["guide"] = fit_guide(A, Y, lengths, context=int(opt["guide_context"]), columns=columns,
+                                         weight=weight)
+        arrays.update(guide)
+    V = A
+    if opt["vocal_features"] == "projected":
+        # With context the map reads the features alone (its context can form their deltas).
+        k = int(opt["vocal_context"])
+        V, proj, info["projection"] = fit_projection(A, Y, lengths, context=k,
+                                                     columns=columns if k != 0 else A.shape[1])
+        arrays.update(proj)
+    for p, gamma in enumerate(gammas):
+        vm, vc = remap(gamma, V, opt["vocal_covariance"], shrinkage=opt["vocal_shrinkage"] * V.shape[1])
+        arrays.update({f"hmm/part{p}/vocal_means": vm, f"hmm/part{p}/vocal_covars": vc})
+    return arrays, info
+
+
+def _runs(frames, sequence) -> list:
+    """Sorted frame indices cut into runs of consecutive frames of one sequence each
+    (``sequence[t]``: the sequence of frame t)."""
+    frames = np.asarray(frames)
+    cut = np.flatnonzero((np.diff(frames) != 1) | (np.diff(sequence[frames]) != 0)) + 1
+    return np.split(frames, cut)
+
+
+def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt, *,
+                                  progress: bool = False) -> tuple[float, list]:
+    """λ of :data:`GUIDE_WEIGHTS` with the least squared error of the face on held-out
+    training audio (training option ``guide_weight="cv"``).
+
+    Over the folds of :func:`cross_fit_folds`, the vocal side (guide, projection, vocal
+    Gaussians: :func:`_fit_vocal_side`) is refitted on the other folds, with the facial HMMs and
+    their occupancies of the training frames kept, and each held-out run of frames is animated
+    (Viterbi) from its raw features ``raw`` at every λ. Returns the λ and the mean squared error
+    per frame for each λ (in the face coordinates of all parts)."""
+    from tqdm.auto import tqdm
+
+    seq = np.repeat(np.arange(len(lengths)), lengths)
+    bounds = np.concatenate([[0], np.cumsum(lengths)])
+    sse = np.zeros(len(GUIDE_WEIGHTS))
+    folds = cross_fit_folds(lengths)
+    for fold in tqdm(folds, desc="guide weight (cross-validation)", unit="fold", disable=not progress,
+                     leave=False):
+        rest = np.setdiff1d(np.arange(len(A)), fold)
+        rest_lengths = [len(r) for r in _runs(rest, seq)]
+        vocal, _ = _fit_vocal_side(A[rest], Y[rest], rest_lengths, [g[rest] for g in gammas], opt,
+                                   columns=raw[0].shape[1])
+        core = _core.Puppet(json.dumps(metadata), {**arrays, **vocal})
+        for piece in _runs(fold, seq):
+            s = seq[piece[0]]
+            x = np.ascontiguousarray(raw[s][piece - bounds[s]], dtype=np.float64)
+            for j, lam in enumerate(GUIDE_WEIGHTS):
+                face = core.animate(x, 0.0, False, "none", float("inf"), 1, float(lam))["face"]
+                sse[j] += float(np.sum((face - Y[piece]) ** 2))
+    mse = [float(v) / len(A) for v in sse]
+    return float(GUIDE_WEIGHTS[int(np.argmin(sse))]), mse
 
 
 def _count(value, name: str) -> int:

@@ -95,9 +95,10 @@ def _train(args) -> int:
                                   "vocal_features": args.vocal_features,
                                   "vocal_covariance": args.vocal_covariance,
                                   "guide": args.guide, "guide_context": args.guide_context,
+                                  "guide_weight": _guide_weight_option(args.guide_weight),
                                   "seed": args.seed}.items() if v is not None}
-    if args.guide == "none" and args.guide_context is not None:
-        raise ValueError("--guide-context sets the guide's ridge: drop it with --guide none")
+    if args.guide == "none" and (args.guide_context is not None or args.guide_weight is not None):
+        raise ValueError("--guide-context and --guide-weight set the guide: drop them with --guide none")
     if args.scheduler or args.workers:
         from voicepuppet import distributed
 
@@ -111,8 +112,23 @@ def _train(args) -> int:
         print(f"part {part['part']}: {part['states']} states (from {options.get('n_states', TRAIN_DEFAULTS['n_states'])}), "
               f"{part['arcs']} arcs, perplexity {part['perplexity']:.3g}, context memory "
               f"{part['context_memory']:.3g} frames, {part['face_dims']} face dims")
+    guide = puppet.metadata["training"].get("guide", {})
+    if "weight_cv" in guide:
+        cv = guide["weight_cv"]
+        print(f"guide weight {puppet.guide_weight:g}, chosen by cross-validation on the training audio "
+              f"(face error per frame {min(cv['mse']):.4g}; unguided {cv['mse'][0]:.4g})")
     print(f"trained on {sum(len(p) for p in points_list)} frames at {fps:g} fps; wrote {out}")
     return 0
+
+
+def _guide_weight_option(text):
+    """``--guide-weight`` of train: "cv" or a number >= 0 (None: not given)."""
+    if text is None or text == "cv":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"--guide-weight must be 'cv' or a number >= 0, got {text!r}") from None
 
 
 def save_states(path, states: np.ndarray, fps: float) -> Path:
@@ -221,6 +237,9 @@ def add_parser(sub) -> None:
                         "Brand's solve alone (docs/puppet.md)")
     p.add_argument("--guide-context", type=int, metavar="K",
                    help="frames of audio on each side the guide's ridge reads (default 5)")
+    p.add_argument("--guide-weight", metavar="cv|W",
+                   help="the guide's weight written into the puppet: cv (default) chooses it from 0 ... 64 by "
+                        "cross-validation on the training audio; a number fixes it (4 before stop 21)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run the HMM's E-steps on this Dask scheduler "
                    "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process")
@@ -247,8 +266,8 @@ def add_parser(sub) -> None:
     a.add_argument("--adapt-iter", type=int, metavar="N",
                    help="adaptation EM iterations (default: puppet.ADAPT_DEFAULTS, 1)")
     a.add_argument("--guide-weight", type=float, metavar="W",
-                   help="weight of a guided puppet's evidence (default: the puppet's, 4; 0: Brand's unguided "
-                        "solve; for a voice the puppet never heard 8 was measured better, docs/results.md)")
+                   help="weight of a guided puppet's evidence (default: the puppet's, chosen at training; "
+                        "0: Brand's unguided solve; docs/results.md)")
     a.add_argument("--states-out", metavar="S.csv", help="also write the facial state sequence (for editing)")
     a.add_argument("--states-in", metavar="S.csv", help="synthesise from this (edited) state sequence instead of audio")
     a.add_argument("--quiet", action="store_true", help="no progress bars")

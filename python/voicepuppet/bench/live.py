@@ -63,14 +63,15 @@ def _cached_puppet(corpus, quick: bool, **options):
     import json
     import os
 
-    from voicepuppet.projection import GUIDE_WEIGHT
-    from voicepuppet.puppet import Puppet, load
+    from voicepuppet.projection import GUIDE_WEIGHT, GUIDE_WEIGHTS
+    from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, load
 
     with open(os.path.join(corpus.out_dir, "corpus.json")) as fh:
         key = json.load(fh)["key"]
     opts = dict(n_states=12 if quick else 26, n_iter=10 if quick else 20, **options)
-    # the guide's weight is written at training: a new default trains the puppet again
-    tag = hashlib.sha256(json.dumps([key, opts, GUIDE_WEIGHT], sort_keys=True).encode()).hexdigest()[:12]
+    # new training defaults (the guide's weight and its choices among them) train it again
+    tag = hashlib.sha256(json.dumps([key, {**TRAIN_DEFAULTS, **opts}, GUIDE_WEIGHT, GUIDE_WEIGHTS],
+                                    sort_keys=True, default=str).encode()).hexdigest()[:12]
     path = os.path.join(corpus.out_dir, f"puppet-{tag}.vpp")
     if os.path.exists(path):
         return load(path)
