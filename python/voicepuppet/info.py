@@ -24,13 +24,58 @@ def collect() -> dict:
     return info
 
 
+def describe_puppet(path) -> list[str]:
+    """What a puppet file holds, as lines of text: who wrote it, its face and audio, each part's
+    state machine and the guide (with the errors its weight was chosen by). ValueError for a file
+    that is not a readable puppet."""
+    from voicepuppet.puppet import load
+
+    p = load(path)
+    m, t = p.metadata, p.metadata.get("training", {})
+    opt = t.get("options", {})
+    n_seq = t.get("sequences")
+    lines = [f"{path}: written by {m.get('created_by', 'an unknown version')}; {p.n_points} points at "
+             f"{p.fps:g} fps, part{'s' if len(p.part_names) > 1 else ''} {', '.join(p.part_names)}"]
+    if "frames" in t:
+        lines.append(f"trained on {t['frames']} frames ({n_seq} sequence{'s' if n_seq != 1 else ''}), "
+                     f"{'conventional Baum-Welch' if opt.get('prior') == 'ml' else 'entropic prior'}, "
+                     f"seed {opt.get('seed', '?')}")
+    for part in t.get("parts", []):
+        lines.append(f"part {part['part']}: {int(part['states'])} states, {int(part['arcs'])} arcs, "
+                     f"{part['face_dims']} face dims, perplexity {part['perplexity']:.3g}, context memory "
+                     f"{part['context_memory']:.3g} frames")
+    vocal = ("the learned projection of the audio (±{} frames)".format(opt.get("vocal_context"))
+             if p._core.projected else "the audio features")
+    lines.append(f"audio: feature set {p.feature_set.name} ({p._core.n_features} features, deltas "
+                 f"±{p._core.delta_width}); vocal Gaussians on {vocal}, "
+                 f"{opt.get('vocal_covariance', 'full')} covariances")
+    if not p.guided:
+        lines.append("guide: none (Brand's trajectory solve alone)")
+        return lines
+    guide = t.get("guide", {})
+    line = f"guide: the ridge's face over ±{p._core.guide_context} frames, weight {p.guide_weight:g}"
+    cv = guide.get("weight_cv")
+    if cv:
+        errors = ", ".join(f"{w:g}: {e:.4g}" for w, e in zip(cv["weights"], cv["mse"]))
+        line += f", chosen by cross-validation (face error per frame at each weight: {errors})"
+    lines.append(line)
+    return lines
+
+
 def _run(args) -> int:
+    if args.puppet:
+        for path in args.puppet:
+            print("\n".join(describe_puppet(path)))
+        return 0
     for key, value in collect().items():
         print(f"{key:>16}: {value}")
     return 0
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("info", help="show versions, build type and compiler",
-                       description="Show versions, build type, compiler and SIMD of the core.")
+    p = sub.add_parser("info", help="show versions, build type and compiler, or what a puppet file holds",
+                       description="Show versions, build type, compiler and SIMD of the core; with puppet "
+                                   "files, what each holds (training, state machines, audio, the guide "
+                                   "and its weight).")
+    p.add_argument("puppet", nargs="*", metavar="PUPPET.vpp", help="puppet files to describe")
     p.set_defaults(func=_run)
