@@ -50,6 +50,8 @@ def test_evaluate_split_on_planted_puppet():
     assert r["model"]["bits_per_frame"] < 2.0
     table = evaluation.format_table(r)
     assert "| voice |" in table and "| ridge |" in table
+    assert r["model"]["guide_weight"] == p.guide_weight and r["model"]["guide_weight_cv"]
+    assert table.endswith(f"bits/frame, guide weight {p.guide_weight:g} (chosen by cross-validation)")
 
 
 def test_evaluate_split_fits_the_ridge_on_the_puppets_landmarks():

@@ -167,7 +167,8 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
     dict
         ``rows``: {method: {"train": {...}, "test": {...}}} with the measures averaged over
         sequences (weighted by frames); ``model``: perplexity, context memory, entropy rate of
-        decoding the test audio, bits per frame of the state coding, states and arcs.
+        decoding the test audio, bits per frame of the state coding, states and arcs, the guide's
+        weight (None without a guide) and whether it was chosen by cross-validation.
     """
     fs = puppet.face_space
     feats = {} if cache is None else cache
@@ -224,7 +225,8 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
              "bits_per_frame": float(np.mean(coding)),
              "entropy_rate_test": float(np.mean([decoding_entropy_rate(puppet, features("test", i, a, len(p)))
                                                  for i, (p, a) in enumerate(tests)])) if tests else None,
-             "ridge_alpha": ridge.alpha}
+             "ridge_alpha": ridge.alpha, "guide_weight": puppet.guide_weight if puppet.guided else None,
+             "guide_weight_cv": "weight_cv" in puppet.metadata["training"].get("guide", {})}
     return {"rows": rows, "model": model}
 
 
@@ -246,7 +248,9 @@ def format_table(result: dict, title: str = "") -> str:
     m = result["model"]
     lines += ["", f"states {m['states']}, arcs {m['arcs']}, perplexity {m['perplexity']:.3g}, context "
               f"memory {m['context_memory']:.3g} frames, test decoding entropy rate "
-              f"{m['entropy_rate_test']:.4g} nats/frame, state coding {m['bits_per_frame']:.3g} bits/frame"]
+              f"{m['entropy_rate_test']:.4g} nats/frame, state coding {m['bits_per_frame']:.3g} bits/frame"
+              + (f", guide weight {m['guide_weight']:g}{' (chosen by cross-validation)' if m.get('guide_weight_cv') else ''}"
+                 if m.get("guide_weight") is not None else "")]
     return "\n".join(lines)
 
 
