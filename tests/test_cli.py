@@ -96,6 +96,40 @@ def test_commands_run_blas_on_one_thread_unless_told(capsys, monkeypatch):
     assert "VOICEPUPPET_BLAS_THREADS must be a whole number >= 1, got 'many'" in capsys.readouterr().err
 
 
+def test_training_runs_blas_on_one_thread_unless_told(monkeypatch):
+    """``Puppet.train`` from Python limits numpy's BLAS as the commands do, and restores it."""
+    import numpy as np
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from voicepuppet import puppet as vpuppet
+
+    def blas_threads():
+        return {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+    seen = []
+    remap = vpuppet.remap
+
+    def recording_remap(*args, **kwargs):
+        seen.append(blas_threads())
+        return remap(*args, **kwargs)
+
+    monkeypatch.setattr(vpuppet, "remap", recording_remap)
+    for var in ("VOICEPUPPET_BLAS_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    rng = np.random.default_rng(0)
+    states = np.repeat(rng.integers(0, 3, 31), 10)[:300]
+    pts = rng.normal(size=(68, 2)) * 40 + 160 + rng.normal(size=(3, 68, 2))[states] * 2
+    feats = rng.normal(size=(3, 3))[states] + rng.normal(0, 0.3, (300, 3))
+    opts = dict(fps=25.0, n_states=3, n_iter=3, n_components=2, audio_deltas=0, guide_weight=1.0)
+    with threadpool_limits(limits=2, user_api="blas"):
+        vpuppet.Puppet.train([pts], features_list=[feats], **opts)
+        assert seen and all(s == {1} for s in seen) and blas_threads() == {2}
+        seen.clear()
+        monkeypatch.setenv("VOICEPUPPET_BLAS_THREADS", "2")
+        vpuppet.Puppet.train([pts], features_list=[feats], **opts)
+        assert seen and all(s == {2} for s in seen)
+
+
 def test_a_command_prints_warnings_as_one_line_for_the_user(capsys, monkeypatch):
     import warnings
 

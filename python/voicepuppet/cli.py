@@ -8,11 +8,11 @@ exit code). Only verbs that work are listed in ``VERB_MODULES``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
-import os
 import sys
 import warnings
+
+from voicepuppet.blas import blas_threads
 
 # Order is the order shown in --help.
 VERB_MODULES = [
@@ -49,32 +49,6 @@ def build_parser() -> argparse.ArgumentParser:
     for name in VERB_MODULES:
         importlib.import_module(name).add_parser(sub)
     return parser
-
-
-def blas_threads():
-    """The BLAS thread limit the command runs under: ``VOICEPUPPET_BLAS_THREADS`` (default 1).
-
-    numpy's dense algebra here is small (a few hundred dimensions: the ridge baseline's normal
-    equations, PCA of the face coordinates, the remapping's scatter matrices), and OpenBLAS's
-    worker threads spin for each call: on a 2-core machine under load one ``evaluate`` took 27 s
-    with two BLAS threads and 7.5 s with one (docs/benchmarks.md, "BLAS threads"). The C++
-    kernels' OpenMP threads are not affected. With ``OPENBLAS_NUM_THREADS`` or
-    ``MKL_NUM_THREADS`` set and ``VOICEPUPPET_BLAS_THREADS`` not, BLAS is left as the user set it.
-    Returns a context manager.
-    """
-    value = os.environ.get("VOICEPUPPET_BLAS_THREADS")
-    if value is None and ("OPENBLAS_NUM_THREADS" in os.environ or "MKL_NUM_THREADS" in os.environ):
-        return contextlib.nullcontext()
-    try:
-        n = 1 if value is None else int(value)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise UserError(f"VOICEPUPPET_BLAS_THREADS must be a whole number >= 1, got {value!r}; "
-                        "unset it for the default (1)")
-    from threadpoolctl import threadpool_limits
-
-    return threadpool_limits(limits=n, user_api="blas")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,33 @@
+"""numpy's BLAS threads while voicepuppet computes (:func:`blas_threads`)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+
+
+def blas_threads():
+    """The BLAS thread limit the commands and ``Puppet.train`` run under:
+    ``VOICEPUPPET_BLAS_THREADS`` (default 1).
+
+    numpy's dense algebra here is small (a few hundred dimensions: the ridge baseline's normal
+    equations, PCA of the face coordinates, the remapping's scatter matrices), and OpenBLAS's
+    worker threads spin for each call: on a 2-core machine under load one ``evaluate`` took 27 s
+    with two BLAS threads and 7.5 s with one (docs/benchmarks.md, "BLAS threads"). The C++
+    kernels' OpenMP threads are not affected. With ``OPENBLAS_NUM_THREADS`` or
+    ``MKL_NUM_THREADS`` set and ``VOICEPUPPET_BLAS_THREADS`` not, BLAS is left as the user set it.
+    Returns a context manager.
+    """
+    value = os.environ.get("VOICEPUPPET_BLAS_THREADS")
+    if value is None and ("OPENBLAS_NUM_THREADS" in os.environ or "MKL_NUM_THREADS" in os.environ):
+        return contextlib.nullcontext()
+    try:
+        n = 1 if value is None else int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ValueError(f"VOICEPUPPET_BLAS_THREADS must be a whole number >= 1, got {value!r}; "
+                         "unset it for the default (1)")
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=n, user_api="blas")
