@@ -20,7 +20,7 @@ import pytest
 
 from voicepuppet.animation import neutral_landmarks
 from voicepuppet.audio import load_audio, prepare, samples
-from voicepuppet.live import LivePuppet, split_lag
+from voicepuppet.live import TRUSTED_GUIDE_WEIGHT, LivePuppet, split_lag
 
 SEED = 20261123
 FPS = 30000 / 1001
@@ -110,10 +110,12 @@ def test_bounded_lag_emits_within_the_latency(puppet, speech):
     p, _ = puppet
     live = LivePuppet(p, lag_ms=150)
     assert live.latency_s <= 0.150 + 1e-9
-    # budget 3 frames: formants 0, deltas 1, decoder 1, trajectory 1
+    # budget 3 frames: formants 0, deltas 1, decoder 1 + 1 from the trajectory (the fixture's
+    # cross-validation trusts its guide: λ >= TRUSTED_GUIDE_WEIGHT), trajectory 0
+    assert p.guide_weight >= TRUSTED_GUIDE_WEIGHT
     assert (live.formant_lag, live.delta_lag, live.decode_lag, live.trajectory_lag) == \
-        (0, 1, 1, 1)
-    assert live.guide_lag == 1  # the decoder's look-ahead, shared at no cost
+        (0, 1, 2, 0)
+    assert live.guide_lag == 2  # the decoder's look-ahead, shared at no cost
     n_out = 0
     x = speech[:48000]
     frames = []
@@ -154,6 +156,12 @@ def test_split_lag():
     assert split_lag(330, FPS, 0.026, True, 2, 0, 5) == (2, 2, 0, 3, 3, 2)
     assert split_lag(330, FPS, 0.026, True, 2, 5, 5) == (2, 1, 4, 5, 1, 1)
     assert split_lag(1000, FPS, 0.026, True, 2, 0, 3) == (2, 2, 0, 3, 13, 12)
+    # a guide weighted >= 8 takes one frame of the trajectory's share for the decoder (and itself)
+    assert split_lag(150, FPS, 0.026, True, 2, 0, 5, 4.0) == (0, 1, 0, 1, 1, 1)
+    assert split_lag(150, FPS, 0.026, True, 2, 0, 5, 8.0) == (0, 1, 0, 2, 2, 0)
+    assert split_lag(330, FPS, 0.026, True, 2, 0, 5, 32.0) == (2, 2, 0, 4, 4, 1)
+    assert split_lag(150, FPS, 0.026, True, 0, 5, 5, 64.0) == (0, 0, 2, 3, 1, 0)  # no frame to take
+    assert split_lag(330, FPS, 0.026, True, 2, 0, 0, 64.0) == (2, 2, 0, 0, 3, 2)  # no guide
     with pytest.raises(ValueError, match="lag_ms"):
         split_lag(-5, FPS, 0.026, True)
 
@@ -217,12 +225,12 @@ def test_guide_lag_and_latency(puppet):
     """The guide's look-ahead up to the decoder's is free; beyond it, it is latency."""
     p, _ = puppet
     window = LivePuppet(p).features.lookahead_s()
-    live = LivePuppet(p, lag_ms=150)  # deltas 1, decoder 1, trajectory 1, guide 1
+    live = LivePuppet(p, lag_ms=150)  # deltas 1, decoder 2, trajectory 0, guide 2 (λ >= 8)
     assert live.latency_s == pytest.approx(window + 3 / FPS, abs=1e-12)
     exact = LivePuppet(p, lag_ms=150, guide_lag=-1)
     assert exact.guide_lag == 5
-    # delta 1 + max(decoder 1, guide 5) + trajectory 1
-    assert exact.latency_s == pytest.approx(window + 7 / FPS, abs=1e-12)
+    # delta 1 + max(decoder 2, guide 5) + trajectory 0
+    assert exact.latency_s == pytest.approx(window + 6 / FPS, abs=1e-12)
     assert LivePuppet(p, lag_ms=150, guide_lag=0).latency_s == pytest.approx(live.latency_s)
     # an explicit decoder lag carries the free guide look-ahead with it
     assert LivePuppet(p, lag_ms=150, decode_lag=3).guide_lag == 3
@@ -306,12 +314,12 @@ def test_cli_file_json_lines(puppet, speech, tmp_path):
     summary = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
     assert summary["frames"] == ref.shape[0]
     assert summary["algorithmic_latency_ms"] <= 150
-    assert (summary["guide_lag"], summary["guide_weight"]) == (1, p.guide_weight)
+    assert (summary["guide_lag"], summary["guide_weight"]) == (2, p.guide_weight)  # λ >= 8: decoder 2
     # --guide-weight 0: Brand's unguided stream; --guide-lag -1: the exact guide, reported
     for extra, want in ((["--guide-weight", "0"], dict(guide_weight=0.0)),
                         (["--guide-lag", "-1"], dict(guide_lag=-1)),
-                        (["--decode-lag", "2", "--trajectory-lag", "0"],
-                         dict(decode_lag=2, trajectory_lag=0))):
+                        (["--decode-lag", "1", "--trajectory-lag", "1"],
+                         dict(decode_lag=1, trajectory_lag=1))):
         r = run_cli([str(path), "--input", str(wav), "--no-realtime", "--lag-ms", "150", *extra])
         assert r.returncode == 0, r.stderr.decode()
         got = np.array([json.loads(s)["points"] for s in r.stdout.decode().splitlines()])
@@ -320,9 +328,11 @@ def test_cli_file_json_lines(puppet, speech, tmp_path):
         np.testing.assert_allclose(got, own, atol=0.006)
         assert np.abs(got - pts).max() > 0.05  # not the default stream
         summary = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
-        assert summary["guide_lag"] == {"guide_weight": 0, "guide_lag": 5, "decode_lag": 2}[next(iter(want))]
-        assert summary["decode_lag"] == want.get("decode_lag", 1)
-        assert summary["trajectory_lag"] == want.get("trajectory_lag", 1)
+        assert summary["guide_lag"] == {"guide_weight": 0, "guide_lag": 5, "decode_lag": 1}[next(iter(want))]
+        # unguided (λ = 0) the trajectory keeps its frame; the trusted guide's split gives it away
+        kind = next(iter(want))
+        assert (summary["decode_lag"], summary["trajectory_lag"]) == \
+            {"guide_weight": (1, 1), "guide_lag": (2, 0), "decode_lag": (1, 1)}[kind]
 
 
 def test_cli_raw_pcm_on_stdin(puppet, speech):

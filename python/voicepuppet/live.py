@@ -85,8 +85,16 @@ class LiveFrames:
         return self.frames / self.fps
 
 
+#: A guide weighted at least this much (a puppet that trusts the ridge over its vocal HMM, as the
+#: training's cross-validation decides for real speech) gets one frame more of the budget in
+#: :func:`split_lag`, from the trajectory (docs/streaming.md, "The split for a puppet that
+#: trusts its guide").
+TRUSTED_GUIDE_WEIGHT = 8.0
+
+
 def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
-              delta_width: int = 0, projection_context: int = 0, guide_context: int = 0) -> tuple:
+              delta_width: int = 0, projection_context: int = 0, guide_context: int = 0,
+              guide_weight: float = 0.0) -> tuple:
     """Split a latency budget into look-aheads (frames at ``fps``).
 
     The analysis windows take ``window_s``; the whole frames left, ``B = floor((lag_ms / 1000 -
@@ -98,7 +106,10 @@ def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
     trajectory solve, half each (the decoder gets the odd frame). A guided puppet's guide
     (``guide_context`` k_g > 0) reads the audio alongside the projection and the decoder, so it
     gets their look-ahead for free: ``guide_lag = min(k_g, projection_lag + decode_lag)``
-    (giving it more of the budget was measured not to pay, docs/streaming.md).
+    (giving it more of the budget was measured not to pay at λ = 4, docs/streaming.md). A guide
+    weighted ``guide_weight`` >= :data:`TRUSTED_GUIDE_WEIGHT` takes one frame of the trajectory's
+    share (when it has one) for the decoder, and so for itself (measured better for puppets of
+    real speech, λ 32–64, on readers they never heard).
 
     Returns
     -------
@@ -114,6 +125,8 @@ def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
     dl = min(int(delta_width), rest // 3)
     rest -= dl
     decode = (rest + 1) // 2
+    if guide_context > 0 and guide_weight >= TRUSTED_GUIDE_WEIGHT and rest - decode > 0:
+        decode += 1
     gl = min(int(guide_context), pl + decode)
     return f, dl, pl, gl, decode, rest - decode
 
@@ -194,7 +207,7 @@ class LivePuppet:
         # the delta look-ahead the vocal features need (none for a projection of the features
         # alone, a projected puppet's default with context)
         f, dl, pl, gl, d, t = split_lag(float(lag_ms), puppet.fps, window, has_formants,
-                                        int(core.vocal_delta_width), k, kg)
+                                        int(core.vocal_delta_width), k, kg, lam)
         f = f if formant_lag is None else formant_lag
         dl = dl if delta_lag is None else delta_lag
         pl = pl if projection_lag is None else projection_lag
