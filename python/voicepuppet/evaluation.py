@@ -246,11 +246,14 @@ def format_table(result: dict, title: str = "") -> str:
                 cells.append("" if v is None else f"{v:.4g}")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     m = result["model"]
+    guide = ""
+    if m.get("guide_weight") is not None:
+        guide = f", guide weight {m['guide_weight']:g}" + (" (chosen by cross-validation)"
+                                                          if m.get("guide_weight_cv") else "")
     lines += ["", f"states {m['states']}, arcs {m['arcs']}, perplexity {m['perplexity']:.3g}, context "
               f"memory {m['context_memory']:.3g} frames, test decoding entropy rate "
               f"{m['entropy_rate_test']:.4g} nats/frame, state coding {m['bits_per_frame']:.3g} bits/frame"
-              + (f", guide weight {m['guide_weight']:g}{' (chosen by cross-validation)' if m.get('guide_weight_cv') else ''}"
-                 if m.get("guide_weight") is not None else "")]
+              + guide]
     return "\n".join(lines)
 
 

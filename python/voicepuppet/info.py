@@ -44,7 +44,7 @@ def describe_puppet(path) -> list[str]:
         lines.append(f"part {part['part']}: {int(part['states'])} states, {int(part['arcs'])} arcs, "
                      f"{part['face_dims']} face dims, perplexity {part['perplexity']:.3g}, context memory "
                      f"{part['context_memory']:.3g} frames")
-    vocal = ("the learned projection of the audio (±{} frames)".format(opt.get("vocal_context"))
+    vocal = (f"the learned projection of the audio (±{p._core.projection_context} frames)"
              if p._core.projected else "the audio features")
     lines.append(f"audio: feature set {p.feature_set.name} ({p._core.n_features} features, deltas "
                  f"±{p._core.delta_width}); vocal Gaussians on {vocal}, "
