@@ -161,6 +161,7 @@ def test_split_lag():
     assert split_lag(150, FPS, 0.026, True, 2, 0, 5, 8.0) == (0, 1, 0, 2, 2, 0)
     assert split_lag(330, FPS, 0.026, True, 2, 0, 5, 32.0) == (2, 2, 0, 4, 4, 1)
     assert split_lag(150, FPS, 0.026, True, 0, 5, 5, 64.0) == (0, 0, 2, 3, 1, 0)  # no frame to take
+    assert split_lag(330, FPS, 0.026, True, 0, 5, 5, 64.0) == (2, 0, 4, 5, 2, 1)  # projected: as at λ < 8
     assert split_lag(330, FPS, 0.026, True, 2, 0, 0, 64.0) == (2, 2, 0, 0, 3, 2)  # no guide
     with pytest.raises(ValueError, match="lag_ms"):
         split_lag(-5, FPS, 0.026, True)

@@ -108,8 +108,8 @@ def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
     gets their look-ahead for free: ``guide_lag = min(k_g, projection_lag + decode_lag)``
     (giving it more of the budget was measured not to pay at λ = 4, docs/streaming.md). A guide
     weighted ``guide_weight`` >= :data:`TRUSTED_GUIDE_WEIGHT` takes one frame of the trajectory's
-    share (when it has one) for the decoder, and so for itself (measured better for puppets of
-    real speech, λ 32–64, on readers they never heard).
+    share (when it has one) for the decoder, and so for itself, in a puppet without a projection
+    (measured better for puppets of real speech, λ 32–64, on readers they never heard).
 
     Returns
     -------
@@ -125,7 +125,8 @@ def split_lag(lag_ms: float, fps: float, window_s: float, formants: bool,
     dl = min(int(delta_width), rest // 3)
     rest -= dl
     decode = (rest + 1) // 2
-    if guide_context > 0 and guide_weight >= TRUSTED_GUIDE_WEIGHT and rest - decode > 0:
+    if guide_context > 0 and guide_weight >= TRUSTED_GUIDE_WEIGHT and not projection_context \
+            and rest - decode > 0:  # (measured on puppets without a projection)
         decode += 1
     gl = min(int(guide_context), pl + decode)
     return f, dl, pl, gl, decode, rest - decode
