@@ -105,3 +105,14 @@ def test_bad_guide_weights_are_refused(bad):
 def test_a_weight_without_a_guide_is_refused():
     with pytest.raises(ValueError, match="guide='none'"):
         _train(_linear_world, guide="none", guide_weight=2.0)
+
+
+def test_too_little_audio_to_cross_validate_says_so_and_a_fixed_weight_trains():
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(68, 2)) * 40 + 160 + rng.normal(0, 1, (10, 68, 2))
+    feats = rng.normal(size=(10, 3))
+    opts = dict(fps=FPS, n_states=1, n_iter=3, n_components=2, audio_deltas=0, guide_context=1)
+    with pytest.raises(ValueError, match=r"choosing the guide's weight by cross-validation on 10 training "
+                                         r"frames: .* too few .*; or fix the weight \(guide_weight=4\)"):
+        Puppet.train([pts], features_list=[feats], **opts)
+    assert Puppet.train([pts], features_list=[feats], guide_weight=4.0, **opts).guide_weight == 4.0

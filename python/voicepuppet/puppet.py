@@ -480,8 +480,12 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
                      leave=False):
         rest = np.setdiff1d(np.arange(len(A)), fold)
         rest_lengths = [len(r) for r in _runs(rest, seq)]
-        vocal, _ = _fit_vocal_side(A[rest], Y[rest], rest_lengths, [g[rest] for g in gammas], opt,
-                                   columns=raw[0].shape[1])
+        try:
+            vocal, _ = _fit_vocal_side(A[rest], Y[rest], rest_lengths, [g[rest] for g in gammas], opt,
+                                       columns=raw[0].shape[1])
+        except ValueError as exc:  # a fold too small for what the puppet fits: say which step
+            raise ValueError(f"choosing the guide's weight by cross-validation on {len(A)} training "
+                             f"frames: {exc}; or fix the weight (guide_weight={GUIDE_WEIGHT:g})") from None
         core = _core.Puppet(json.dumps(metadata), {**arrays, **vocal})
         for piece in _runs(fold, seq):
             s = seq[piece[0]]
