@@ -468,8 +468,9 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
     Over the folds of :func:`cross_fit_folds`, the vocal side (guide, projection, vocal
     Gaussians: :func:`_fit_vocal_side`) is refitted on the other folds, with the facial HMMs and
     their occupancies of the training frames kept, and each held-out run of frames is animated
-    (Viterbi) from its raw features ``raw`` at every λ. Returns the λ and the mean squared error
-    per frame for each λ (in the face coordinates of all parts)."""
+    from its raw features ``raw``: decoded once (Viterbi), its trajectory solved at every λ.
+    Returns the λ and the mean squared error per frame for each λ (in the face coordinates of
+    all parts)."""
     from tqdm.auto import tqdm
 
     seq = np.repeat(np.arange(len(lengths)), lengths)
@@ -490,9 +491,8 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
         for piece in _runs(fold, seq):
             s = seq[piece[0]]
             x = np.ascontiguousarray(raw[s][piece - bounds[s]], dtype=np.float64)
-            for j, lam in enumerate(GUIDE_WEIGHTS):
-                face = core.animate(x, 0.0, False, "none", float("inf"), 1, float(lam))["face"]
-                sse[j] += float(np.sum((face - Y[piece]) ** 2))
+            faces = core.animate_faces(x, [float(lam) for lam in GUIDE_WEIGHTS])
+            sse += [float(np.sum((face - Y[piece]) ** 2)) for face in faces]
     mse = [float(v) / len(A) for v in sse]
     return float(GUIDE_WEIGHTS[int(np.argmin(sse))]), mse
 
