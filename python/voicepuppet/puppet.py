@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from voicepuppet import _core
+from voicepuppet.blas import limited
 from voicepuppet.animation import Animation, check_output_path
 from voicepuppet.face import FaceSpace, check_landmarks, observations
 from voicepuppet.projection import (GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES, cross_fit_folds,
@@ -166,6 +167,7 @@ class Puppet:
 
     # --------------------------------------------------------------------------- training
     @classmethod
+    @limited  # numpy's small dense algebra is faster on one BLAS thread (blas.py)
     def train(cls, points_list, audio_list=None, *, features_list=None, fps: float = 29.97,
               progress: bool = False, client=None, **options) -> "Puppet":
         """Train a puppet from synchronous landmark tracks and audio.
@@ -198,14 +200,6 @@ class Puppet:
         :func:`voicepuppet.blas.blas_threads`): on 2 cores, 180 s of training audio trains in
         about 5 s instead of 22.
         """
-        from voicepuppet.blas import blas_threads
-
-        with blas_threads():  # numpy's small dense algebra is faster on one BLAS thread (blas.py)
-            return cls._train(points_list, audio_list, features_list=features_list, fps=fps,
-                              progress=progress, client=client, **options)
-
-    @classmethod
-    def _train(cls, points_list, audio_list, *, features_list, fps, progress, client, **options) -> "Puppet":
         from voicepuppet import audio as vaudio
         from voicepuppet.entropic import anneal_schedule, diagnostics
         from voicepuppet.hmm import GaussianHMM
