@@ -130,6 +130,29 @@ def test_training_runs_blas_on_one_thread_unless_told(monkeypatch):
         assert seen and all(s == {2} for s in seen)
 
 
+def test_the_limit_reaches_scipys_own_blas_loaded_after_it():
+    """scipy's wheels bundle a second OpenBLAS; a limit set before scipy.linalg is first imported
+    must cover it too (a fresh interpreter, so scipy is not loaded yet)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    code = ("import json, sys\n"
+            "assert 'scipy.linalg' not in sys.modules\n"
+            "from threadpoolctl import threadpool_info\n"
+            "from voicepuppet.blas import blas_threads\n"
+            "with blas_threads():\n"
+            "    from scipy.linalg import cho_factor\n"
+            "    print(json.dumps([[lib['filepath'], lib['num_threads']] for lib in threadpool_info()\n"
+            "                      if lib['user_api'] == 'blas']))\n")
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("VOICEPUPPET_BLAS_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    libs = json.loads(out)
+    assert libs and all(n == 1 for _, n in libs), libs
+
+
 def test_the_evaluation_entry_points_run_blas_on_one_thread_from_python_too(monkeypatch):
     """The ridge baseline fitted from a user's Python limits BLAS as training does (its dense
     solves are where two threads thrash), and so do the harness's entry points."""

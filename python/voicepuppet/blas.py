@@ -29,6 +29,9 @@ def blas_threads():
     if n < 1:
         raise ValueError(f"VOICEPUPPET_BLAS_THREADS must be a whole number >= 1, got {value!r}; "
                          "unset it for the default (1)")
+    # scipy's wheels carry their own OpenBLAS (the ridge's Cholesky solves run on it), and
+    # threadpoolctl limits only the libraries loaded when the limit is set: load it first.
+    import scipy.linalg  # noqa: F401
     from threadpoolctl import threadpool_limits
 
     return threadpool_limits(limits=n, user_api="blas")
