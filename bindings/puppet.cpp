@@ -181,6 +181,16 @@ void bind_puppet(py::module_& m) {
            }, py::arg("raw_features"), py::arg("fps") = 0.0, py::arg("posterior") = false,
            py::arg("adapt") = "none", py::arg("tau") = AdaptOptions{}.tau,
            py::arg("n_iter") = AdaptOptions{}.n_iter, py::arg("guide_weight") = AnimateOptions{}.guide_weight)
+      .def("animate_faces", [](const Puppet& p, const MatrixRef& raw, const std::vector<double>& guide_weights,
+                               double fps, bool posterior) {
+             AnimateOptions o;
+             o.fps = fps;
+             o.posterior = posterior;
+             py::gil_scoped_release release;
+             return p.animate_faces(raw, guide_weights, o);
+           }, py::arg("raw_features"), py::arg("guide_weights"), py::arg("fps") = 0.0, py::arg("posterior") = false,
+           "The face coordinates of animate(raw_features, fps, posterior, guide_weight=w) for each w of\n"
+           "guide_weights: the audio decoded once, the trajectory solved once per weight.")
       .def("animate_states", [](const Puppet& p, const Eigen::Ref<const IndexMatrix>& states, double states_fps,
                                 double fps) {
              AnimateResult r;

@@ -130,6 +130,55 @@ def test_training_runs_blas_on_one_thread_unless_told(monkeypatch):
         assert seen and all(s == {2} for s in seen)
 
 
+def test_the_limit_reaches_scipys_own_blas_loaded_after_it():
+    """scipy's wheels bundle a second OpenBLAS; a limit set before scipy.linalg is first imported
+    must cover it too (a fresh interpreter, so scipy is not loaded yet)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    code = ("import json, sys\n"
+            "assert 'scipy.linalg' not in sys.modules\n"
+            "from threadpoolctl import threadpool_info\n"
+            "from voicepuppet.blas import blas_threads\n"
+            "with blas_threads():\n"
+            "    from scipy.linalg import cho_factor\n"
+            "    print(json.dumps([[lib['filepath'], lib['num_threads']] for lib in threadpool_info()\n"
+            "                      if lib['user_api'] == 'blas']))\n")
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("VOICEPUPPET_BLAS_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    libs = json.loads(out)
+    assert libs and all(n == 1 for _, n in libs), libs
+
+
+def test_the_evaluation_entry_points_run_blas_on_one_thread_from_python_too(monkeypatch):
+    """The ridge baseline fitted from a user's Python limits BLAS as training does (its dense
+    solves are where two threads thrash), and so do the harness's entry points."""
+    import numpy as np
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from voicepuppet import evaluate, evaluation
+
+    seen = []
+    solve = evaluation.RidgeBaseline._solve
+
+    def recording_solve(*args):
+        seen.append({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"})
+        return solve(*args)
+
+    monkeypatch.setattr(evaluation.RidgeBaseline, "_solve", staticmethod(recording_solve))
+    for var in ("VOICEPUPPET_BLAS_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    rng = np.random.default_rng(0)
+    with threadpool_limits(limits=2, user_api="blas"):
+        evaluation.RidgeBaseline().fit([rng.normal(size=(60, 3))], [rng.normal(size=(60, 2))])
+    assert seen and all(s == {1} for s in seen)
+    for entry in (evaluation.evaluate_split, evaluation.compare_training, evaluate.cross_validate):
+        assert entry.__wrapped__.__name__ == entry.__name__  # blas.limited, docs kept
+
+
 def test_a_command_prints_warnings_as_one_line_for_the_user(capsys, monkeypatch):
     import warnings
 

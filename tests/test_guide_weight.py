@@ -116,3 +116,16 @@ def test_too_little_audio_to_cross_validate_says_so_and_a_fixed_weight_trains():
                                          r"frames: .* too few .*; or fix the weight \(guide_weight=4\)"):
         Puppet.train([pts], features_list=[feats], **opts)
     assert Puppet.train([pts], features_list=[feats], guide_weight=4.0, **opts).guide_weight == 4.0
+
+
+@pytest.mark.parametrize("posterior", [False, True])
+def test_one_decoding_for_all_weights_is_animate_at_each(linear_puppet, posterior):
+    """The cross-validation's kernel (``_core.Puppet.animate_faces``) through the bindings."""
+    _, feats = _linear_world(np.random.default_rng(9), 120)
+    core = linear_puppet._core
+    weights = [0.0, 2.0, 64.0, -1.0]  # -1: the file's weight
+    faces = core.animate_faces(feats, weights, fps=45.0, posterior=posterior)
+    assert len(faces) == len(weights)
+    for w, face in zip(weights, faces):
+        np.testing.assert_array_equal(face, core.animate(feats, 45.0, posterior, guide_weight=w)["face"])
+    assert np.abs(faces[0] - faces[2]).max() > 1e-3

@@ -271,6 +271,11 @@ def test_deterministic_per_seed_and_cached(corpus, tmp_path):
                                progress=False)
     assert {f: os.stat(tmp_path / "a" / f).st_mtime_ns for f in os.listdir(tmp_path / "a")} == stamps
     np.testing.assert_array_equal(cached.train.points, again.train.points)
+    # the corpus just made is the corpus read back: the WAV's samples, not the synthesiser's
+    for made, read in zip([again.train] + again.test, [cached.train] + cached.test):
+        np.testing.assert_array_equal(made.samples, read.samples)
+        np.testing.assert_array_equal(made.params, read.params)
+        assert made.phones == read.phones and made.rate == read.rate and made.text == read.text
     with open(tmp_path / "a" / "corpus.json") as fh:
         assert json.load(fh)["test"] == ["test_00", "test_01"]
 

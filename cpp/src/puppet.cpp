@@ -335,8 +335,10 @@ RowMatrixXd Puppet::to_points(const MatrixRef& face) const {
   return out;
 }
 
-AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOptions& options) const {
-  const double out = out_rate(options.fps);
+Puppet::Analysis Puppet::analyse(const MatrixRef& raw_features, const AnimateOptions& options,
+                                 bool guide) const {
+  Analysis a;
+  a.out = out_rate(options.fps);
   const bool adapt = options.adapt.kind != AdaptKind::None;
   if (adapt) check_adapt_options(options.adapt);
   // The vocal features (the projection of the standardised frames, if the puppet has one), once
@@ -345,17 +347,13 @@ AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOption
   const RowMatrixXd v = project(z);
   const Index T = v.rows();
   // The guide's prediction ŷ of the face, at the output rate (interpolated as resample_weights).
-  const double lambda = guide_lambda(options.guide_weight);
-  RowMatrixXd guide_y;
-  if (lambda > 0) {
-    guide_y = guide_.apply(z);
-    if (out != fps_) guide_y = resample_weights(guide_y, fps_, out);
+  if (guide) {
+    a.guide_y = guide_.apply(z);
+    if (a.out != fps_) a.guide_y = resample_weights(a.guide_y, fps_, a.out);
   }
-  Index col = 0;
   const VectorXi no_lengths;
-  AnimateResult r;
+  AnimateResult& r = a.result;
   r.states.resize(T, n_parts());
-  std::vector<RowMatrixXd> faces;
   for (Index p = 0; p < n_parts(); ++p) {
     const PuppetPart& pt = parts_[static_cast<size_t>(p)];
     RowMatrixXd log_b;
@@ -368,30 +366,62 @@ AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOption
     } else {
       log_b = gaussian_log_density(v, pt.vocal_means, pt.vocal_covars, pt.vocal_type);
     }
-    const ViterbiResult vit = viterbi(log_b, pt.startprob, pt.transmat, no_lengths);
+    ViterbiResult vit = viterbi(log_b, pt.startprob, pt.transmat, no_lengths);
     r.states.col(p) = vit.path;
-    const TrajectoryModel model = trajectory_model(out, p);
+    if (options.posterior) {
+      ForwardBackwardResult fb = forward_backward(log_b, pt.startprob, pt.transmat, no_lengths);
+      r.log_likelihood += fb.log_likelihood;
+      a.posteriors.push_back(a.out == fps_ ? std::move(fb.posteriors) : resample_weights(fb.posteriors, fps_, a.out));
+    } else {
+      r.log_likelihood += vit.log_probability;
+      a.paths.push_back(a.out == fps_ ? std::move(vit.path) : resample_states(vit.path, fps_, a.out));
+    }
+  }
+  return a;
+}
+
+RowMatrixXd Puppet::synthesise(const Analysis& a, double lambda) const {
+  Index col = 0;
+  std::vector<RowMatrixXd> faces;
+  for (Index p = 0; p < n_parts(); ++p) {
+    const PuppetPart& pt = parts_[static_cast<size_t>(p)];
+    const TrajectoryModel model = trajectory_model(a.out, p);
     TrajectoryEvidence evidence;
     const TrajectoryEvidence* ev = nullptr;
     if (lambda > 0) {  // part p's columns of ŷ, with precision λ R[sl, sl]⁻¹
-      evidence.targets = guide_y.middleCols(col, pt.n_dims());
+      evidence.targets = a.guide_y.middleCols(col, pt.n_dims());
       evidence.precision = lambda * guide_precision_[static_cast<size_t>(p)];
       ev = &evidence;
     }
     col += pt.n_dims();
-    if (options.posterior) {
-      const ForwardBackwardResult fb = forward_backward(log_b, pt.startprob, pt.transmat, no_lengths);
-      r.log_likelihood += fb.log_likelihood;
-      faces.push_back(solve_trajectory_weighted(
-          model, out == fps_ ? fb.posteriors : resample_weights(fb.posteriors, fps_, out), ev));
-    } else {
-      r.log_likelihood += vit.log_probability;
-      faces.push_back(solve_trajectory(model, out == fps_ ? vit.path : resample_states(vit.path, fps_, out), ev));
-    }
+    const auto i = static_cast<size_t>(p);
+    faces.push_back(a.paths.empty() ? solve_trajectory_weighted(model, a.posteriors[i], ev)
+                                    : solve_trajectory(model, a.paths[i], ev));
   }
-  r.face = side_by_side(faces, n_dims());
+  return side_by_side(faces, n_dims());
+}
+
+AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOptions& options) const {
+  const double lambda = guide_lambda(options.guide_weight);
+  Analysis a = analyse(raw_features, options, lambda > 0);
+  AnimateResult r = std::move(a.result);
+  r.face = synthesise(a, lambda);
   r.points = to_points(r.face);
   return r;
+}
+
+std::vector<RowMatrixXd> Puppet::animate_faces(const MatrixRef& raw_features, const std::vector<double>& guide_weights,
+                                               const AnimateOptions& options) const {
+  std::vector<double> lambdas;
+  bool guide = false;
+  for (const double w : guide_weights) {
+    lambdas.push_back(guide_lambda(w));
+    guide = guide || lambdas.back() > 0;
+  }
+  const Analysis a = analyse(raw_features, options, guide);
+  std::vector<RowMatrixXd> faces;
+  for (const double lambda : lambdas) faces.push_back(synthesise(a, lambda));
+  return faces;
 }
 
 AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,

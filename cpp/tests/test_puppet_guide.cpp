@@ -154,6 +154,35 @@ TEST_CASE("guide: λ = 0 (the override or the file's) is the unguided puppet exa
   CHECK(throws_with<std::invalid_argument>([&] { plain.guide_predict(plain.standardize(raw)); }, "no guide"));
 }
 
+TEST_CASE("guide: animate_faces is animate at each weight (one decoding for all)") {
+  const Puppet p(guided(0.7)), plain(unguided());
+  const RowMatrixXd raw = audio();
+  const std::vector<double> weights{0.0, -1.0, 2.0, 16.0};  // −1: the file's λ (0.7)
+  for (bool posterior : {false, true}) {
+    for (double fps : {0.0, 45.0}) {
+      CAPTURE(posterior);
+      CAPTURE(fps);
+      AnimateOptions o;
+      o.fps = fps;
+      o.posterior = posterior;
+      o.guide_weight = 123.0;  // not used by animate_faces
+      const std::vector<RowMatrixXd> faces = p.animate_faces(raw, weights, o);
+      REQUIRE(faces.size() == weights.size());
+      for (size_t i = 0; i < weights.size(); ++i) {
+        o.guide_weight = weights[i];
+        CHECK((faces[i].array() == p.animate(raw, o).face.array()).all());
+      }
+      CHECK((faces[2] - faces[3]).cwiseAbs().maxCoeff() > 1e-3);
+      o.guide_weight = 0.0;
+      const std::vector<RowMatrixXd> unguided_faces = plain.animate_faces(raw, {0.0, -1.0}, o);
+      CHECK((unguided_faces[1].array() == plain.animate(raw, o).face.array()).all());
+    }
+  }
+  CHECK(p.animate_faces(raw, {}).empty());
+  CHECK(throws_with<std::invalid_argument>([&] { plain.animate_faces(raw, {0.0, 1.0}); }, "needs a guided puppet"));
+  CHECK(throws_with<std::invalid_argument>([&] { p.animate_faces(raw, {1.0, INFINITY}); }, "guide_weight must be finite"));
+}
+
 TEST_CASE("guide: format version 2 only for a file with a guide; both versions read") {
   const std::string with = encode_puppet(guided()), without = encode_puppet(unguided());
   CHECK(static_cast<int>(with[8]) == 2);

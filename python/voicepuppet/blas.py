@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 
 
 def blas_threads():
-    """The BLAS thread limit the commands and ``Puppet.train`` run under:
+    """The BLAS thread limit the commands and the entry points of :func:`limited` run under:
     ``VOICEPUPPET_BLAS_THREADS`` (default 1).
 
     numpy's dense algebra here is small (a few hundred dimensions: the ridge baseline's normal
@@ -28,6 +29,21 @@ def blas_threads():
     if n < 1:
         raise ValueError(f"VOICEPUPPET_BLAS_THREADS must be a whole number >= 1, got {value!r}; "
                          "unset it for the default (1)")
+    # scipy's wheels carry their own OpenBLAS (the ridge's Cholesky solves run on it), and
+    # threadpoolctl limits only the libraries loaded when the limit is set: load it first.
+    import scipy.linalg  # noqa: F401
     from threadpoolctl import threadpool_limits
 
     return threadpool_limits(limits=n, user_api="blas")
+
+
+def limited(fn):
+    """Decorator: ``fn`` runs under :func:`blas_threads` (the public entry points whose numpy
+    algebra is small and many: training, the ridge baseline, the evaluation harness), however it
+    is called: from the commands, or from a user's Python."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with blas_threads():
+            return fn(*args, **kwargs)
+
+    return wrapper

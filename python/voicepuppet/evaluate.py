@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import phonemes
+from .blas import limited
 
 __all__ = ["Sequence", "learnt_points", "synth_sequences", "tracked_landmarks", "load_sequences",
            "cross_validate", "format_table", "write_results", "METRICS", "TRAIN_ON", "BASELINES"]
@@ -451,6 +452,7 @@ def _as_face(points, n, face_space) -> np.ndarray:
 BASELINES = ("ridge", "mean-face")
 
 
+@limited
 def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
                    puppet: bool = True, n_components=0.98, n_states: int = 40,
                    features=None, progress: bool = True) -> dict:

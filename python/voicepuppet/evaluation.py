@@ -26,6 +26,7 @@ import lzma
 import numpy as np
 
 from voicepuppet import _core, metrics
+from voicepuppet.blas import limited
 from voicepuppet.face import observations
 
 RIDGE_CONTEXT = 5
@@ -52,6 +53,7 @@ class RidgeBaseline:
 
         return cho_solve(cho_factor(G + alpha * np.eye(len(G)), lower=True), B)
 
+    @limited
     def fit(self, A_list, Y_list) -> "RidgeBaseline":
         X = np.vstack([context_stack(a, self.k) for a in A_list])
         Y = np.vstack(Y_list)
@@ -143,6 +145,7 @@ def compare(pred_face, true_points, face_space) -> dict:
     return out
 
 
+@limited
 def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = True,
                    cache: dict | None = None) -> dict:
     """Measure a puppet and the baselines on its training data and held-out data.
@@ -308,6 +311,7 @@ def sequence_features(seqs, fps: float, features=None):
     return of
 
 
+@limited
 def compare_training(sequences, variants: dict, *, baseline: str | None = None, k: int = 10,
                      seed: int = 0, n_components=0.98, features=None, progress: bool = False) -> dict:
     """Paired k-fold comparison of puppet training options on the same folds.

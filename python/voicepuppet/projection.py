@@ -98,8 +98,9 @@ def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, wh
 GUIDE_WEIGHT = 4.0
 
 #: The weights ``Puppet.train(guide_weight="cv")`` chooses from by cross-validation on its
-#: training audio (docs/results.md, "The guide's weight chosen at training by cross-validation").
-GUIDE_WEIGHTS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
+#: training audio (docs/results.md, "The guide's weight chosen at training by cross-validation";
+#: 128 and 256 since stop 22, "The top of the guide's weight grid").
+GUIDE_WEIGHTS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0)
 
 
 def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5,

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from voicepuppet import _core
+from voicepuppet.blas import limited
 from voicepuppet.animation import Animation, check_output_path
 from voicepuppet.face import FaceSpace, check_landmarks, observations
 from voicepuppet.projection import (GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES, cross_fit_folds,
@@ -166,6 +167,7 @@ class Puppet:
 
     # --------------------------------------------------------------------------- training
     @classmethod
+    @limited  # numpy's small dense algebra is faster on one BLAS thread (blas.py)
     def train(cls, points_list, audio_list=None, *, features_list=None, fps: float = 29.97,
               progress: bool = False, client=None, **options) -> "Puppet":
         """Train a puppet from synchronous landmark tracks and audio.
@@ -198,14 +200,6 @@ class Puppet:
         :func:`voicepuppet.blas.blas_threads`): on 2 cores, 180 s of training audio trains in
         about 5 s instead of 22.
         """
-        from voicepuppet.blas import blas_threads
-
-        with blas_threads():  # numpy's small dense algebra is faster on one BLAS thread (blas.py)
-            return cls._train(points_list, audio_list, features_list=features_list, fps=fps,
-                              progress=progress, client=client, **options)
-
-    @classmethod
-    def _train(cls, points_list, audio_list, *, features_list, fps, progress, client, **options) -> "Puppet":
         from voicepuppet import audio as vaudio
         from voicepuppet.entropic import anneal_schedule, diagnostics
         from voicepuppet.hmm import GaussianHMM
@@ -468,8 +462,9 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
     Over the folds of :func:`cross_fit_folds`, the vocal side (guide, projection, vocal
     Gaussians: :func:`_fit_vocal_side`) is refitted on the other folds, with the facial HMMs and
     their occupancies of the training frames kept, and each held-out run of frames is animated
-    (Viterbi) from its raw features ``raw`` at every λ. Returns the λ and the mean squared error
-    per frame for each λ (in the face coordinates of all parts)."""
+    from its raw features ``raw``: decoded once (Viterbi), its trajectory solved at every λ.
+    Returns the λ and the mean squared error per frame for each λ (in the face coordinates of
+    all parts)."""
     from tqdm.auto import tqdm
 
     seq = np.repeat(np.arange(len(lengths)), lengths)
@@ -490,9 +485,8 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
         for piece in _runs(fold, seq):
             s = seq[piece[0]]
             x = np.ascontiguousarray(raw[s][piece - bounds[s]], dtype=np.float64)
-            for j, lam in enumerate(GUIDE_WEIGHTS):
-                face = core.animate(x, 0.0, False, "none", float("inf"), 1, float(lam))["face"]
-                sse[j] += float(np.sum((face - Y[piece]) ** 2))
+            faces = core.animate_faces(x, [float(lam) for lam in GUIDE_WEIGHTS])
+            sse += [float(np.sum((face - Y[piece]) ** 2)) for face in faces]
     mse = [float(v) / len(A) for v in sse]
     return float(GUIDE_WEIGHTS[int(np.argmin(sse))]), mse
 

@@ -186,6 +186,12 @@ class Puppet {
 
   /// Analysis and synthesis from raw audio feature frames at the puppet's rate.
   AnimateResult animate(const MatrixRef& raw_features, const AnimateOptions& options = {}) const;
+  /// The face coordinates (#T' by K) animate(raw_features, options) gives at each λ of
+  /// `guide_weights` (options.guide_weight is not used; each λ as AnimateOptions::guide_weight,
+  /// so negative is the file's): the audio decoded once, the trajectory solved once per λ. What
+  /// choosing λ needs (the training's cross-validation).
+  std::vector<RowMatrixXd> animate_faces(const MatrixRef& raw_features, const std::vector<double>& guide_weights,
+                                         const AnimateOptions& options = {}) const;
   /// Synthesis from given (e.g. edited) states #T by #parts at `states_fps`.
   AnimateResult animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
                                double out_fps = 0) const;
@@ -195,6 +201,17 @@ class Puppet {
   void read_guide(Index n_columns);
   /// λ for an AnimateOptions::guide_weight (negative/NaN: the file's), validated.
   double guide_lambda(double weight) const;
+  /// animate's analysis: every part's decoding of the audio, and the guide's prediction.
+  struct Analysis {
+    double out = 0;                         ///< the output rate
+    std::vector<VectorXi> paths;            ///< per part, the Viterbi path (analysis rate)
+    std::vector<RowMatrixXd> posteriors;    ///< per part, with options.posterior
+    RowMatrixXd guide_y;                    ///< ŷ at the output rate (a guided puppet)
+    AnimateResult result;                   ///< states, log-likelihood and transforms
+  };
+  Analysis analyse(const MatrixRef& raw_features, const AnimateOptions& options, bool guide) const;
+  /// animate's synthesis: the face coordinates from `a` with the guide's evidence at λ.
+  RowMatrixXd synthesise(const Analysis& a, double lambda) const;
   PuppetFile file_;
   double fps_ = 0;
   Index delta_width_ = 0;

@@ -215,8 +215,9 @@ def make_clip(utt: Utterance, photo: FacePhoto, stem: str, *, fps: float = 30000
                param_names=np.array(PARAM_NAMES), pose=art.pose, pose_centre=art.centre,
                neutral=photo.points, phones=phones, text=np.array(utt.text),
                source=np.array(utt.source))
-    return Clip(stem + ".mp4", stem + ".wav", stem + ".npz", float(fps), art.points, x, utt.rate,
-                list(utt.phones), art.params, art.pose, utt.text, utt.source)
+    # What the files hold (the WAV's 16-bit samples), so a clip just made and the same clip read
+    # from the cache are one clip: the numbers of a first run are those of every later run.
+    return load_clip(stem)
 
 
 def load_clip(stem: str) -> Clip:
