@@ -469,7 +469,8 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
 
     seq = np.repeat(np.arange(len(lengths)), lengths)
     bounds = np.concatenate([[0], np.cumsum(lengths)])
-    sse = np.zeros(len(GUIDE_WEIGHTS))
+    weights = [float(lam) for lam in GUIDE_WEIGHTS]
+    sse = np.zeros(len(weights))
     folds = cross_fit_folds(lengths)
     for fold in tqdm(folds, desc="guide weight (cross-validation)", unit="fold", disable=not progress,
                      leave=False):
@@ -485,10 +486,10 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
         for piece in _runs(fold, seq):
             s = seq[piece[0]]
             x = np.ascontiguousarray(raw[s][piece - bounds[s]], dtype=np.float64)
-            faces = core.animate_faces(x, [float(lam) for lam in GUIDE_WEIGHTS])
+            faces = core.animate_faces(x, weights)
             sse += [float(np.sum((face - Y[piece]) ** 2)) for face in faces]
     mse = [float(v) / len(A) for v in sse]
-    return float(GUIDE_WEIGHTS[int(np.argmin(sse))]), mse
+    return weights[int(np.argmin(sse))], mse
 
 
 def _count(value, name: str) -> int:
