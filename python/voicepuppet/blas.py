@@ -37,13 +37,24 @@ def blas_threads():
     return threadpool_limits(limits=n, user_api="blas")
 
 
+_depth = 0  # limited calls in progress: the outermost sets the limit (about 1 ms), inner ones keep it
+
+
 def limited(fn):
     """Decorator: ``fn`` runs under :func:`blas_threads` (the public entry points whose numpy
     algebra is small and many: training, the ridge baseline, the evaluation harness), however it
-    is called: from the commands, or from a user's Python."""
+    is called: from the commands, or from a user's Python. Inside another limited call (the
+    ridge fits of training: 36 per puppet) the limit already holds and is not set again."""
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        with blas_threads():
+        global _depth
+        if _depth:
             return fn(*args, **kwargs)
+        _depth += 1
+        try:
+            with blas_threads():
+                return fn(*args, **kwargs)
+        finally:
+            _depth -= 1
 
     return wrapper
