@@ -1,6 +1,7 @@
 """The train and animate verbs on planted data (tones that say which face to make), the states
 round trip for editing, the C++ example that animates without Python, and bad input."""
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -74,11 +75,13 @@ def test_train_and_animate(workdir, capsys):
     assert np.loadtxt(d / "c.csv", delimiter=",", skiprows=1).shape == (400, 22)
 
 
-def test_train_switches_for_voices_never_heard(workdir):
+def test_train_switches_for_voices_never_heard(workdir, capsys):
     d = workdir
     assert main(["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"),
                  "-o", str(d / "other.vpp"), "--states", "6", "--iterations", "12", "--quiet",
                  "--vocal-features", "projected", "--vocal-covariance", "tied"]) == 0
+    # The summary counts states and arcs in whole numbers (the metadata holds them as floats).
+    assert re.search(r"^part face: \d+ states \(from 6\), \d+ arcs, ", capsys.readouterr().out, re.M)
     puppet = load(d / "other.vpp")
     opts = puppet.metadata["training"]["options"]
     assert (opts["vocal_features"], opts["vocal_covariance"]) == ("projected", "tied")

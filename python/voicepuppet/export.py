@@ -401,7 +401,7 @@ def export(anim: Animation, path, fmt: Optional[str] = None, *, face: Optional[F
         raise ValueError(f"unknown export format {fmt!r}; use one of {', '.join(FORMATS)}")
     if p.suffix.lower() != FORMATS[fmt]:
         raise ValueError(f"format {fmt!r} writes {FORMATS[fmt]} files, but the output is {str(p)!r}; "
-                         f"name it ...{FORMATS[fmt]}")
+                         f"name it {str(p.with_suffix(FORMATS[fmt]))!r}")
     if fmt in ("csv", "npz"):
         return save_animation(anim, p)
     if fmt in ("arkit", "arkit-json"):

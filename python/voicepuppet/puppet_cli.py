@@ -109,8 +109,8 @@ def _train(args) -> int:
         puppet = Puppet.train(points_list, audio_list, fps=fps, progress=not args.quiet, **options)
     puppet.save(out)
     for part in puppet.metadata["training"]["parts"]:
-        print(f"part {part['part']}: {part['states']} states (from {options.get('n_states', TRAIN_DEFAULTS['n_states'])}), "
-              f"{part['arcs']} arcs, perplexity {part['perplexity']:.3g}, context memory "
+        print(f"part {part['part']}: {part['states']:.0f} states (from {options.get('n_states', TRAIN_DEFAULTS['n_states'])}), "
+              f"{part['arcs']:.0f} arcs, perplexity {part['perplexity']:.3g}, context memory "
               f"{part['context_memory']:.3g} frames, {part['face_dims']} face dims")
     guide = puppet.metadata["training"].get("guide", {})
     if "weight_cv" in guide:
@@ -211,6 +211,8 @@ def _animate(args) -> int:
 
 
 def add_parser(sub) -> None:
+    from voicepuppet.projection import GUIDE_WEIGHTS
+
     p = sub.add_parser("train", help="train a voice puppet from video of a talking face",
                        description="Track the face (unless --landmarks are given), learn the facial "
                                    "state machine by entropic estimation, remap it to the audio "
@@ -238,8 +240,9 @@ def add_parser(sub) -> None:
     p.add_argument("--guide-context", type=int, metavar="K",
                    help="frames of audio on each side the guide's ridge reads (default 5)")
     p.add_argument("--guide-weight", metavar="cv|W",
-                   help="the guide's weight written into the puppet: cv (default) chooses it from 0 ... 64 by "
-                        "cross-validation on the training audio; a number fixes it (4 before stop 21)")
+                   help="the guide's weight written into the puppet: cv (default) chooses it from "
+                        f"{', '.join(f'{w:g}' for w in GUIDE_WEIGHTS)} by cross-validation on the training "
+                        "audio; a number fixes it (4 before stop 21)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run the HMM's E-steps on this Dask scheduler "
                    "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process")
