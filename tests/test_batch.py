@@ -169,18 +169,20 @@ def test_manifest_ignores_a_damaged_line(tmp_path):
     assert not m2.finished("x.wav", "in", "other settings", tmp_path)
 
 
-def test_cli_batch_track_reports_and_exits_nonzero_on_failure(videos, tmp_path, capsys):
+def test_cli_batch_track_reports_and_exits_nonzero_on_failure(videos, tmp_path, capfd):
     from voicepuppet.cli import main
 
     root, init = videos
     out = tmp_path / "out"
     rc = main(["batch", "track", str(root), "-o", str(out), "--init", str(init), "--passes", "1",
                "--workers", "1"])
-    captured = capsys.readouterr()
+    captured = capfd.readouterr()  # file descriptors: the worker processes' logs too
     assert rc == 1
     assert "3 done, 0 skipped" in captured.out and "2 failed" in captured.out
     assert "FAILED broken.mp4" in captured.out and "FAILED gone.avi" in captured.out
     assert "batch track" in captured.err  # the progress bar
+    # A refused input is the input's fault: listed in the summary, no worker traceback.
+    assert "Traceback" not in captured.err and "Compute Failed" not in captured.err
     assert (out / "sub" / "c.npz").is_file()
 
 

@@ -28,6 +28,7 @@ How a run behaves:
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -215,6 +216,22 @@ def _describe(exc: BaseException) -> str:
     return f"{name}: {msg}"
 
 
+def _refusals_reported(task: Callable) -> Callable:
+    """A task that returns ``{"error": reason}`` for input it refuses (a ValueError, the
+    project's clear error for bad input) instead of raising it: the summary lists the file,
+    and the worker does not log a traceback for what is the input's fault. Anything else
+    still raises (and is logged) on the worker."""
+
+    @functools.wraps(task)
+    def run(*args, **kwargs):
+        try:
+            return task(*args, **kwargs)
+        except ValueError as exc:
+            return {"error": _describe(exc)}
+
+    return run
+
+
 # ----------------------------------------------------------------------------- engine
 
 def output_names(rel: Path, tags: dict[str, str]) -> dict[str, str]:
@@ -314,6 +331,8 @@ def _run_batch(verb, jobs, task, out_dir: Path, settings, client, progress, clas
             if fut.status == "error" or isinstance(value, BaseException):
                 exc = value if isinstance(value, BaseException) else fut.exception()
                 results[rel] = FileResult(rel, "failed", error=_describe(exc))
+            elif "error" in value:
+                results[rel] = FileResult(rel, "failed", error=value["error"])
             else:
                 results[rel] = _store(rel, digest, value, out_dir, manifest, settings_key)
             fut.release()
@@ -438,6 +457,7 @@ def animate_file(puppet, audio_path, out_stem, formats, *, fps=None, posterior=F
     return _animate_export(puppet, audio_path, out_stem, formats, fps, posterior)[0]
 
 
+@_refusals_reported
 def _animate_task(audio_path: str, puppet_path: str, puppet_digest: str, out_stem: str, formats: list,
                   fps, posterior: bool) -> dict:
     puppet = _load_puppet(puppet_path, puppet_digest)
@@ -512,6 +532,7 @@ def track_file(video_path, out_npz, *, init="auto", passes: int = 2, **options) 
     return save_landmarks(out_npz, result)
 
 
+@_refusals_reported
 def _track_task(video_path: str, out_stem: str, init, passes: int, options: dict) -> dict:
     with tempfile.TemporaryDirectory(prefix="voicepuppet-batch-") as d:
         stage = Path(d) / (Path(out_stem).name + ".npz")
