@@ -124,7 +124,7 @@ void forward_log_pass(const MatrixRef& log_b, const Transitions& tr, const Vecto
 template <class Out>
 void set_posterior(const Eigen::Ref<const RowVectorXd>& la, const RowVectorXd& lbeta, Out&& gamma) {
   gamma = la + lbeta;
-  gamma = (gamma.array() - gamma.maxCoeff()).exp();
+  gamma = exp_or_zero(gamma.array() - gamma.maxCoeff());
   gamma /= gamma.sum();
 }
 

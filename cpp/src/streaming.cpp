@@ -17,7 +17,7 @@ constexpr double kNegInf = -std::numeric_limits<double>::infinity();
 double log_sum_exp(const VectorXd& v) {
   const double m = v.maxCoeff();
   if (m == kNegInf) return kNegInf;
-  return m + std::log((v.array() - m).exp().sum());
+  return m + std::log(exp_or_zero(v.array() - m).sum());
 }
 
 }  // namespace
@@ -134,7 +134,7 @@ void FixedLagDecoder::backward_step(Index u) {
 void FixedLagDecoder::posterior_row(Index s, DecodedFrames& out, Index row) const {
   const VectorXd g = log_alpha_.row(ring(s)).transpose() + beta_;
   const double z = log_sum_exp(g);
-  out.posteriors.row(row) = (g.array() - z).exp().matrix().transpose();
+  out.posteriors.row(row) = exp_or_zero(g.array() - z).matrix().transpose();
 }
 
 DecodedFrames FixedLagDecoder::push(const MatrixRef& log_b) {

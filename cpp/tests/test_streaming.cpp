@@ -61,6 +61,18 @@ TEST_CASE("fixed-lag decoder: lag >= T - 1 gives offline Viterbi and forward-bac
   }
 }
 
+TEST_CASE("fixed-lag decoder: a state that cannot be occupied has posterior exactly 0") {
+  Model m = random_model(8, 60, 5);  // enough states for whole SIMD packets
+  m.log_b.col(3).setConstant(-std::numeric_limits<double>::infinity());
+  m.log_b.col(1).setConstant(-1500.0);
+  for (Index lag : {Index(0), Index(5), Index(59)}) {
+    FixedLagDecoder d(m.pi, m.A, lag);
+    const Collected c = run(d, m.log_b, 7);
+    CHECK(c.post.col(3).cwiseAbs().maxCoeff() == 0.0);
+    CHECK(c.post.col(1).cwiseAbs().maxCoeff() == 0.0);
+  }
+}
+
 TEST_CASE("fixed-lag decoder: each decision is the offline answer on the prefix s + L") {
   const Model m = random_model(6, 30, 5, 0.5);
   for (Index lag : {Index(0), Index(1), Index(4)}) {

@@ -55,6 +55,16 @@ void require_finite(const M& m, const char* name) {
   }
 }
 
+/// e^x of every entry, vectorised, and exactly 0 where e^x is below the smallest normal double
+/// (x < log DBL_MIN ≈ −708.4). Eigen 3.4's vectorised exp clamps its argument near −709.4, so
+/// without this a state of probability e^-1000, or 0 (x = −inf), would come back as ~5.6e−309
+/// and keep a count in EM.
+template <class Derived>
+auto exp_or_zero(const Eigen::ArrayBase<Derived>& x) {
+  constexpr double kLogMinNormal = -708.3964185322641;  // log(DBL_MIN)
+  return (x < kLogMinNormal).select(0.0, x.exp());
+}
+
 /// Library version, build type and compiler, as compiled.
 struct BuildInfo {
   std::string version;
