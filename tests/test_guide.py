@@ -207,7 +207,7 @@ def _old_world():
     return rng.normal(0, 3, (3, 5))[st] + rng.normal(size=(900, 5))
 
 
-def test_an_old_version_1_file_animates_bit_identically():
+def test_an_old_version_1_file_animates_as_before():
     # tests/data/old_unguided.vpp: written by voicepuppet before the guide (format version 1);
     # old_unguided_anim.npz: every 30th frame of its Viterbi and posterior animations then.
     path = DATA / "old_unguided.vpp"
@@ -217,7 +217,12 @@ def test_an_old_version_1_file_animates_bit_identically():
     ref = np.load(DATA / "old_unguided_anim.npz")
     feats = _old_world()
     np.testing.assert_array_equal(p.animate(features=feats).animation.points[::30], ref["viterbi"])
-    np.testing.assert_array_equal(p.animate(features=feats, posterior=True).animation.points[::30], ref["posterior"])
+    # Posterior-weighted: to rounding, since posteriors below the smallest normal double are
+    # exactly 0 (2026-12-03; they had been ~5.6e-309 from Eigen's clamped exp), which moves 13 of
+    # the 720 coordinates by one ulp.
+    np.testing.assert_allclose(
+        p.animate(features=feats, posterior=True).animation.points[::30], ref["posterior"], rtol=1e-14, atol=0
+    )
 
 
 def test_planted_guide_helps_when_the_vocal_model_hears_nothing(data):
