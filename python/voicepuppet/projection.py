@@ -99,7 +99,7 @@ GUIDE_WEIGHT = 4.0
 
 #: The weights ``Puppet.train(guide_weight="cv")`` chooses from by cross-validation on its
 #: training audio (docs/results.md, "The guide's weight chosen at training by cross-validation";
-#: 128 and 256 since stop 22, "The top of the guide's weight grid").
+#: 128 and 256 added on 2026-12-02, "The top of the guide's weight grid").
 GUIDE_WEIGHTS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0)
 
 

@@ -69,7 +69,7 @@ TRAIN_DEFAULTS = {
                              # trajectory solve, or Brand's solve alone (docs/puppet.md)
     "guide_context": 5,      # +-frames of audio the guide's ridge reads (guide="ridge" only)
     "guide_weight": "cv",    # the guide's lambda: chosen from GUIDE_WEIGHTS by cross-validation on
-                             # the training audio, or a number >= 0 (4 before stop 21)
+                             # the training audio, or a number >= 0 (earlier versions: 4)
     "min_covar": 0.1,        # facial variance floor, x the mean data variance: chosen by CV (docs/results.md)
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
     "seed": 0,
@@ -354,8 +354,8 @@ class Puppet:
         guide_weight : float, optional
             λ of a guided puppet's evidence (the ridge's prediction of the face, weighted by the
             inverse covariance of its residuals): None (default) the file's — chosen at training
-            by cross-validation on the training audio since stop 21 (4 in files of stop 20, 1
-            before) — 0 Brand's unguided solve, any λ >= 0. A positive value needs a guided
+            by cross-validation on the training audio (files of earlier versions carry 4, the
+            first guided ones 1) — 0 Brand's unguided solve, any λ >= 0. A positive value needs a guided
             puppet (:attr:`guided`). The choice is made on the voices of the training audio; a
             voice the puppet never heard may want a larger λ (docs/results.md, "The guide's
             weight chosen at training by cross-validation").

@@ -242,7 +242,7 @@ def add_parser(sub) -> None:
     p.add_argument("--guide-weight", metavar="cv|W",
                    help="the guide's weight written into the puppet: cv (default) chooses it from "
                         f"{', '.join(f'{w:g}' for w in GUIDE_WEIGHTS)} by cross-validation on the training "
-                        "audio; a number fixes it (4 before stop 21)")
+                        "audio; a number fixes it (earlier versions fixed it at 4)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run the HMM's E-steps on this Dask scheduler "
                    "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process")
