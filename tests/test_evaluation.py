@@ -50,6 +50,8 @@ def test_evaluate_split_on_planted_puppet():
     assert r["model"]["bits_per_frame"] < 2.0
     table = evaluation.format_table(r)
     assert "| voice |" in table and "| ridge |" in table
+    n, arcs = r["model"]["states"][0], r["model"]["arcs"][0]
+    assert f"\nstates {n}, arcs {arcs}, perplexity" in table and isinstance(n, int)  # not [6.0]
     assert r["model"]["guide_weight"] == p.guide_weight and r["model"]["guide_weight_cv"]
     assert table.endswith(f"bits/frame, guide weight {p.guide_weight:g} (chosen by cross-validation)")
 

@@ -222,7 +222,7 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
                 key: float(sum(v * w for v, w in vals) / sum(w for _, w in vals)) for key, vals in slot.items()}
 
     parts = puppet.metadata["training"]["parts"]
-    model = {"states": [p["states"] for p in parts], "arcs": [p["arcs"] for p in parts],
+    model = {"states": [int(p["states"]) for p in parts], "arcs": [int(p["arcs"]) for p in parts],
              "perplexity": float(np.mean([p["perplexity"] for p in parts])),
              "context_memory": float(np.mean([p["context_memory"] for p in parts])),
              "bits_per_frame": float(np.mean(coding)),
@@ -253,7 +253,8 @@ def format_table(result: dict, title: str = "") -> str:
     if m.get("guide_weight") is not None:
         guide = f", guide weight {m['guide_weight']:g}" + (" (chosen by cross-validation)"
                                                           if m.get("guide_weight_cv") else "")
-    lines += ["", f"states {m['states']}, arcs {m['arcs']}, perplexity {m['perplexity']:.3g}, context "
+    states, arcs = (" / ".join(str(n) for n in m[k]) for k in ("states", "arcs"))  # one per face part
+    lines += ["", f"states {states}, arcs {arcs}, perplexity {m['perplexity']:.3g}, context "
               f"memory {m['context_memory']:.3g} frames, test decoding entropy rate "
               f"{m['entropy_rate_test']:.4g} nats/frame, state coding {m['bits_per_frame']:.3g} bits/frame"
               + guide]
