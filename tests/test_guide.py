@@ -188,6 +188,9 @@ def test_file_round_trip_and_format_version(puppets, data, tmp_path):
         assert version == (2 if guide == "ridge" else 1)
         q = load(path)
         assert q.guided == (guide == "ridge")
+        for meta in (pup.metadata, q.metadata):  # whole numbers, as trained and as read back
+            for part in meta["training"]["parts"]:
+                assert type(part["states"]) is int and type(part["arcs"]) is int
         for posterior in (False, True):
             np.testing.assert_array_equal(q.animate(features=feats, posterior=posterior).animation.points,
                                           pup.animate(features=feats, posterior=posterior).animation.points)
@@ -214,6 +217,8 @@ def test_an_old_version_1_file_animates_as_before():
     assert int.from_bytes(path.read_bytes()[8:12], "little") == 1
     p = load(path)
     assert not p.guided
+    assert p.metadata["training"]["parts"][0]["states"] == 6  # stored as 6.0, read as a whole number
+    assert type(p.metadata["training"]["parts"][0]["states"]) is int
     ref = np.load(DATA / "old_unguided_anim.npz")
     feats = _old_world()
     np.testing.assert_array_equal(p.animate(features=feats).animation.points[::30], ref["viterbi"])

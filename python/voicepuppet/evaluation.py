@@ -222,7 +222,7 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
                 key: float(sum(v * w for v, w in vals) / sum(w for _, w in vals)) for key, vals in slot.items()}
 
     parts = puppet.metadata["training"]["parts"]
-    model = {"states": [int(p["states"]) for p in parts], "arcs": [int(p["arcs"]) for p in parts],
+    model = {"states": [p["states"] for p in parts], "arcs": [p["arcs"] for p in parts],
              "perplexity": float(np.mean([p["perplexity"] for p in parts])),
              "context_memory": float(np.mean([p["context_memory"] for p in parts])),
              "bits_per_frame": float(np.mean(coding)),

@@ -41,7 +41,7 @@ def describe_puppet(path) -> list[str]:
                      f"{'conventional Baum-Welch' if opt.get('prior') == 'ml' else 'entropic prior'}, "
                      f"seed {opt.get('seed', '?')}")
     for part in t.get("parts", []):
-        lines.append(f"part {part['part']}: {int(part['states'])} states, {int(part['arcs'])} arcs, "
+        lines.append(f"part {part['part']}: {part['states']} states, {part['arcs']} arcs, "
                      f"{part['face_dims']} face dims, perplexity {part['perplexity']:.3g}, context memory "
                      f"{part['context_memory']:.3g} frames")
     vocal = (f"the learned projection of the audio (±{p._core.projection_context} frames)"

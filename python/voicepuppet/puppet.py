@@ -287,10 +287,10 @@ class Puppet:
             arrays.update({pre + "startprob": hmm.startprob_, pre + "transmat": hmm.transmat_,
                            pre + "face_means": hmm.means_, pre + "face_covars": hmm.covars_})
             diag = diagnostics(hmm, O, lengths)
-            report.append({"part": fs.part_names[k], "states": hmm.n_states,
-                           "arcs": int(np.count_nonzero(hmm.transmat_)), "face_dims": sl.stop - sl.start,
-                           "iterations": len(hmm.history_),
-                           **{key: float(v) for key, v in diag.items() if np.isscalar(v)}})
+            report.append({"part": fs.part_names[k], "face_dims": sl.stop - sl.start,
+                           "iterations": len(hmm.history_),  # states and arcs (ints) from diag
+                           **{key: v if isinstance(v, int) else float(v)
+                              for key, v in diag.items() if np.isscalar(v)}})
         vocal, vocal_info = _fit_vocal_side(A, Y, lengths, gammas, opt, columns=raw[0].shape[1])
         arrays.update(vocal)
         from voicepuppet import __version__
@@ -522,6 +522,10 @@ def load(path) -> Puppet:
     if not isinstance(meta, dict) or "parts" not in meta or "feature_set" not in meta:
         raise ValueError(f"puppet file {str(p)!r} lacks its part list or feature set; it was not written "
                          "by voicepuppet train")
+    for part in meta.get("training", {}).get("parts", []):  # files before 2026-12-03 stored floats
+        for key in ("states", "arcs"):
+            if key in part:
+                part[key] = int(part[key])
     return Puppet(meta, arrays)
 
 

@@ -109,8 +109,8 @@ def _train(args) -> int:
         puppet = Puppet.train(points_list, audio_list, fps=fps, progress=not args.quiet, **options)
     puppet.save(out)
     for part in puppet.metadata["training"]["parts"]:
-        print(f"part {part['part']}: {part['states']:.0f} states (from {options.get('n_states', TRAIN_DEFAULTS['n_states'])}), "
-              f"{part['arcs']:.0f} arcs, perplexity {part['perplexity']:.3g}, context memory "
+        print(f"part {part['part']}: {part['states']} states (from {options.get('n_states', TRAIN_DEFAULTS['n_states'])}), "
+              f"{part['arcs']} arcs, perplexity {part['perplexity']:.3g}, context memory "
               f"{part['context_memory']:.3g} frames, {part['face_dims']} face dims")
     guide = puppet.metadata["training"].get("guide", {})
     if "weight_cv" in guide:
