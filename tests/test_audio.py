@@ -4,6 +4,8 @@ spectra, feature sets, bad input. Peers on real speech are in test_audio_peers.p
 import math
 import os
 
+import warnings
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -231,6 +233,17 @@ def test_silence_warns_and_gives_finite_features():
     assert np.all(np.isfinite(f.values))
     assert not np.any(f.voiced)
     np.testing.assert_allclose(f.column("log_energy"), -100.0, atol=1e-6)
+
+
+def test_audio_shorter_than_one_frame_warns_and_gives_one_frame(rng):
+    a = audio.prepare(0.1 * rng.standard_normal(100), RATE)  # 6.25 ms
+    with pytest.warns(audio.AudioWarning, match=r"6\.2 ms long, shorter than one frame \(33\.4 ms"):
+        f = audio.extract(a, fps=29.97)
+    assert f.values.shape == (1, 24) and np.all(np.isfinite(f.values))
+    one = audio.prepare(0.1 * rng.standard_normal(RATE // 25), RATE)  # one 25 fps frame exactly
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", audio.AudioWarning)
+        assert audio.extract(one, fps=25).values.shape[0] == 1
 
 
 def test_clipping_warns(rng):

@@ -4,6 +4,7 @@ import os
 import re
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -270,7 +271,12 @@ def test_tiny_and_silent_audio(workdir, tmp_path, capsys):
 
     d = workdir
     sf.write(tmp_path / "blip.wav", 0.1 * np.sin(np.arange(100) / 3.0), RATE)  # 6 ms: under one frame
-    assert main(["animate", str(d / "p.vpp"), str(tmp_path / "blip.wav"), "-o", str(tmp_path / "a.npz"), "--quiet"]) == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")  # as in a user's Python: the command prints it
+        assert main(["animate", str(d / "p.vpp"), str(tmp_path / "blip.wav"), "-o", str(tmp_path / "a.npz"),
+                     "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "voicepuppet animate: warning: audio in" in err and "6.2 ms long, shorter than one frame" in err
     with np.load(tmp_path / "a.npz") as z:
         assert z["points"].shape == (1, 10, 2)
     sf.write(tmp_path / "silence.wav", np.zeros(RATE), RATE)

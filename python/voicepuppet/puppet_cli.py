@@ -205,8 +205,8 @@ def _animate(args) -> int:
     written = [out]
     if args.states_out:
         written.append(save_states(args.states_out, result.states, result.states_fps))
-    print(f"animated {anim.duration:.2f} s ({anim.n_frames} frames at {anim.fps:g} fps); "
-          f"wrote {', '.join(str(w) for w in written)}")
+    print(f"animated {anim.duration:.2f} s ({anim.n_frames} frame{'s' * (anim.n_frames != 1)} at "
+          f"{anim.fps:g} fps); wrote {', '.join(str(w) for w in written)}")
     return 0
 
 

@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .framing import check_fps, frame_times, n_frames
-from .loading import Audio, load_audio, prepare
+from .loading import Audio, AudioWarning, load_audio, prepare
 
 FEATURES = ("lpc", "lpc_cepstra", "rasta_plp", "mfcc", "mfcc_deltas", "formants", "bands", "f0",
             "voicing", "log_energy")
@@ -286,6 +287,11 @@ def _extract(source, fps, features, n_out, progress, options, reference: bool) -
     x, rate = audio.samples, audio.rate
     if n_out is None:
         T = n_frames(x.shape[0], rate, fps)
+        if x.shape[0] / rate < 1.0 / fps:
+            where = f" in {audio.path!r}" if audio.path else ""
+            warnings.warn(f"audio{where}: {1e3 * x.shape[0] / rate:.1f} ms long, shorter than one "
+                          f"frame ({1e3 / fps:.1f} ms at {fps:g} fps); its one frame is analysed "
+                          "with silence after it", AudioWarning, stacklevel=3)
     elif isinstance(n_out, (int, np.integer)) and not isinstance(n_out, bool) and n_out >= 1:
         T = int(n_out)
     else:
