@@ -226,6 +226,43 @@ def test_auto_init_without_a_face_says_what_to_do():
         tracking.auto_init(np.full((120, 160), 128, np.uint8))
 
 
+def test_auto_init_waits_for_a_face_that_appears_later(tmp_path, write_avi):
+    """A video that opens on a blank card: tracking starts on the earliest frame with a face (the
+    probes, one frame every AUTO_INIT_STRIDE_S, then the frames since the last faceless one), the
+    frames before it are lost, the rest is tracked as if the video began there."""
+    _dlib_or_skip()
+    from voicepuppet import video
+
+    face, _ = video.read_grey_frames(_carphone())
+    path = write_avi(tmp_path / "late.avi", np.concatenate([np.full((20,) + face.shape[1:], 128, np.uint8),
+                                                            face[:30]]), fps=25.0)
+    decoded, fps = video.read_grey_frames(path)
+    stride = int(round(tracking.AUTO_INIT_STRIDE_S * fps))
+
+    def detect(t):
+        try:
+            return tracking.auto_init(decoded[t])
+        except tracking.NoFaceError:
+            return None
+
+    probe = next(t for t in range(stride, len(decoded), stride) if detect(t) is not None)
+    expect = next(t for t in range(probe - stride + 1, probe + 1) if detect(t) is not None)
+    init = detect(expect)
+    assert 20 <= expect < probe  # the card's 20 frames; the face came in between two probes
+    with pytest.warns(UserWarning, match=f"found one at frame {expect} "):
+        r = tracking.track_video(path, "auto", passes=1, progress=False, patch_radius=4, levels=2)
+    alone = tracking.track_frames(decoded[expect:], init, fps=fps, passes=1, progress=False,
+                                  patch_radius=4, levels=2)
+    assert r.start == expect and r.points.shape == (50, 68, 2)
+    assert r.lost[:expect].all() and not r.confidence[:expect].any()
+    np.testing.assert_array_equal(r.points[expect:], alone.points)
+    np.testing.assert_array_equal(r.lost[expect:], alone.lost)
+    assert r.passes[0]["lost_fraction"] == pytest.approx((alone.lost.sum() + expect * 68) / (50 * 68))
+    blank = write_avi(tmp_path / "blank.avi", np.full((30,) + face.shape[1:], 128, np.uint8), fps=25.0)
+    with pytest.raises(tracking.NoFaceError, match=r"no face in the first 1\.2 s of .*one every 0\.5 s"):
+        tracking.track_video(blank, "auto", passes=1, progress=False)
+
+
 def test_auto_init_without_dlib_says_what_to_install(monkeypatch):
     import sys
 

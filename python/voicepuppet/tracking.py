@@ -23,13 +23,24 @@ from voicepuppet import _core
 
 __all__ = [
     "TrackResult", "track_frames", "track_video", "delaunay_edges", "load_init_points",
-    "auto_init", "save_landmarks", "load_landmarks", "lip_patch_sides", "eye_corner_sides", "DLIB_MODEL_PATHS",
+    "auto_init", "NoFaceError", "save_landmarks", "load_landmarks", "lip_patch_sides", "eye_corner_sides", "DLIB_MODEL_PATHS",
     "face_size", "working_scale_factor", "points_to_working", "points_to_full",
     "LARGE_FACE_IOD", "WORKING_IOD", "LARGE_FACE_RMS_RADIUS", "WORKING_RMS_RADIUS",
 ]
 
 # Where Debian's libdlib-data puts dlib's 68-point model (override with VOICEPUPPET_DLIB_MODEL).
 DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
+# With init="auto" and no face on the first frame (a title card, a fade-in, someone stepping into
+# view), the detector looks at one frame every AUTO_INIT_STRIDE_S seconds of the first
+# AUTO_INIT_SCAN_S seconds; tracking starts on the earliest frame with a face (those between the
+# last faceless probe and the first with a face are looked at one by one).
+AUTO_INIT_STRIDE_S = 0.5
+AUTO_INIT_SCAN_S = 10.0
+
+
+class NoFaceError(ValueError):
+    """The landmark detector found no face (``--init auto``)."""
+
 
 # Lip tracking on a 68-point (iBUG 300-W) layout, in inter-ocular distances (IOD): the
 # exhaustive search radius for the lip points (a lower lip moves up to ~0.07 IOD between frames
@@ -139,6 +150,8 @@ class TrackResult:
     reacquired : frames (indices, last pass) where the face, lost for
         :data:`REACQUIRE_FRAMES` frames, was found again by the whole-frame search and the mesh
         restarted there (each pass's list is in ``passes[k]["reacquired"]``)
+    start : the frame tracking started on (0 unless ``init="auto"`` found no face on the first
+        frame: the frames before it are all lost, their points those of ``start``)
     """
 
     points: np.ndarray
@@ -152,6 +165,7 @@ class TrackResult:
     names: list | None = None
     working_scale: float = 1.0
     reacquired: list = field(default_factory=list)
+    start: int = 0
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:
@@ -707,7 +721,11 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     ----------
     path : a video OpenCV can decode
     init : (P, 2) points on the first frame, a JSON/CSV file of them (see
-        :func:`load_init_points`), or ``"auto"`` for a landmark detector (:func:`auto_init`)
+        :func:`load_init_points`), or ``"auto"`` for a landmark detector (:func:`auto_init`);
+        with ``"auto"`` and no face on the first frame, one frame every
+        :data:`AUTO_INIT_STRIDE_S` s of the first :data:`AUTO_INIT_SCAN_S` s is looked at, and
+        tracking starts on the earliest frame with a face (a warning says where; the frames
+        before it are lost, ``TrackResult.start``)
     edges, passes, progress, working_scale, **options : as in :func:`track_frames`
     cache_bytes : decoded grey frames (at the working scale: resized ones when the face is
         large) are kept in memory up to this size when ``passes > 1``; longer videos are
@@ -716,38 +734,116 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     Raises ``ValueError`` for a video that cannot be opened or holds no frames, bad points, or
     (with ``init="auto"``) no detector or no face.
     """
+    import itertools
+
     from voicepuppet import video
 
     info = video.probe_video(path)
+    fps = info.fps if info.fps > 0 else 29.97
     names = None
     frames_iter = video.iter_frames(path)
     first = next(frames_iter, None)
     frames_iter.close()  # releases the decoder now rather than at garbage collection
     if first is None:
         raise ValueError(f"video {str(path)!r} holds no decodable frames; check the file")
+    start = 0
     if isinstance(init, str) and init == "auto":
-        points = auto_init(first)
+        start, first, points = _first_face(path, first, fps, progress)
     elif isinstance(init, (str, os.PathLike)):
         points, names = load_init_points(init)
     else:
         points = init
-    fps = info.fps if info.fps > 0 else 29.97
     scale = working_scale_factor(points, working_scale)
     work_shape = None
     if scale != 1.0:
         _check_inside(_check_points(points, "init_points"), first.shape)
         first = video.downscale(first, scale)
         work_shape = first.shape
-    need = info.frame_count * first.size
+
+    def decode():
+        return itertools.islice(video.iter_frames(path, scale=scale), start, None)
+
+    need = max(info.frame_count - start, 0) * first.size
     if passes > 1 and 0 < need <= cache_bytes:
-        frames = np.stack(list(video.iter_frames(path, scale=scale)))
+        frames = np.stack(list(decode()))
         source = lambda: iter(frames)  # noqa: E731
         n_hint = len(frames)
     else:
-        source = lambda: video.iter_frames(path, scale=scale)  # noqa: E731
-        n_hint = info.frame_count or None
-    return _track(source, points, fps=fps, edges=edges, passes=passes, n_hint=n_hint,
-                  progress=progress, names=names, scale=scale, work_shape=work_shape, **options)
+        source = decode
+        n_hint = (info.frame_count - start) or None
+    result = _track(source, points, fps=fps, edges=edges, passes=passes, n_hint=n_hint,
+                    progress=progress, names=names, scale=scale, work_shape=work_shape, **options)
+    return _lost_before(result, start) if start else result
+
+
+def _first_face(path, first: np.ndarray, fps: float, progress: bool) -> tuple[int, np.ndarray, np.ndarray]:
+    """``(frame index, frame, 68 points)`` of the first frame :func:`auto_init` finds a face on:
+    the first frame, else the first probe (one frame every :data:`AUTO_INIT_STRIDE_S` s up to
+    :data:`AUTO_INIT_SCAN_S` s) with a face, or the earliest of the frames since the probe before
+    it that has one."""
+    import itertools
+    import warnings
+
+    from tqdm.auto import tqdm
+
+    from voicepuppet import video
+
+    try:
+        return 0, first, auto_init(first)
+    except NoFaceError:
+        pass
+    stride = max(1, int(round(AUTO_INIT_STRIDE_S * fps)))
+    last = int(AUTO_INIT_SCAN_S * fps)
+    frames = video.iter_frames(path)
+    seen = 0
+    try:
+        with tqdm(total=last // stride, desc="looking for a face", unit="frame", disable=not progress,
+                  leave=False) as bar:
+            since = []  # the frames after the last probe: the face may have come in among them
+            for t, frame in enumerate(itertools.islice(frames, last + 1)):
+                seen = t + 1
+                if t == 0:
+                    continue
+                if t % stride:
+                    since.append((t, frame))
+                    continue
+                bar.update(1)
+                try:
+                    points = auto_init(frame)
+                except NoFaceError:
+                    since = []
+                    continue
+                for u, earlier in since:
+                    try:
+                        found = auto_init(earlier)
+                    except NoFaceError:
+                        continue
+                    t, frame, points = u, earlier, found
+                    break
+                warnings.warn(f"--init auto: no face on the first frame of {str(path)!r}; found one at "
+                              f"frame {t} ({t / fps:.2f} s), where tracking starts (the {t} frames "
+                              "before it are lost)", stacklevel=3)
+                return t, frame, points
+    finally:
+        frames.close()
+    raise NoFaceError(f"--init auto found no face in the first {seen / fps:.1f} s of {str(path)!r} (the "
+                      f"first frame, then one every {AUTO_INIT_STRIDE_S:g} s); check that the face is in "
+                      "view, upright and lit, or pass the first-frame points with --init points.json")
+
+
+def _lost_before(result: TrackResult, start: int) -> TrackResult:
+    """``result`` (tracked from frame ``start``) with the ``start`` frames before it prepended as
+    lost, their points those of its first frame; frame indices and lost shares of the whole video."""
+    from dataclasses import replace
+
+    T, P = result.lost.shape
+    passes = [{**row, "lost_fraction": (row["lost_fraction"] * T + start) / (T + start),
+               "reacquired": [t + start for t in row["reacquired"]]} for row in result.passes]
+    return replace(result,
+                   points=np.concatenate([np.repeat(result.points[:1], start, axis=0), result.points]),
+                   confidence=np.concatenate([np.zeros((start, P)), result.confidence]),
+                   lost=np.concatenate([np.ones((start, P), dtype=bool), result.lost]),
+                   passes=passes, reacquired=[t + start for t in result.reacquired], start=start)
 
 
 def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
@@ -796,8 +892,8 @@ def auto_init(frame: np.ndarray) -> np.ndarray:
 
     Needs the ``dlib-bin`` (or ``dlib``) wheel and the model file from Debian's ``libdlib-data``
     (``/usr/share/dlib/shape_predictor_68_face_landmarks.dat``) or the path in the environment
-    variable ``VOICEPUPPET_DLIB_MODEL``. Raises ``ValueError`` saying what to install, or when
-    no face is found. Returns (68, 2) float64.
+    variable ``VOICEPUPPET_DLIB_MODEL``. Raises ``ValueError`` saying what to install, or
+    :class:`NoFaceError` (a ``ValueError``) when no face is found. Returns (68, 2) float64.
     """
     try:
         import dlib
@@ -819,7 +915,7 @@ def auto_init(frame: np.ndarray) -> np.ndarray:
         if faces:
             break
     if not faces:
-        raise ValueError("--init auto found no face on the first frame; pass the points with --init points.json")
+        raise NoFaceError("--init auto found no face on the frame; pass the points with --init points.json")
     face = max(faces, key=lambda r: r.width() * r.height())
     shape = dlib.shape_predictor(model)(g, face)
     return np.array([[shape.part(i).x, shape.part(i).y] for i in range(shape.num_parts)], dtype=np.float64)
@@ -938,7 +1034,8 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="LANDMARKS.npz", help="output landmarks (.npz; a .csv twin is written beside it)")
     p.add_argument("--init", default="auto", metavar="POINTS.json|auto",
                    help='first-frame points: JSON {"points": [[x, y], ...]} or CSV x,y rows, or "auto" '
-                        "(dlib 68-point detector; needs dlib-bin and libdlib-data). Default: auto")
+                        "(dlib 68-point detector on the first frame with a face, looked for in the first "
+                        f"{AUTO_INIT_SCAN_S:g} s; needs dlib-bin and libdlib-data). Default: auto")
     p.add_argument("--overlay", metavar="OUT.mp4", help="also write a video with the tracked mesh drawn on it")
     p.add_argument("--passes", type=int, default=2, help="tracking passes with spring re-estimation between them (default 2)")
     p.add_argument("--patch-radius", type=int, default=6, help="SSD patch radius in pixels (default 6: 13x13)")
