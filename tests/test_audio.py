@@ -415,7 +415,9 @@ def test_cli_features(tmp_path, capsys):
         assert z["features"].shape == (25, 26)
         assert float(z["fps"]) == 25.0
         assert list(z["names"][:2]) == ["mfcc0", "mfcc1"]
-    assert main(["features", str(wav), "-o", str(out), "--frames", "31"]) == 0
+    assert "features:" in capsys.readouterr().err  # the progress bar
+    assert main(["features", str(wav), "-o", str(out), "--frames", "31", "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
     with np.load(out) as z:
         assert z["features"].shape == (31, 24)  # the default "puppet" set at 29.97 fps
     assert main(["features", str(tmp_path / "nope.wav"), "-o", str(out)]) == 2

@@ -245,13 +245,17 @@ def test_animation_files_round_trip(tmp_path):
         load_animation(tmp_path / "x.npz")
 
 
-def test_cli_render(tmp_path):
+def test_cli_render(tmp_path, capsys):
     from voicepuppet.cli import main
 
     anim = procedural_animation(5, 10.0, width=200, height=200)
     save_animation(anim, tmp_path / "a.npz")
     assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "a.gif"), "--renderer", "2d"]) == 0
     assert (tmp_path / "a.gif").is_file()
+    assert "render:" in capsys.readouterr().err  # the progress bar
+    assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "b.gif"), "--renderer", "2d",
+                 "--quiet"]) == 0
+    assert (tmp_path / "b.gif").is_file() and capsys.readouterr().err == ""
     assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "a.webm")]) == 2
     assert not (tmp_path / "a.webm").exists()
 

@@ -21,7 +21,8 @@ def _run(args) -> int:
     if not args.output.endswith(".npz"):
         raise UserError(f"output must end in .npz, got {args.output!r}")
     sound = audio.load_audio(args.input, rate=args.rate)
-    feats = audio.extract(sound, fps=args.fps, features=fset, n_out=args.frames, progress=True)
+    feats = audio.extract(sound, fps=args.fps, features=fset, n_out=args.frames,
+                          progress=not args.quiet)
     feats.save(args.output)
     print(f"{args.input}: {sound.duration:.2f} s at {sound.source_rate} Hz "
           f"({sound.channels} ch) -> {len(feats)} frames x {len(feats.names)} features "
@@ -48,4 +49,5 @@ def add_parser(sub) -> None:
                         "ceil(duration * fps))")
     p.add_argument("--rate", type=int, default=16000,
                    help="analysis sample rate in Hz (default 16000)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)

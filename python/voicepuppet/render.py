@@ -872,7 +872,7 @@ def _cli(args) -> int:
     else:
         render(anim, args.output, audio=args.audio, face=face, mode=args.mode or "vertex", truth=truth,
                renderer=args.renderer, size=_size(args.size) if args.size else None, shading=args.shading,
-               neutral=original.points[0], progress=True)
+               neutral=original.points[0], progress=not args.quiet)
     dt = time.perf_counter() - t0
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {args.output} "
           f"({dt:.1f} s, {anim.n_frames / max(dt, 1e-9):.1f} frames/s)")
@@ -899,5 +899,6 @@ def add_parser(sub) -> None:
                    help="textured mesh (default) or a fast 2-D landmark drawing")
     p.add_argument("--size", help="output size WxH (default: the face image's)")
     p.add_argument("--shading", action="store_true", help="light the mesh to show its depth")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_control_arguments(p)
     p.set_defaults(func=_cli)
