@@ -306,6 +306,39 @@ def test_frames_where_the_face_is_lost_are_dropped_with_a_warning(rng):
         usable_segments(pts, np.ones((T, P), bool), snd, FPS)
 
 
+def test_points_of_a_variable_frame_rate_video_are_resampled_onto_the_grid():
+    from voicepuppet.puppet_cli import on_uniform_grid
+
+    fps = 30.0
+    # 1 s at 30 fps, 1 s at 15 fps, a 0.5 s stall, 0.5 s at 30 fps
+    times = np.concatenate([np.arange(30) / 30, 1 + np.arange(15) / 15, 2.5 + np.arange(15) / 30])
+    T, P = len(times), 3
+    slope = np.array([[1.0, -2.0], [0.5, 3.0], [-1.5, 0.25]])
+    pts = 10.0 + times[:, None, None] * slope  # linear in time: interpolation is exact
+    lost = np.zeros((T, P), bool)
+    lost[35, 1] = True  # frame 35 is at 1 + 5/15 s = grid frame 40
+    with pytest.warns(UserWarning, match=r"33\.3-566\.7 ms apart.*60 tracked frames are resampled to 90 "
+                                         r"on the grid.*\(16 in gaps longer than 3 frames are lost\)"):
+        out, out_lost = on_uniform_grid(pts, lost, times + 0.7, fps)  # times need not start at 0
+    grid = np.arange(90) / fps
+    np.testing.assert_allclose(out, 10.0 + grid[:, None, None] * slope, rtol=0, atol=1e-12)
+    in_gap = (grid > times[44] + 1e-9) & (grid < times[45] - 1e-9)
+    assert in_gap.sum() == 16 and out_lost[in_gap].all()
+    # point 1 is lost on grid frame 40 (on source frame 35) and 39 and 41 (between it and its
+    # neighbours), and nowhere else outside the gap
+    assert list(np.flatnonzero(out_lost.any(axis=1) & ~in_gap)) == [39, 40, 41]
+    assert not out_lost[~in_gap][:, [0, 2]].any()
+    # a constant rate within a quarter frame of the grid: the points as they were
+    jitter = np.arange(T) / fps + 0.2 / fps * np.sin(np.arange(T))
+    same, same_lost = on_uniform_grid(pts, lost, jitter, fps)
+    assert same is pts and same_lost is not None and (same_lost == lost).all()
+    assert on_uniform_grid(pts, None, None, fps)[0] is pts
+    with pytest.raises(ValueError, match="59 frame times for 60 frames"):
+        on_uniform_grid(pts, lost, times[:-1], fps)
+    with pytest.raises(ValueError, match="finite and increasing"):
+        on_uniform_grid(pts, lost, times[::-1], fps)
+
+
 def test_animation_files_are_byte_identical_across_writes(tmp_path):
     import time
 

@@ -302,6 +302,46 @@ def test_failed_runs_leave_no_output(tmp_path, planted, write_avi):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.avi", "face.avi", "p.json"]
 
 
+def test_a_variable_frame_rate_video_keeps_each_frames_time(tmp_path, planted, write_avi, capsys):
+    """A phone-like video whose rate drops from 25 to 12.5 fps: the tracker reports each frame's
+    time stamp, the landmarks file and its .csv keep them, and the command says so."""
+    import shutil
+    import subprocess
+
+    from voicepuppet import video
+    from voicepuppet.cli import main
+
+    ffmpeg = shutil.which("ffmpeg")
+    assert ffmpeg, "the ffmpeg tool is needed (Debian package ffmpeg, installed by .ci/setup)"
+    frames, truth, _ = planted
+    cfr = write_avi(tmp_path / "cfr.avi", frames[:40])
+    vfr = tmp_path / "vfr.mkv"
+    subprocess.run([ffmpeg, "-loglevel", "error", "-y", "-i", str(cfr), "-vf",
+                    "setpts='if(lt(N,20),N/25,0.8+(N-20)/12.5)/TB'", "-fps_mode", "passthrough",
+                    "-c:v", "ffv1", str(vfr)], check=True)
+    expect = np.concatenate([np.arange(20) / 25, 0.8 + np.arange(20) / 12.5])
+    times = video.frame_times(vfr)
+    np.testing.assert_allclose(times, expect, atol=1.5e-3)  # mkv stamps are whole milliseconds
+    assert video.grid_slip(times, 25.0) > 9 and video.grid_slip(np.arange(40) / 25, 25.0) < 1e-9
+    np.testing.assert_allclose(video.frame_times(cfr), np.arange(40) / 25, atol=1e-9)
+    # a muxer's repeated and one-tick-apart stamps are spread up to the next stamp
+    slipped = np.array([0, 0.04, 0.08, 0.12, 0.12, 0.20, 0.24, 0.24001, 0.32, 0.36])
+    np.testing.assert_allclose(video._untie(slipped), np.arange(10) * 0.04, atol=1e-12)
+    np.testing.assert_allclose(video._untie([0, 0.04, 0.08, 0.08]), [0, 0.04, 0.08, 0.12], atol=1e-12)
+    r = tracking.track_video(vfr, truth[0], passes=1, progress=False)
+    np.testing.assert_array_equal(r.times, times)
+    out = tmp_path / "lm.npz"
+    init = tmp_path / "p.json"
+    init.write_text(json.dumps({"points": truth[0].tolist()}))
+    assert main(["track", str(vfr), "-o", str(out), "--init", str(init), "--passes", "1", "--quiet"]) == 0
+    assert "variable frame rate: frames 40.0-80.0 ms apart" in capsys.readouterr().out
+    np.testing.assert_array_equal(tracking.load_landmarks(out)["times"], times)
+    np.testing.assert_allclose(np.loadtxt(out.with_suffix(".csv"), delimiter=",", skiprows=1)[:, 1], times,
+                               atol=1e-6)
+    assert main(["track", str(cfr), "-o", str(out), "--init", str(init), "--passes", "1", "--quiet"]) == 0
+    assert "variable frame rate" not in capsys.readouterr().out
+
+
 def test_sub_pixel_shift_of_the_photo_is_recovered_like_lucas_kanade():
     from voicepuppet.bench.tracker import _base_frame
 

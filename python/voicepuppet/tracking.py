@@ -152,6 +152,10 @@ class TrackResult:
         restarted there (each pass's list is in ``passes[k]["reacquired"]``)
     start : the frame tracking started on (0 unless ``init="auto"`` found no face on the first
         frame: the frames before it are all lost, their points those of ``start``)
+    times : (T,) presentation time of each frame in seconds, the first at 0, from the video's
+        container (:func:`voicepuppet.video.frame_times`), or None (frame ``k`` at ``k / fps``):
+        with a variable frame rate the two differ, and training resamples the points onto a
+        uniform grid by these times (:func:`voicepuppet.puppet_cli.on_uniform_grid`)
     """
 
     points: np.ndarray
@@ -166,6 +170,7 @@ class TrackResult:
     working_scale: float = 1.0
     reacquired: list = field(default_factory=list)
     start: int = 0
+    times: np.ndarray | None = None
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:
@@ -746,9 +751,10 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     frames_iter.close()  # releases the decoder now rather than at garbage collection
     if first is None:
         raise ValueError(f"video {str(path)!r} holds no decodable frames; check the file")
+    times = video.frame_times(path)
     start = 0
     if isinstance(init, str) and init == "auto":
-        start, first, points = _first_face(path, first, fps, progress)
+        start, first, points = _first_face(path, first, fps, progress, times)
     elif isinstance(init, (str, os.PathLike)):
         points, names = load_init_points(init)
     else:
@@ -773,14 +779,19 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
         n_hint = (info.frame_count - start) or None
     result = _track(source, points, fps=fps, edges=edges, passes=passes, n_hint=n_hint,
                     progress=progress, names=names, scale=scale, work_shape=work_shape, **options)
-    return _lost_before(result, start) if start else result
+    if start:
+        result = _lost_before(result, start)
+    if times is not None and len(times) == len(result.points):  # else OpenCV decoded others
+        result.times = times
+    return result
 
 
-def _first_face(path, first: np.ndarray, fps: float, progress: bool) -> tuple[int, np.ndarray, np.ndarray]:
+def _first_face(path, first: np.ndarray, fps: float, progress: bool,
+                times: np.ndarray | None = None) -> tuple[int, np.ndarray, np.ndarray]:
     """``(frame index, frame, 68 points)`` of the first frame :func:`auto_init` finds a face on:
     the first frame, else the first probe (one frame every :data:`AUTO_INIT_STRIDE_S` s up to
     :data:`AUTO_INIT_SCAN_S` s) with a face, or the earliest of the frames since the probe before
-    it that has one."""
+    it that has one. ``times`` (the frames' time stamps, or None) date the warning."""
     import itertools
     import warnings
 
@@ -820,8 +831,9 @@ def _first_face(path, first: np.ndarray, fps: float, progress: bool) -> tuple[in
                         continue
                     t, frame, points = u, earlier, found
                     break
+                when = times[t] if times is not None and t < len(times) else t / fps
                 warnings.warn(f"--init auto: no face on the first frame of {str(path)!r}; found one at "
-                              f"frame {t} ({t / fps:.2f} s), where tracking starts (the {t} frames "
+                              f"frame {t} ({when:.2f} s), where tracking starts (the {t} frames "
                               "before it are lost)", stacklevel=3)
                 return t, frame, points
     finally:
@@ -934,8 +946,10 @@ def _atomic(path: Path, write: Callable[[Path], None]) -> None:
 def save_landmarks(path: str | os.PathLike, result: TrackResult, csv: bool = True) -> list[Path]:
     """Writes ``result`` as ``.npz`` (``points`` [T, P, 2], ``fps``, ``confidence`` [T, P],
     ``lost`` [T, P], ``edges``, ``reacquired`` [R] (frames where a lost face was found again and
-    the mesh restarted), ``working_scale``, optional ``names``) and a ``.csv`` twin (``frame,
-    time, x0, y0, ...``), each through a temporary file and a rename. Returns the paths written."""
+    the mesh restarted), ``working_scale``, optional ``names`` and ``times`` [T] (each frame's
+    time stamp in the video, s)) and a ``.csv`` twin (``frame, time, x0, y0, ...``; ``time`` the
+    time stamp, else frame / fps), each through a temporary file and a rename. Returns the paths
+    written."""
     path = Path(path)
     if path.suffix.lower() != ".npz":
         raise ValueError(f"landmarks path must end in .npz, got {str(path)!r}")
@@ -948,6 +962,8 @@ def save_landmarks(path: str | os.PathLike, result: TrackResult, csv: bool = Tru
               "working_scale": np.float64(result.working_scale)}
     if result.names is not None:
         arrays["names"] = np.asarray(result.names, dtype=str)
+    if result.times is not None:
+        arrays["times"] = np.asarray(result.times, dtype=np.float64)
 
     def write(tmp: Path) -> None:
         from voicepuppet.animation import write_npz
@@ -960,7 +976,8 @@ def save_landmarks(path: str | os.PathLike, result: TrackResult, csv: bool = Tru
     if csv:
         T, P, _ = result.points.shape
         header = "frame,time," + ",".join(f"x{i},y{i}" for i in range(P))
-        table = np.column_stack([np.arange(T), np.arange(T) / result.fps, result.points.reshape(T, -1)])
+        times = np.arange(T) / result.fps if result.times is None else result.times
+        table = np.column_stack([np.arange(T), times, result.points.reshape(T, -1)])
         csv_path = path.with_suffix(".csv")
 
         def write_csv(tmp: Path) -> None:
@@ -1019,6 +1036,11 @@ def _cli(args) -> int:
     if result.reacquired:
         print(f"face lost and found again (mesh restarted) at frame{'s' if len(result.reacquired) > 1 else ''} "
               + ", ".join(f"{t} ({t / result.fps:.2f} s)" for t in result.reacquired))
+    if result.times is not None and video.grid_slip(result.times, result.fps) > video.MAX_GRID_SLIP:
+        step = np.diff(result.times) * 1e3
+        print(f"variable frame rate: frames {step.min():.1f}-{step.max():.1f} ms apart, up to "
+              f"{video.grid_slip(result.times, result.fps):.1f} frames off {result.fps:g} fps; each frame's time is "
+              "written (times, and the .csv's time column), and train resamples by them")
     if result.working_scale != 1.0:
         print(f"large face: tracked on frames resized by {result.working_scale:.4f} "
               f"(--working-scale; points written in full-resolution pixels)")

@@ -12,7 +12,8 @@ from typing import Iterator
 
 import numpy as np
 
-__all__ = ["VideoInfo", "probe_video", "iter_frames", "read_grey_frames", "downscale", "write_overlay"]
+__all__ = ["VideoInfo", "probe_video", "frame_times", "grid_slip", "MAX_GRID_SLIP", "iter_frames",
+           "read_grey_frames", "downscale", "write_overlay"]
 
 
 def _cv2():
@@ -62,6 +63,63 @@ def probe_video(path: str | os.PathLike) -> VideoInfo:
                          max(0, int(cap.get(cv2.CAP_PROP_FRAME_COUNT))))
     finally:
         cap.release()
+
+
+#: Frame stamps closer than this share of the median interval are one stamp repeated by a muxer.
+TIED_STAMPS = 0.25
+#: Frame times further than this many frame periods from ``k / fps`` mean the frame rate varies
+#: (or is another than ``fps``): training resamples the tracked points onto the grid.
+MAX_GRID_SLIP = 0.25
+
+
+def frame_times(path: str | os.PathLike) -> np.ndarray | None:
+    """Presentation times (s) of a video's frames in display order, the first at 0, read from the
+    container's packets (demuxed by PyAV, not decoded: a fraction of a second for an hour).
+
+    A phone's video often has a variable frame rate: frame ``k`` is then not at ``k / fps``, and
+    these times are what lines the frames up with the sound. Frames less than
+    :data:`TIED_STAMPS` of the median frame interval apart (a muxer's repeated or one-tick-apart
+    stamps) are spread evenly up to the next stamp. Returns None when the container
+    gives a frame no time stamp (or PyAV cannot read it): frame ``k`` is then at ``k / fps``.
+    """
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                return None
+            stream = container.streams.video[0]
+            pts = [pk.pts for pk in container.demux(stream) if pk.size]
+            base = stream.time_base
+    except (av.error.FFmpegError, OSError):
+        return None
+    if not pts or any(p is None for p in pts) or base is None:
+        return None
+    times = _untie(np.sort(np.asarray(pts, dtype=np.float64)) * float(base))
+    return times - times[0]
+
+
+def _untie(times: np.ndarray) -> np.ndarray:
+    """Sorted stamps with each run closer than :data:`TIED_STAMPS` of the median interval (a
+    muxer's repeated or one-tick-apart stamp) spread evenly up to the stamp after it."""
+    times = np.array(times, dtype=np.float64)
+    gaps = np.diff(times)
+    if not len(gaps) or not np.any(gaps < TIED_STAMPS * np.median(gaps)):
+        return times
+    step = np.median(gaps)
+    first = np.flatnonzero(np.concatenate([[True], gaps >= TIED_STAMPS * step]))
+    count = np.diff(np.append(first, len(times)))
+    following = np.append(times[first[1:]], times[first[-1]] + step * count[-1])
+    for k, m, nxt in zip(first, count, following):
+        times[k:k + m] = times[k] + (nxt - times[k]) * np.arange(m) / m
+    return times
+
+
+def grid_slip(times: np.ndarray, fps: float) -> float:
+    """The largest distance of frame times (s, the first at 0) from the grid ``k / fps``, in frame
+    periods: about 0 for a constant frame rate, growing along a video whose rate varies."""
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    return float(np.max(np.abs(times - times[0] - np.arange(len(times)) / fps)) * fps) if len(times) else 0.0
 
 
 def downscale(frame: np.ndarray, scale: float) -> np.ndarray:
