@@ -333,6 +333,11 @@ def test_points_of_a_variable_frame_rate_video_are_resampled_onto_the_grid():
     same, same_lost = on_uniform_grid(pts, lost, jitter, fps)
     assert same is pts and same_lost is not None and (same_lost == lost).all()
     assert on_uniform_grid(pts, None, None, fps)[0] is pts
+    # a second video at another constant rate (25 fps) joins the first's 30 fps grid
+    t25 = np.arange(T) / 25.0
+    with pytest.warns(UserWarning, match=r"40\.0-40\.0 ms apart.*resampled to 71 on the grid"):
+        at30, _ = on_uniform_grid(10.0 + t25[:, None, None] * slope, None, t25, fps)
+    np.testing.assert_allclose(at30, 10.0 + (np.arange(71) / fps)[:, None, None] * slope, atol=1e-12)
     with pytest.raises(ValueError, match="59 frame times for 60 frames"):
         on_uniform_grid(pts, lost, times[:-1], fps)
     with pytest.raises(ValueError, match="finite and increasing"):
