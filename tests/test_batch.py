@@ -383,6 +383,25 @@ def test_animate_folder_equals_one_by_one(client, puppet_and_audio, tmp_path):
     assert fewer.count("done") == 3  # other settings: redone
 
 
+def test_what_a_worker_warned_about_reaches_the_summary(client, puppet_and_audio, tmp_path):
+    import shutil
+
+    import soundfile as sf
+
+    puppet_path, audio = puppet_and_audio
+    folder = tmp_path / "in"
+    folder.mkdir()
+    shutil.copy(audio / "one.wav", folder / "one.wav")
+    sf.write(folder / "quiet.wav", np.zeros(16000), 16000)
+    s = batch.animate_folder(puppet_path, folder, tmp_path / "out", ["npz"], client=client, progress=False)
+    by_name = {f.input: f for f in s.files}
+    assert by_name["quiet.wav"].status == "done" and by_name["one.wav"].warnings == []
+    assert len(by_name["quiet.wav"].warnings) == 1 and "the recording is silent" in by_name["quiet.wav"].warnings[0]
+    assert "  warning quiet.wav: audio in " in s.text()
+    summary = json.loads((tmp_path / "out" / batch.SUMMARY_NAME).read_text())
+    assert [f["warnings"] for f in summary["files"]] == [[], by_name["quiet.wav"].warnings]
+
+
 def test_cli_batch_animate(puppet_and_audio, tmp_path, capsys):
     from voicepuppet.cli import main
 

@@ -36,6 +36,7 @@ import shutil
 import tempfile
 import threading
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -162,13 +163,16 @@ class Manifest:
 class FileResult:
     """What became of one input: ``status`` is ``done``, ``skipped`` (finished before, checksums
     verified) or ``failed`` (with ``error``); ``outputs`` are paths relative to OUT_DIR;
-    ``media_seconds`` the duration of the input's audio or video (done files)."""
+    ``media_seconds`` the duration of the input's audio or video (done files); ``warnings`` what
+    its task warned about on the worker (a stretch where the face was lost, a variable frame
+    rate, silent audio), which the one-by-one command would have printed."""
 
     input: str
     status: str
     outputs: list = field(default_factory=list)
     error: str | None = None
     media_seconds: float = 0.0
+    warnings: list = field(default_factory=list)
 
 
 @dataclass
@@ -197,6 +201,8 @@ class BatchSummary:
         lines = [f"batch {self.verb}: {self.count('done')} done, {self.count('skipped')} skipped (already "
                  f"finished, checksums verified), {self.count('failed')} failed; {self.wall_seconds:.1f} s "
                  f"on {self.workers} workers"]
+        for f in self.files:
+            lines += [f"  warning {f.input}: {w}" for w in f.warnings]
         for f in self.failed:
             lines.append(f"  FAILED {f.input}: {f.error}")
         return "\n".join(lines)
@@ -220,14 +226,21 @@ def _refusals_reported(task: Callable) -> Callable:
     """A task that returns ``{"error": reason}`` for input it refuses (a ValueError, the
     project's clear error for bad input) instead of raising it: the summary lists the file,
     and the worker does not log a traceback for what is the input's fault. Anything else
-    still raises (and is logged) on the worker."""
+    still raises (and is logged) on the worker. The warnings the task raised come back in
+    ``"warnings"`` (one line each), for the summary rather than the worker's log (Python's
+    warning filters are per process: on a worker of several threads, not the local cluster's
+    one, a warning can be listed against a file that ran beside it)."""
 
     @functools.wraps(task)
     def run(*args, **kwargs):
-        try:
-            return task(*args, **kwargs)
-        except ValueError as exc:
-            return {"error": _describe(exc)}
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            try:
+                value = task(*args, **kwargs)
+            except ValueError as exc:
+                value = {"error": _describe(exc)}
+        notes = list(dict.fromkeys(str(w.message) for w in seen))  # each once, in order
+        return {**value, "warnings": notes} if notes else value
 
     return run
 
@@ -332,7 +345,8 @@ def _run_batch(verb, jobs, task, out_dir: Path, settings, client, progress, clas
                 exc = value if isinstance(value, BaseException) else fut.exception()
                 results[rel] = FileResult(rel, "failed", error=_describe(exc))
             elif "error" in value:
-                results[rel] = FileResult(rel, "failed", error=value["error"])
+                results[rel] = FileResult(rel, "failed", error=value["error"],
+                                          warnings=list(value.get("warnings", ())))
             else:
                 results[rel] = _store(rel, digest, value, out_dir, manifest, settings_key)
             fut.release()
@@ -371,7 +385,8 @@ def _store(rel: str, digest: str, value: dict, out_dir: Path, manifest: Manifest
             except OSError:
                 pass
         return FileResult(rel, "failed", error=_describe(exc))
-    return FileResult(rel, "done", sorted(checks), media_seconds=float(value.get("media_seconds", 0.0)))
+    return FileResult(rel, "done", sorted(checks), media_seconds=float(value.get("media_seconds", 0.0)),
+                      warnings=list(value.get("warnings", ())))
 
 
 def _clashes(inputs: list[Path], root: Path) -> dict[str, str]:
