@@ -125,7 +125,9 @@ def _train(args) -> int:
             where = f"{marks[i]}: "
         else:
             print(f"tracking {videos[i]} ...")
-            res = track_video(videos[i], init=args.init, progress=not args.quiet)
+            with warnings.catch_warnings():  # the resampling below says it, with what it did
+                warnings.filterwarnings("ignore", message=".* has a variable frame rate")
+                res = track_video(videos[i], init=args.init, progress=not args.quiet)
             pts, f, lost, times, where = res.points, res.fps, res.lost, res.times, f"{videos[i]}: "
         if fps is None:
             fps = f

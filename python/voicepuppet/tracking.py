@@ -783,6 +783,14 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
         result = _lost_before(result, start)
     if times is not None and len(times) == len(result.points):  # else OpenCV decoded others
         result.times = times
+        if video.grid_slip(times, fps) > video.MAX_GRID_SLIP:
+            import warnings
+
+            step = np.diff(times) * 1e3
+            warnings.warn(f"{str(path)!r} has a variable frame rate (frames {step.min():.1f}-{step.max():.1f} ms "
+                          f"apart, up to {video.grid_slip(times, fps):.1f} frames off {fps:g} fps); each frame's "
+                          "time is kept (the landmarks' times and the .csv's time column), and train "
+                          "resamples by them", stacklevel=2)
     return result
 
 
@@ -1036,11 +1044,6 @@ def _cli(args) -> int:
     if result.reacquired:
         print(f"face lost and found again (mesh restarted) at frame{'s' if len(result.reacquired) > 1 else ''} "
               + ", ".join(f"{t} ({t / result.fps:.2f} s)" for t in result.reacquired))
-    if result.times is not None and video.grid_slip(result.times, result.fps) > video.MAX_GRID_SLIP:
-        step = np.diff(result.times) * 1e3
-        print(f"variable frame rate: frames {step.min():.1f}-{step.max():.1f} ms apart, up to "
-              f"{video.grid_slip(result.times, result.fps):.1f} frames off {result.fps:g} fps; each frame's time is "
-              "written (times, and the .csv's time column), and train resamples by them")
     if result.working_scale != 1.0:
         print(f"large face: tracked on frames resized by {result.working_scale:.4f} "
               f"(--working-scale; points written in full-resolution pixels)")
