@@ -11,8 +11,10 @@ Command line: ``voicepuppet track VIDEO -o landmarks.npz [--init points.json|aut
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
@@ -739,8 +741,6 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     Raises ``ValueError`` for a video that cannot be opened or holds no frames, bad points, or
     (with ``init="auto"``) no detector or no face.
     """
-    import itertools
-
     from voicepuppet import video
 
     info = video.probe_video(path)
@@ -783,12 +783,11 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
         result = _lost_before(result, start)
     if times is not None and len(times) == len(result.points):  # else OpenCV decoded others
         result.times = times
-        if video.grid_slip(times, fps) > video.MAX_GRID_SLIP:
-            import warnings
-
+        slip = video.grid_slip(times, fps)
+        if slip > video.MAX_GRID_SLIP:
             step = np.diff(times) * 1e3
             warnings.warn(f"{str(path)!r} has a variable frame rate (frames {step.min():.1f}-{step.max():.1f} ms "
-                          f"apart, up to {video.grid_slip(times, fps):.1f} frames off {fps:g} fps); each frame's "
+                          f"apart, up to {slip:.1f} frames off {fps:g} fps); each frame's "
                           "time is kept (the landmarks' times and the .csv's time column), and train "
                           "resamples by them", stacklevel=2)
     return result
@@ -800,9 +799,6 @@ def _first_face(path, first: np.ndarray, fps: float, progress: bool,
     the first frame, else the first probe (one frame every :data:`AUTO_INIT_STRIDE_S` s up to
     :data:`AUTO_INIT_SCAN_S` s) with a face, or the earliest of the frames since the probe before
     it that has one. ``times`` (the frames' time stamps, or None) date the warning."""
-    import itertools
-    import warnings
-
     from tqdm.auto import tqdm
 
     from voicepuppet import video

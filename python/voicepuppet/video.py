@@ -110,7 +110,7 @@ def _untie(times: np.ndarray) -> np.ndarray:
     first = np.flatnonzero(np.concatenate([[True], gaps >= TIED_STAMPS * step]))
     count = np.diff(np.append(first, len(times)))
     following = np.append(times[first[1:]], times[first[-1]] + step * count[-1])
-    for k, m, nxt in zip(first, count, following):
+    for k, m, nxt in zip(first[count > 1], count[count > 1], following[count > 1]):
         times[k:k + m] = times[k] + (nxt - times[k]) * np.arange(m) / m
     return times
 
