@@ -550,8 +550,6 @@ def run_live(args, out=None) -> int:
             c0 = time.perf_counter()
             frames = live.push(samples)
             c1 = time.perf_counter()
-            if not pace:  # unpaced input: the audio time base is when it arrived
-                pass
             emit(frames, c1, c1 - c0)
     except ValueError as exc:
         err = exc
