@@ -161,6 +161,13 @@ def test_cli_writes_npz_csv_and_overlay(tmp_path, planted, write_avi):
     assert (tmp_path / "overlay.avi").stat().st_size > 0
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "face.avi", "landmarks.csv", "landmarks.npz", "overlay.avi", "points.json"]
+    with pytest.raises(ValueError, match=r"\.csv twin .* pass the \.npz .*\(landmarks\.npz\)"):
+        tracking.load_landmarks(tmp_path / "landmarks.csv")
+    (tmp_path / "cut.npz").write_bytes(out.read_bytes()[:100])
+    with pytest.raises(ValueError, match="not an .npz archive"):
+        tracking.load_landmarks(tmp_path / "cut.npz")
+    with pytest.raises(FileNotFoundError, match="make one with voicepuppet track"):
+        tracking.load_landmarks(tmp_path / "none.npz")
 
 
 def test_bad_input_is_refused_clearly(tmp_path, planted):

@@ -994,8 +994,23 @@ def save_landmarks(path: str | os.PathLike, result: TrackResult, csv: bool = Tru
 
 
 def load_landmarks(path: str | os.PathLike) -> dict:
-    """Reads a landmarks ``.npz`` back as a dict of arrays (``points``, ``fps``, ...)."""
-    with np.load(path, allow_pickle=False) as z:
+    """Reads a landmarks ``.npz`` back as a dict of arrays (``points``, ``fps``, ...).
+
+    Raises ``FileNotFoundError`` for a missing file, ``ValueError`` for the ``.csv`` twin (it lacks the frame rate and
+    the lost flags: the ``.npz`` beside it is the one to read) or anything that is not an
+    ``.npz`` archive."""
+    import zipfile
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"landmarks file {str(p)!r} does not exist; make one with voicepuppet track")
+    if p.suffix.lower() == ".csv":
+        raise ValueError(f"{str(p)!r} is the .csv twin of a landmarks file: it has no frame rate or lost "
+                         f"flags; pass the .npz that voicepuppet track wrote beside it ({p.with_suffix('.npz').name})")
+    if not zipfile.is_zipfile(p):
+        raise ValueError(f"landmarks file {str(p)!r} is not an .npz archive (truncated or another format); "
+                         "make one with voicepuppet track")
+    with np.load(p, allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
 
 
