@@ -296,6 +296,24 @@ def test_animator_controls_exaggerate_and_expression_offset(tmp_path):
     np.testing.assert_allclose(smile, inside.astype(float), atol=1e-6)
 
 
+def test_a_photo_without_a_face_names_the_option_that_gives_its_points(tmp_path, monkeypatch):
+    from PIL import Image
+
+    pytest.importorskip("dlib")
+    from voicepuppet.tracking import DLIB_MODEL_PATHS
+
+    if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
+        pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
+    Image.fromarray(np.full((120, 160, 3), 128, np.uint8)).save(tmp_path / "wall.png")
+    with pytest.raises(ValueError, match=r"no face found in the photo .*wall\.png.*--face-points points\.json"):
+        R.load_face(tmp_path / "wall.png")
+    import sys
+
+    monkeypatch.setitem(sys.modules, "dlib", None)  # no detector: the same option is named
+    with pytest.raises(ValueError, match=r"pip install dlib-bin.*--face-points points\.json"):
+        R.load_face(tmp_path / "wall.png")
+
+
 def test_real_photo_with_dlib_landmarks():
     """A real face (scikit-image's astronaut) with dlib's 68 points: the neutral frame is the
     photo, a planted jaw opening moves the mouth and chin, not the eyes."""

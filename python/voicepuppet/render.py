@@ -759,9 +759,13 @@ def load_face(image_path, points_path=None) -> FaceMesh:
     except (UnidentifiedImageError, OSError) as exc:
         raise ValueError(f"face image {str(ip)!r} is not a readable picture: {exc}") from None
     if points_path is None:
-        from voicepuppet.tracking import auto_init
+        from voicepuppet.tracking import NoFaceError, auto_init
 
-        pts = auto_init(img)
+        try:
+            pts = auto_init(img, instead="--face-points points.json")
+        except NoFaceError:
+            raise ValueError(f"no face found in the photo {str(ip)!r} (dlib's detector: a frontal, upright, "
+                             "lit face); pass its 68 landmarks with --face-points points.json") from None
     else:
         pp = Path(points_path)
         if pp.suffix.lower() == ".npz":

@@ -903,26 +903,27 @@ def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
     return _check_points(pts, f"points in {str(p)!r}"), names
 
 
-def auto_init(frame: np.ndarray) -> np.ndarray:
+def auto_init(frame: np.ndarray, instead: str = "--init points.json") -> np.ndarray:
     """Finds 68 face landmarks on a frame with dlib's shape predictor (iBUG 300-W layout).
 
     Needs the ``dlib-bin`` (or ``dlib``) wheel and the model file from Debian's ``libdlib-data``
     (``/usr/share/dlib/shape_predictor_68_face_landmarks.dat``) or the path in the environment
     variable ``VOICEPUPPET_DLIB_MODEL``. Raises ``ValueError`` saying what to install, or
-    :class:`NoFaceError` (a ``ValueError``) when no face is found. Returns (68, 2) float64.
+    :class:`NoFaceError` (a ``ValueError``) when no face is found; both name ``instead``, the
+    caller's way to give the points by hand. Returns (68, 2) float64.
     """
     try:
         import dlib
     except ImportError:
-        raise ValueError("--init auto needs a landmark detector: pip install dlib-bin and "
-                         "apt-get install libdlib-data (dlib's 68-point model), or pass the first-frame "
-                         'points with --init points.json ({"points": [[x, y], ...]})') from None
+        raise ValueError("finding face landmarks automatically needs a detector: pip install dlib-bin and "
+                         "apt-get install libdlib-data (dlib's 68-point model), or pass the points with "
+                         f'{instead} ({{"points": [[x, y], ...]}})') from None
     candidates = [os.environ.get("VOICEPUPPET_DLIB_MODEL", "")] + list(DLIB_MODEL_PATHS)
     model = next((c for c in candidates if c and Path(c).is_file()), None)
     if model is None:
-        raise ValueError("--init auto found dlib but not its 68-point model: apt-get install libdlib-data, "
-                         "or set VOICEPUPPET_DLIB_MODEL to shape_predictor_68_face_landmarks.dat, "
-                         "or pass the first-frame points with --init points.json")
+        raise ValueError("finding face landmarks automatically: dlib is installed but not its 68-point model: "
+                         "apt-get install libdlib-data, or set VOICEPUPPET_DLIB_MODEL to "
+                         f"shape_predictor_68_face_landmarks.dat, or pass the points with {instead}")
     g = _grey(frame, 0, None)
     detector = dlib.get_frontal_face_detector()
     faces = []
@@ -931,7 +932,7 @@ def auto_init(frame: np.ndarray) -> np.ndarray:
         if faces:
             break
     if not faces:
-        raise NoFaceError("--init auto found no face on the frame; pass the points with --init points.json")
+        raise NoFaceError(f"dlib's detector found no face on the frame; pass the points with {instead}")
     face = max(faces, key=lambda r: r.width() * r.height())
     shape = dlib.shape_predictor(model)(g, face)
     return np.array([[shape.part(i).x, shape.part(i).y] for i in range(shape.num_parts)], dtype=np.float64)
