@@ -220,6 +220,22 @@ def test_bad_input_is_reported_and_writes_nothing(workdir, tmp_path, capsys):
     assert sorted(os.listdir(tmp_path)) == ["cut.vpp"]
 
 
+def test_a_face_and_audio_of_different_lengths_are_warned_about(workdir, tmp_path, capsys):
+    d = workdir
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")  # as in a user's Python: the command prints it
+        assert main(["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "test.wav"),
+                     "-o", str(tmp_path / "q.vpp"), "--states", "6", "--iterations", "2", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert f"the face runs {600 / FPS:.2f} s and its audio {200 / FPS:.2f} s" in err
+    assert "trained on silence; check that the two belong together" in err
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # its own audio: no warning
+        assert main(["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"),
+                     "-o", str(tmp_path / "r.vpp"), "--states", "6", "--iterations", "2", "--quiet"]) == 0
+    assert "belong together" not in capsys.readouterr().err
+
+
 def test_a_video_without_sound_fails_before_it_is_tracked(workdir, tmp_path, capsys, monkeypatch):
     import cv2
 

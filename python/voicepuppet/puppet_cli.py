@@ -11,8 +11,11 @@ import numpy as np
 MAX_LOST_SHARE = 0.3
 #: Shortest run of usable frames kept for training.
 MIN_SEGMENT = 10
-#: On that grid, a frame between two video frames further apart than this many frame periods
-#: (the camera stalled) is lost rather than interpolated.
+#: A face and its audio whose durations differ by more than this (s) are warned about: they may
+#: not belong together.
+MAX_AV_MISMATCH_S = 0.5
+#: On the uniform grid of :func:`on_uniform_grid`, a frame between two video frames further apart
+#: than this many frame periods (the camera stalled) is lost rather than interpolated.
 MAX_GAP_FRAMES = 3.0
 
 
@@ -134,6 +137,13 @@ def _train(args) -> int:
         elif times is None and abs(f - fps) > 1e-3:
             raise ValueError(f"sequence {i} runs at {f:g} fps but the first at {fps:g}; use one frame rate")
         pts, lost = on_uniform_grid(pts, lost, times, fps, where)
+        seen, heard = len(pts) / fps, sounds[i].duration
+        if abs(seen - heard) > MAX_AV_MISMATCH_S:
+            warnings.warn(f"{where}the face runs {seen:.2f} s and its audio {heard:.2f} s ("
+                          f"{audios[i] if audios else videos[i]}): "
+                          + ("the frames after the audio ends are trained on silence" if seen > heard else
+                             "the audio after the last frame is not used")
+                          + "; check that the two belong together", stacklevel=2)
         for seg in usable_segments(pts, lost, sounds[i], fps, where):
             points_list.append(seg[0])
             audio_list.append(seg[1])
