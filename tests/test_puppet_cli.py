@@ -320,6 +320,15 @@ def test_frames_where_the_face_is_lost_are_dropped_with_a_warning(rng):
     assert usable_segments(pts, None, snd, FPS)[0][0] is pts
     with pytest.raises(ValueError, match="no run of 10 usable frames"):
         usable_segments(pts, np.ones((T, P), bool), snd, FPS)
+    # another tool's NaN for a point it lost: lost; whole frames of them are dropped like lost ones
+    holes = pts.copy()
+    holes[20:32] = np.nan
+    with pytest.warns(UserWarning, match="lost in 12 of 100 frames"):
+        segs = usable_segments(holes, None, snd, FPS)
+    assert [len(p) for p, _ in segs] == [20, 68] and all(np.isfinite(p).all() for p, _ in segs)
+    holes[70, 4, 1] = np.inf  # one point on a frame that is kept: refused, with where it is
+    with pytest.raises(ValueError, match="point 4 of frame 70 is NaN or infinite"):
+        usable_segments(holes, None, snd, FPS)
 
 
 def test_points_of_a_variable_frame_rate_video_are_resampled_onto_the_grid():

@@ -64,15 +64,24 @@ def usable_segments(points, lost=None, audio=None, fps: float = 29.97, where: st
     """Split a tracked sequence where the face was lost; returns ``[(points, audio), ...]``.
 
     Frames with more than :data:`MAX_LOST_SHARE` of their points flagged lost are dropped, and
-    runs shorter than :data:`MIN_SEGMENT` frames too; a warning says how much was dropped. The
-    audio of each kept run is cut to match (``audio`` is an :class:`voicepuppet.audio.Audio`).
+    runs shorter than :data:`MIN_SEGMENT` frames too; a warning says how much was dropped. A NaN
+    or infinite point (another tool's mark for a point it lost) counts as lost; one on a frame
+    that is kept is refused, with its frame. The audio of each kept run is cut to match
+    (``audio`` is an :class:`voicepuppet.audio.Audio`).
     """
     from dataclasses import replace
 
     T = len(points)
-    if lost is None:
+    missing = ~np.isfinite(np.asarray(points, dtype=np.float64)).reshape(T, -1, 2).all(axis=2)
+    if lost is None and not missing.any():
         return [(points, audio)]
-    bad = np.asarray(lost, dtype=bool).reshape(T, -1).mean(axis=1) > MAX_LOST_SHARE
+    lost = missing if lost is None else np.asarray(lost, dtype=bool).reshape(T, -1) | missing
+    bad = lost.mean(axis=1) > MAX_LOST_SHARE
+    if missing[~bad].any():
+        t, p = np.argwhere(missing & ~bad[:, None])[0]
+        raise ValueError(f"{where}point {p} of frame {t} is NaN or infinite on a frame where the face is found "
+                         f"(at most {100 * MAX_LOST_SHARE:g}% of its points lost); fill it in (interpolate) or "
+                         "drop the frame")
     if not bad.any():
         return [(points, audio)]
     runs, start = [], None
