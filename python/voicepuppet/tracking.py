@@ -997,9 +997,9 @@ def save_landmarks(path: str | os.PathLike, result: TrackResult, csv: bool = Tru
 def load_landmarks(path: str | os.PathLike) -> dict:
     """Reads a landmarks ``.npz`` back as a dict of arrays (``points``, ``fps``, ...).
 
-    Raises ``FileNotFoundError`` for a missing file, ``ValueError`` for the ``.csv`` twin (it lacks the frame rate and
-    the lost flags: the ``.npz`` beside it is the one to read) or anything that is not an
-    ``.npz`` archive."""
+    Raises ``FileNotFoundError`` for a missing file, ``ValueError`` for the ``.csv`` twin (it
+    lacks the frame rate and the lost flags: the ``.npz`` beside it is the one to read) or
+    anything that is not an ``.npz`` archive."""
     import zipfile
 
     p = Path(path)
