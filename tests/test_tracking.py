@@ -339,6 +339,10 @@ def test_a_variable_frame_rate_video_keeps_each_frames_time(tmp_path, planted, w
     with pytest.warns(UserWarning, match=r"variable frame rate \(frames 40\.0-80\.0 ms apart"):
         r = tracking.track_video(vfr, truth[0], passes=1, progress=False)
     np.testing.assert_array_equal(r.times, times)
+    assert r.fps == 25.0  # its most common rate (OpenCV reports the average)
+    # a phone's 30000/1001 fps with drops, its stamps rounded to milliseconds: the nominal rate
+    phone = np.round(np.cumsum(np.r_[0, np.where(np.arange(299) % 10 == 9, 2, 1)]) * 1001 / 30000, 3)
+    assert video.nominal_rate(phone) == 30000 / 1001 and video.nominal_rate([0, 0.1, 0.2]) == 10.0
     out = tmp_path / "lm.npz"
     init = tmp_path / "p.json"
     init.write_text(json.dumps({"points": truth[0].tolist()}))

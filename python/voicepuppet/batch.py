@@ -556,7 +556,8 @@ def _track_task(video_path: str, out_stem: str, init, passes: int, options: dict
         from voicepuppet.tracking import load_landmarks
 
         lm = load_landmarks(stage)
-        seconds = len(lm["points"]) / float(lm["fps"])
+        fps = float(lm["fps"])  # a variable-rate video's frames are at their times, not k / fps
+        seconds = float(lm["times"][-1]) + 1.0 / fps if "times" in lm else len(lm["points"]) / fps
     parent = Path(out_stem).parent.as_posix()
     prefix = "" if parent in ("", ".") else parent + "/"
     return {"files": {prefix + k: v for k, v in files.items()}, "media_seconds": seconds}

@@ -139,7 +139,8 @@ class TrackResult:
     points : (T, P, 2) float64 positions (x, y) in pixels
     confidence : (T, P) float64 in [0, 1], correlation with the first-frame patch
     lost : (T, P) bool, outside the image or not matching its first-frame patch
-    fps : frames per second
+    fps : frames per second (of a variable-rate video: its most common rate,
+        :func:`voicepuppet.video.nominal_rate`; ``times`` says when each frame is)
     edges : (E, 2) int64 spring edges
     rest_length, stiffness : (E,) the springs of the last pass
     passes : one dict per pass: ``pass``, ``max_rel_length_change`` (of the springs it
@@ -785,11 +786,14 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
         result.times = times
         slip = video.grid_slip(times, fps)
         if slip > video.MAX_GRID_SLIP:
+            # The rate it runs at most of the time, not OpenCV's average: the grid train resamples onto.
+            result.fps = video.nominal_rate(times)
             step = np.diff(times) * 1e3
             warnings.warn(f"{str(path)!r} has a variable frame rate (frames {step.min():.1f}-{step.max():.1f} ms "
-                          f"apart, up to {slip:.1f} frames off {fps:g} fps); each frame's "
-                          "time is kept (the landmarks' times and the .csv's time column), and train "
-                          "resamples by them", stacklevel=2)
+                          f"apart: at OpenCV's average of {fps:g} fps a frame's index would put it up to "
+                          f"{slip:.1f} frames off its time); each frame's time is kept (the landmarks' times "
+                          f"and the .csv's time column), the frame rate is its most common, {result.fps:g} "
+                          "fps, and train resamples onto it", stacklevel=2)
     return result
 
 

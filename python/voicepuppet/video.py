@@ -12,7 +12,7 @@ from typing import Iterator
 
 import numpy as np
 
-__all__ = ["VideoInfo", "probe_video", "frame_times", "grid_slip", "MAX_GRID_SLIP", "iter_frames",
+__all__ = ["VideoInfo", "probe_video", "frame_times", "grid_slip", "nominal_rate", "MAX_GRID_SLIP", "iter_frames",
            "read_grey_frames", "downscale", "write_overlay"]
 
 
@@ -120,6 +120,24 @@ def grid_slip(times: np.ndarray, fps: float) -> float:
     periods: about 0 for a constant frame rate, growing along a video whose rate varies."""
     times = np.asarray(times, dtype=np.float64).reshape(-1)
     return float(np.max(np.abs(times - times[0] - np.arange(len(times)) / fps)) * fps) if len(times) else 0.0
+
+
+#: Frame rates a camera records at; a rate measured within 1 % of one is taken to be it.
+COMMON_RATES = (24000 / 1001, 24.0, 25.0, 30000 / 1001, 30.0, 48.0, 50.0, 60000 / 1001, 60.0, 120.0)
+
+
+def nominal_rate(times: np.ndarray) -> float:
+    """The frame rate of a video's most common frame interval (the mean of the intervals within
+    25 % of the median: stamps rounded to milliseconds average out), snapped to a
+    :data:`COMMON_RATES` rate within 1 %: what a variable-rate video runs at most of the time (a
+    phone's 30 fps with drops: 30, where OpenCV reports the average rate, e.g. 27.4)."""
+    gaps = np.diff(np.asarray(times, dtype=np.float64).reshape(-1))
+    if not len(gaps) or not np.median(gaps) > 0:
+        raise ValueError("nominal_rate needs at least two increasing frame times")
+    mid = float(np.median(gaps))
+    rate = 1.0 / float(np.mean(gaps[np.abs(gaps - mid) <= 0.25 * mid]))
+    near = min(COMMON_RATES, key=lambda r: abs(r - rate))
+    return near if abs(near - rate) <= 0.01 * rate else rate
 
 
 def downscale(frame: np.ndarray, scale: float) -> np.ndarray:
