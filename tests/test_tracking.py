@@ -348,8 +348,11 @@ def test_a_variable_frame_rate_video_keeps_each_frames_time(tmp_path, planted, w
     init.write_text(json.dumps({"points": truth[0].tolist()}))
     with warnings.catch_warnings():
         warnings.simplefilter("default")  # as in a user's Python: the command prints it
-        assert main(["track", str(vfr), "-o", str(out), "--init", str(init), "--passes", "1", "--quiet"]) == 0
+        assert main(["track", str(vfr), "-o", str(out), "--init", str(init), "--passes", "1", "--quiet",
+                     "--overlay", str(tmp_path / "check.avi")]) == 0
     assert "voicepuppet track: warning: " in capsys.readouterr().err
+    check = video.probe_video(tmp_path / "check.avi")  # as long as the video: its average rate
+    assert check.frame_count == 40 and check.fps == pytest.approx(39 / times[-1], rel=0.02)
     np.testing.assert_array_equal(tracking.load_landmarks(out)["times"], times)
     np.testing.assert_allclose(np.loadtxt(out.with_suffix(".csv"), delimiter=",", skiprows=1)[:, 1], times,
                                atol=1e-6)

@@ -1046,9 +1046,13 @@ def _cli(args) -> int:
                          reacquire=not args.no_reacquire)
     written = save_landmarks(out, result)
     if args.overlay:
-        with tqdm(total=len(result.points), desc="overlay", unit="frame", disable=args.quiet, leave=False) as bar:
+        # Every frame once, at the video's average rate: as long as the video (a variable-rate
+        # video's nominal fps would play it faster).
+        T = len(result.points)
+        rate = result.fps if result.times is None or T < 2 else (T - 1) / float(result.times[-1])
+        with tqdm(total=T, desc="overlay", unit="frame", disable=args.quiet, leave=False) as bar:
             video.write_overlay(args.overlay, video.iter_frames(args.video, grey=False), result.points,
-                                result.lost, result.fps, result.edges, progress=bar.update)
+                                result.lost, rate, result.edges, progress=bar.update)
         written.append(Path(args.overlay))
     T, P, _ = result.points.shape
     for row in result.passes:
