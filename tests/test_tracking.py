@@ -340,6 +340,11 @@ def test_a_variable_frame_rate_video_keeps_each_frames_time(tmp_path, planted, w
         r = tracking.track_video(vfr, truth[0], passes=1, progress=False)
     np.testing.assert_array_equal(r.times, times)
     assert r.fps == 25.0  # its most common rate (OpenCV reports the average)
+    with pytest.warns(UserWarning, match="resampled to 59 on the grid"):
+        grid_points, grid_lost = r.on_grid()  # what Puppet.train takes, with the video's audio
+    assert grid_points.shape == (59, len(truth[0]), 2) and grid_lost.shape == (59, len(truth[0]))
+    cfr_track = tracking.track_video(cfr, truth[0], passes=1, progress=False)
+    assert cfr_track.on_grid()[0] is cfr_track.points  # a constant rate: as they are
     # a phone's 30000/1001 fps with drops, its stamps rounded to milliseconds: the nominal rate
     phone = np.round(np.cumsum(np.r_[0, np.where(np.arange(299) % 10 == 9, 2, 1)]) * 1001 / 30000, 3)
     assert video.nominal_rate(phone) == 30000 / 1001 and video.nominal_rate([0, 0.1, 0.2]) == 10.0

@@ -14,52 +14,6 @@ MIN_SEGMENT = 10
 #: A face and its audio whose durations differ by more than this (s) are warned about: they may
 #: not belong together.
 MAX_AV_MISMATCH_S = 0.5
-#: On the uniform grid of :func:`on_uniform_grid`, a frame between two video frames further apart
-#: than this many frame periods (the camera stalled) is lost rather than interpolated.
-MAX_GAP_FRAMES = 3.0
-
-
-def on_uniform_grid(points, lost, times, fps: float, where: str = ""):
-    """Tracked points on the frame grid ``k / fps`` of the audio features; returns ``(points, lost)``.
-
-    ``times`` are the frames' time stamps (s, the first at 0: ``TrackResult.times``, or the
-    ``times`` of a landmarks file), None for frame ``k`` at ``k / fps``. Within
-    :data:`voicepuppet.video.MAX_GRID_SLIP` frame periods of that everywhere, the points are
-    returned as they are; otherwise (a variable frame rate, or another video's rate) they are
-    interpolated linearly in time onto the grid, with a warning: a grid frame is lost if either
-    video frame around it is, or if they are more than :data:`MAX_GAP_FRAMES` periods apart.
-    """
-    from voicepuppet.video import MAX_GRID_SLIP, grid_slip
-
-    points = np.asarray(points, dtype=np.float64)
-    T = len(points)
-    lost = np.zeros(points.shape[:2], dtype=bool) if lost is None else np.asarray(lost, dtype=bool).reshape(T, -1)
-    if times is None:
-        return points, lost
-    times = np.asarray(times, dtype=np.float64).reshape(-1)
-    if len(times) != T:
-        raise ValueError(f"{where}{len(times)} frame times for {T} frames; track the video again")
-    if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
-        raise ValueError(f"{where}frame times must be finite and increasing; track the video again")
-    if T < 2 or grid_slip(times, fps) <= MAX_GRID_SLIP:
-        return points, lost
-    times = times - times[0]
-    grid = np.arange(int(np.floor(times[-1] * fps + 1e-9)) + 1) / fps
-    i = np.clip(np.searchsorted(times, grid, side="right") - 1, 0, T - 2)
-    w = np.clip((grid - times[i]) / (times[i + 1] - times[i]), 0.0, 1.0)
-    out = (1.0 - w)[:, None, None] * points[i] + w[:, None, None] * points[i + 1]
-    # inside a stall (not on the frames around it)
-    gap = ((times[i + 1] - times[i]) > MAX_GAP_FRAMES / fps) & (w > 1e-6) & (w < 1.0 - 1e-6)
-    out_lost = lost[i] | (lost[i + 1] & (w > 0)[:, None]) | gap[:, None]
-    step = np.diff(times) * 1e3
-    warnings.warn(f"{where}the video's frames are not on the training's {fps:g} fps grid (they are "
-                  f"{step.min():.1f}-{step.max():.1f} ms apart); its {T} tracked frames are resampled to "
-                  f"{len(grid)} on the grid, to line up with the audio"
-                  + (f" ({int(gap.sum())} in gaps longer than {MAX_GAP_FRAMES:g} frames are lost)" if gap.any() else ""),
-                  stacklevel=2)
-    return out, out_lost
-
-
 def usable_segments(points, lost=None, audio=None, fps: float = 29.97, where: str = ""):
     """Split a tracked sequence where the face was lost; returns ``[(points, audio), ...]``.
 
@@ -110,7 +64,7 @@ def _train(args) -> int:
     from voicepuppet import audio as vaudio
     from voicepuppet.animation import check_output_path
     from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet
-    from voicepuppet.tracking import load_landmarks, track_video
+    from voicepuppet.tracking import load_landmarks, on_uniform_grid, track_video
 
     out = check_output_path(args.output, (".vpp",), "puppet file")
     videos, marks, audios = list(args.video), list(args.landmarks or []), list(args.audio or [])

@@ -25,7 +25,7 @@ from voicepuppet import _core
 
 __all__ = [
     "TrackResult", "track_frames", "track_video", "delaunay_edges", "load_init_points",
-    "auto_init", "NoFaceError", "save_landmarks", "load_landmarks", "lip_patch_sides", "eye_corner_sides", "DLIB_MODEL_PATHS",
+    "auto_init", "NoFaceError", "on_uniform_grid", "save_landmarks", "load_landmarks", "lip_patch_sides", "eye_corner_sides", "DLIB_MODEL_PATHS",
     "face_size", "working_scale_factor", "points_to_working", "points_to_full",
     "LARGE_FACE_IOD", "WORKING_IOD", "LARGE_FACE_RMS_RADIUS", "WORKING_RMS_RADIUS",
 ]
@@ -158,7 +158,7 @@ class TrackResult:
     times : (T,) presentation time of each frame in seconds, the first at 0, from the video's
         container (:func:`voicepuppet.video.frame_times`), or None (frame ``k`` at ``k / fps``):
         with a variable frame rate the two differ, and training resamples the points onto a
-        uniform grid by these times (:func:`voicepuppet.puppet_cli.on_uniform_grid`)
+        uniform grid by these times (:meth:`on_grid`)
     """
 
     points: np.ndarray
@@ -174,6 +174,12 @@ class TrackResult:
     reacquired: list = field(default_factory=list)
     start: int = 0
     times: np.ndarray | None = None
+
+    def on_grid(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(points, lost)`` on the uniform grid ``k / fps`` the audio features are on: as they
+        are for a constant frame rate, interpolated by ``times`` for a variable one
+        (:func:`on_uniform_grid`); what to give ``Puppet.train`` with the video's audio."""
+        return on_uniform_grid(self.points, self.lost, self.times, self.fps)
 
 
 def delaunay_edges(points: np.ndarray) -> np.ndarray:
@@ -864,6 +870,52 @@ def _lost_before(result: TrackResult, start: int) -> TrackResult:
                    confidence=np.concatenate([np.zeros((start, P)), result.confidence]),
                    lost=np.concatenate([np.ones((start, P), dtype=bool), result.lost]),
                    passes=passes, reacquired=[t + start for t in result.reacquired], start=start)
+
+
+#: On the uniform grid of :func:`on_uniform_grid`, a frame between two video frames further apart
+#: than this many frame periods (the camera stalled) is lost rather than interpolated.
+MAX_GAP_FRAMES = 3.0
+
+
+def on_uniform_grid(points, lost, times, fps: float, where: str = ""):
+    """Tracked points on the frame grid ``k / fps`` of the audio features; returns ``(points, lost)``.
+
+    ``times`` are the frames' time stamps (s, the first at 0: ``TrackResult.times``, or the
+    ``times`` of a landmarks file), None for frame ``k`` at ``k / fps``. Within
+    :data:`voicepuppet.video.MAX_GRID_SLIP` frame periods of that everywhere, the points are
+    returned as they are; otherwise (a variable frame rate, or another video's rate) they are
+    interpolated linearly in time onto the grid, with a warning: a grid frame is lost if either
+    video frame around it is, or if they are more than :data:`MAX_GAP_FRAMES` periods apart.
+    """
+    from voicepuppet.video import MAX_GRID_SLIP, grid_slip
+
+    points = np.asarray(points, dtype=np.float64)
+    T = len(points)
+    lost = np.zeros(points.shape[:2], dtype=bool) if lost is None else np.asarray(lost, dtype=bool).reshape(T, -1)
+    if times is None:
+        return points, lost
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    if len(times) != T:
+        raise ValueError(f"{where}{len(times)} frame times for {T} frames; track the video again")
+    if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise ValueError(f"{where}frame times must be finite and increasing; track the video again")
+    if T < 2 or grid_slip(times, fps) <= MAX_GRID_SLIP:
+        return points, lost
+    times = times - times[0]
+    grid = np.arange(int(np.floor(times[-1] * fps + 1e-9)) + 1) / fps
+    i = np.clip(np.searchsorted(times, grid, side="right") - 1, 0, T - 2)
+    w = np.clip((grid - times[i]) / (times[i + 1] - times[i]), 0.0, 1.0)
+    out = (1.0 - w)[:, None, None] * points[i] + w[:, None, None] * points[i + 1]
+    # inside a stall (not on the frames around it)
+    gap = ((times[i + 1] - times[i]) > MAX_GAP_FRAMES / fps) & (w > 1e-6) & (w < 1.0 - 1e-6)
+    out_lost = lost[i] | (lost[i + 1] & (w > 0)[:, None]) | gap[:, None]
+    step = np.diff(times) * 1e3
+    warnings.warn(f"{where}the video's frames are not on the training's {fps:g} fps grid (they are "
+                  f"{step.min():.1f}-{step.max():.1f} ms apart); its {T} tracked frames are resampled to "
+                  f"{len(grid)} on the grid, to line up with the audio"
+                  + (f" ({int(gap.sum())} in gaps longer than {MAX_GAP_FRAMES:g} frames are lost)" if gap.any() else ""),
+                  stacklevel=2)
+    return out, out_lost
 
 
 def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
