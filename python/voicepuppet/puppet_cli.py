@@ -14,6 +14,8 @@ MIN_SEGMENT = 10
 #: A face and its audio whose durations differ by more than this (s) are warned about: they may
 #: not belong together.
 MAX_AV_MISMATCH_S = 0.5
+
+
 def usable_segments(points, lost=None, audio=None, fps: float = 29.97, where: str = ""):
     """Split a tracked sequence where the face was lost; returns ``[(points, audio), ...]``.
 
