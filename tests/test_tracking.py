@@ -336,7 +336,7 @@ def test_a_variable_frame_rate_video_keeps_each_frames_time(tmp_path, planted, w
     slipped = np.array([0, 0.04, 0.08, 0.12, 0.12, 0.20, 0.24, 0.24001, 0.32, 0.36])
     np.testing.assert_allclose(video._untie(slipped), np.arange(10) * 0.04, atol=1e-12)
     np.testing.assert_allclose(video._untie([0, 0.04, 0.08, 0.08]), [0, 0.04, 0.08, 0.12], atol=1e-12)
-    with pytest.warns(UserWarning, match=r"variable frame rate \(frames 40\.0-80\.0 ms apart"):
+    with pytest.warns(tracking.VariableFrameRateWarning, match=r"variable frame rate \(frames 40\.0-80\.0 ms apart"):
         r = tracking.track_video(vfr, truth[0], passes=1, progress=False)
     np.testing.assert_array_equal(r.times, times)
     assert r.fps == 25.0  # its most common rate (OpenCV reports the average)

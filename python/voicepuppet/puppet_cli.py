@@ -66,7 +66,7 @@ def _train(args) -> int:
     from voicepuppet import audio as vaudio
     from voicepuppet.animation import check_output_path
     from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet
-    from voicepuppet.tracking import load_landmarks, on_uniform_grid, track_video
+    from voicepuppet.tracking import VariableFrameRateWarning, load_landmarks, on_uniform_grid, track_video
 
     out = check_output_path(args.output, (".vpp",), "puppet file")
     videos, marks, audios = list(args.video), list(args.landmarks or []), list(args.audio or [])
@@ -94,7 +94,7 @@ def _train(args) -> int:
         else:
             print(f"tracking {videos[i]} ...")
             with warnings.catch_warnings():  # the resampling below says it, with what it did
-                warnings.filterwarnings("ignore", message=".* has a variable frame rate")
+                warnings.simplefilter("ignore", VariableFrameRateWarning)
                 res = track_video(videos[i], init=args.init, progress=not args.quiet)
             pts, f, lost, times, where = res.points, res.fps, res.lost, res.times, f"{videos[i]}: "
         if fps is None:

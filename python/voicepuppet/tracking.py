@@ -25,7 +25,8 @@ from voicepuppet import _core
 
 __all__ = [
     "TrackResult", "track_frames", "track_video", "delaunay_edges", "load_init_points",
-    "auto_init", "NoFaceError", "on_uniform_grid", "save_landmarks", "load_landmarks", "lip_patch_sides", "eye_corner_sides", "DLIB_MODEL_PATHS",
+    "auto_init", "NoFaceError", "VariableFrameRateWarning", "on_uniform_grid", "save_landmarks",
+    "load_landmarks", "lip_patch_sides", "eye_corner_sides", "DLIB_MODEL_PATHS",
     "face_size", "working_scale_factor", "points_to_working", "points_to_full",
     "LARGE_FACE_IOD", "WORKING_IOD", "LARGE_FACE_RMS_RADIUS", "WORKING_RMS_RADIUS",
 ]
@@ -42,6 +43,11 @@ AUTO_INIT_SCAN_S = 10.0
 
 class NoFaceError(ValueError):
     """The landmark detector found no face (``--init auto``)."""
+
+
+class VariableFrameRateWarning(UserWarning):
+    """:func:`track_video` found a video whose frames are not at ``k / fps`` (their time stamps
+    are kept in ``TrackResult.times``)."""
 
 
 # Lip tracking on a 68-point (iBUG 300-W) layout, in inter-ocular distances (IOD): the
@@ -799,7 +805,7 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
                           f"apart: at OpenCV's average of {fps:g} fps a frame's index would put it up to "
                           f"{slip:.1f} frames off its time); each frame's time is kept (the landmarks' times "
                           f"and the .csv's time column), the frame rate is its most common, {result.fps:g} "
-                          "fps, and train resamples onto it", stacklevel=2)
+                          "fps, and train resamples onto it", VariableFrameRateWarning, stacklevel=2)
     return result
 
 
