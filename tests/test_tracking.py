@@ -271,6 +271,61 @@ def test_auto_init_waits_for_a_face_that_appears_later(tmp_path, write_avi):
         tracking.track_video(blank, "auto", passes=1, progress=False)
 
 
+def test_coincident_detections_are_set_apart_the_way_the_face_goes():
+    """dlib's whole pixels put a closed mouth's inner lips on one point; _separate_coincident
+    moves each SEPARATE_PX / 2 away from the others, the upper lip up and the lower down in the
+    head's frame, and leaves every other point as it was."""
+    from voicepuppet.animation import neutral_landmarks
+
+    closed = np.round(neutral_landmarks())
+    closed[[67, 66, 65]] = closed[[61, 62, 63]]  # inner lips touching
+    closed[60] = closed[48]                       # a lip corner's outer and inner point on one pixel
+    for roll in (0.0, 0.5):  # radians: an upright and a tilted head
+        turn = np.array([[np.cos(roll), -np.sin(roll)], [np.sin(roll), np.cos(roll)]])
+        pts = closed @ turn.T
+        out = tracking._separate_coincident(pts)
+        moved = [48, 60, 61, 62, 63, 65, 66, 67]
+        np.testing.assert_array_equal(np.delete(out, moved, axis=0), np.delete(pts, moved, axis=0))
+        assert len(np.unique(out, axis=0)) == 68
+        up = (out - pts) @ turn  # the displacement in the head's own frame
+        for top, bottom in ((61, 67), (62, 66), (63, 65)):
+            assert np.linalg.norm(out[top] - out[bottom]) == pytest.approx(tracking.SEPARATE_PX)
+            assert up[top, 1] < 0 < up[bottom, 1]
+        assert up[48, 0] < 0 < up[60, 0]  # the outer corner outwards, the inner one in
+        tracking.delaunay_edges(out)  # the spring mesh takes them
+        with pytest.raises(ValueError, match="coincide"):
+            tracking.delaunay_edges(pts)
+    rest = neutral_landmarks()
+    assert tracking._separate_coincident(rest) is rest
+
+
+def test_auto_init_tracks_a_closed_mouth(tmp_path):
+    """The performer at rest (seed 3, mouth closed): dlib puts inner lip points 62 and 66 on one
+    pixel, which stopped `track --init auto` ("points 62 and 66 coincide"); now the face is
+    tracked from the detection with the two set apart."""
+    dlib = _dlib_or_skip()
+    from voicepuppet import synth, video
+
+    photo = synth.face_photo((320, 320), fallback=False)
+    rate, fps = 16000, 30000 / 1001
+    silence = np.zeros(rate // 2, np.float32)
+    art = synth.articulate([], silence, rate, photo.points, fps=fps, seed=3)
+    path = str(tmp_path / "rest.mp4")
+    synth.render_video(path, photo, art.points, fps, silence, rate, pose=art.pose, centre=art.centre,
+                       gap=art.param("gap"), inter_ocular=float(np.linalg.norm(photo.points[36] - photo.points[45])),
+                       progress=False)
+    frames, _ = video.read_grey_frames(path)
+    model = next(p for p in tracking.DLIB_MODEL_PATHS if os.path.isfile(p))
+    face = max(dlib.get_frontal_face_detector()(frames[0], 0), key=lambda r: r.area())
+    shape = dlib.shape_predictor(model)(frames[0], face)
+    assert (shape.part(62).x, shape.part(62).y) == (shape.part(66).x, shape.part(66).y)  # the case
+    r = tracking.track_video(path, "auto", passes=1, progress=False)
+    assert r.points.shape == (len(frames), 68, 2) and r.start == 0
+    assert np.linalg.norm(r.points[0, 62] - r.points[0, 66]) == pytest.approx(tracking.SEPARATE_PX)
+    assert r.points[0, 62, 1] < r.points[0, 66, 1]
+    assert np.all(np.isfinite(r.points)) and r.lost.mean() < 0.1
+
+
 def test_auto_init_without_dlib_says_what_to_install(monkeypatch):
     import sys
 

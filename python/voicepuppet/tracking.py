@@ -39,6 +39,9 @@ DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
 # last faceless probe and the first with a face are looked at one by one).
 AUTO_INIT_STRIDE_S = 0.5
 AUTO_INIT_SCAN_S = 10.0
+# How far apart (px) auto_init sets landmarks the detector put on one pixel (a closed mouth's
+# inner lips): the spring mesh's triangulation needs distinct points.
+SEPARATE_PX = 0.5
 
 
 class NoFaceError(ValueError):
@@ -997,7 +1000,37 @@ def auto_init(frame: np.ndarray, instead: str = "--init points.json") -> np.ndar
         raise NoFaceError(f"dlib's detector found no face on the frame; pass the points with {instead}")
     face = max(faces, key=lambda r: r.width() * r.height())
     shape = dlib.shape_predictor(model)(g, face)
-    return np.array([[shape.part(i).x, shape.part(i).y] for i in range(shape.num_parts)], dtype=np.float64)
+    points = np.array([[shape.part(i).x, shape.part(i).y] for i in range(shape.num_parts)], dtype=np.float64)
+    return _separate_coincident(points)
+
+
+def _separate_coincident(points: np.ndarray) -> np.ndarray:
+    """``points`` (68, 2) with the points that share a position moved :data:`SEPARATE_PX` apart.
+
+    dlib gives whole pixels, so on a closed mouth the upper and lower inner lip (61-63 and 67-65)
+    land on one pixel, as may a lip corner's outer and inner point; the spring mesh needs distinct
+    points. Each point of a shared position moves half the distance away from the others, in the
+    direction it lies from them on the neutral face (:func:`voicepuppet.animation.neutral_landmarks`)
+    turned by the head's roll (the outer eye corners' line): upper lip up, lower lip down.
+    """
+    from voicepuppet.animation import neutral_landmarks
+    from voicepuppet.face_layout import OUTER_EYE_CORNERS
+
+    _, index, counts = np.unique(points, axis=0, return_inverse=True, return_counts=True)
+    index = index.reshape(-1)
+    if counts.max() == 1:
+        return points
+    ref = neutral_landmarks()
+    a, b = OUTER_EYE_CORNERS
+    eyes, ref_eyes = points[b] - points[a], ref[b] - ref[a]
+    roll = np.arctan2(eyes[1], eyes[0]) - np.arctan2(ref_eyes[1], ref_eyes[0])
+    turn = np.array([[np.cos(roll), -np.sin(roll)], [np.sin(roll), np.cos(roll)]])
+    out = points.copy()
+    for k in np.flatnonzero(counts > 1):
+        members = np.flatnonzero(index == k)
+        away = (ref[members] - ref[members].mean(axis=0)) @ turn.T
+        out[members] += 0.5 * SEPARATE_PX * away / np.linalg.norm(away, axis=1, keepdims=True)
+    return out
 
 
 def _atomic(path: Path, write: Callable[[Path], None]) -> None:
