@@ -4,6 +4,7 @@ Animations are planted: a parametric neutral face with a known jaw opening and s
 (:func:`voicepuppet.animation.procedural_animation`), or action-unit activations drawn at random.
 """
 
+import json
 import os
 from pathlib import Path
 
@@ -345,6 +346,47 @@ def test_real_photo_with_dlib_landmarks():
     assert abs(mouth[3] - mouth[1]) < 0.5
     assert eyes.max() < 1.0
     assert mouth[4] < 1.0
+
+
+def test_a_video_gives_the_face_of_its_first_frame_with_one(tmp_path):
+    """--face VIDEO (the puppet's own, say): the first frame dlib finds a face on, in colour,
+    with its points; with --face-points, the video's first frame and those points. A file that
+    is neither picture nor video is refused saying what to give."""
+    import cv2
+
+    dlib = pytest.importorskip("dlib")
+    skdata = pytest.importorskip("skimage.data")
+    from voicepuppet.tracking import DLIB_MODEL_PATHS, auto_init
+
+    if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
+        pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
+    del dlib
+    face = cv2.cvtColor(skdata.astronaut()[:256, 128:384], cv2.COLOR_RGB2BGR)
+    path = tmp_path / "late.avi"
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (256, 256), True)
+    for k in range(12):  # 0.7 s of grey card, then the face: the probe at 0.5 s misses it
+        w.write(np.full_like(face, 128) if k < 7 else face)
+    w.release()
+    cap = cv2.VideoCapture(str(path))
+    decoded = [cap.read()[1] for _ in range(12)]
+    mesh = R.load_face(path)
+    np.testing.assert_array_equal(mesh.image, cv2.cvtColor(decoded[7], cv2.COLOR_BGR2RGB))
+    np.testing.assert_array_equal(mesh.vertices[:68, :2], auto_init(cv2.cvtColor(decoded[7], cv2.COLOR_BGR2GRAY)))
+    points = tmp_path / "p.json"
+    points.write_text(json.dumps({"points": neutral_landmarks(256, 256).tolist()}))
+    given = R.load_face(path, points)
+    np.testing.assert_array_equal(given.image, cv2.cvtColor(decoded[0], cv2.COLOR_BGR2RGB))
+    np.testing.assert_allclose(given.vertices[:68, :2], neutral_landmarks(256, 256))
+    (tmp_path / "notes.txt").write_text("not a face")
+    with pytest.raises(ValueError, match=r"neither a readable picture .* nor a video.*\.png / \.jpg photo"):
+        R.load_face(tmp_path / "notes.txt")
+    blank = tmp_path / "blank.avi"
+    w = cv2.VideoWriter(str(blank), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48), True)
+    for _ in range(3):
+        w.write(np.full((48, 64, 3), 128, np.uint8))
+    w.release()
+    with pytest.raises(ValueError, match=r"face video: no face in the first .* --face-points"):
+        R.load_face(blank)
 
 
 def test_face_palette_by_name(tmp_path):

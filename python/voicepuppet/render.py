@@ -745,28 +745,32 @@ def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None
 # ------------------------------------------------------------------------------ CLI
 
 def load_face(image_path, points_path=None) -> FaceMesh:
-    """A face mesh from a photo file and its points: JSON ``{"points": [[x, y], ...]}``, CSV
-    ``x,y`` rows, or an animation ``.npz`` / ``.csv`` (its first frame); without points, the
-    68 landmarks are detected (dlib, see :func:`voicepuppet.tracking.auto_init`)."""
+    """A face mesh from a photo file, or a video (the puppet's own, say), and its points: JSON
+    ``{"points": [[x, y], ...]}``, CSV ``x,y`` rows, or an animation or landmarks ``.npz`` /
+    ``.csv`` (its first frame). Without points, the 68 landmarks are detected (dlib, see
+    :func:`voicepuppet.tracking.auto_init`): on the photo, or on the video's first frame with a
+    face (:func:`voicepuppet.tracking.first_face`); with points, a video's first frame is used."""
+    import cv2
     from PIL import Image, UnidentifiedImageError
+
+    from voicepuppet.tracking import NoFaceError, auto_init
 
     ip = Path(image_path)
     if not ip.is_file():
         raise ValueError(f"face image {str(ip)!r} does not exist")
+    pts = None
     try:
         with Image.open(ip) as im:
             img = np.asarray(im.convert("RGB"))
     except (UnidentifiedImageError, OSError) as exc:
-        raise ValueError(f"face image {str(ip)!r} is not a readable picture: {exc}") from None
-    if points_path is None:
-        from voicepuppet.tracking import NoFaceError, auto_init
-
+        img, pts = _video_face(ip, detect=points_path is None, why=exc)
+    if points_path is None and pts is None:
         try:
-            pts = auto_init(img, instead="--face-points points.json")
+            pts = auto_init(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY), instead="--face-points points.json")
         except NoFaceError:
             raise ValueError(f"no face found in the photo {str(ip)!r} (dlib's detector: a frontal, upright, "
                              "lit face); pass its 68 landmarks with --face-points points.json") from None
-    else:
+    elif points_path is not None:
         pp = Path(points_path)
         if pp.suffix.lower() == ".npz":
             from voicepuppet.animation import load_animation
@@ -777,6 +781,41 @@ def load_face(image_path, points_path=None) -> FaceMesh:
 
             pts, _ = load_init_points(pp)
     return build_face_mesh(img, pts)
+
+
+def _video_face(path: Path, detect: bool, why: Exception) -> tuple[np.ndarray, np.ndarray | None]:
+    """(RGB frame, its 68 points) of the video ``path`` for :func:`load_face`: with ``detect``
+    its first frame with a face, else its first frame (points None). ``why`` is the picture
+    reader's refusal, reported when ``path`` is no video either."""
+    import itertools
+
+    import cv2
+
+    from voicepuppet import video
+    from voicepuppet.tracking import NoFaceError, first_face
+
+    try:
+        info = video.probe_video(path)
+        frames = video.iter_frames(path, grey=False)
+        first = next(frames, None)
+        frames.close()
+    except ValueError:
+        raise ValueError(f"face image {str(path)!r} is neither a readable picture ({why}) nor a video "
+                         "OpenCV can open; give a .png / .jpg photo or an .mp4 video of the face") from None
+    if first is None:
+        raise ValueError(f"face video {str(path)!r} holds no decodable frames; give a photo or another video")
+    if not detect:
+        return cv2.cvtColor(first, cv2.COLOR_BGR2RGB), None
+    try:
+        t, _, pts = first_face(path, cv2.cvtColor(first, cv2.COLOR_BGR2GRAY), info.fps or 29.97)
+    except NoFaceError as exc:
+        raise ValueError(f"face video: {exc}; pass a photo with --face, or the first frame's 68 landmarks "
+                         "with --face-points") from None
+    if t:
+        frames = video.iter_frames(path, grey=False)
+        first = next(itertools.islice(frames, t, None))
+        frames.close()
+    return cv2.cvtColor(first, cv2.COLOR_BGR2RGB), pts
 
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
@@ -891,11 +930,13 @@ def add_parser(sub) -> None:
     p.add_argument("animation", help="landmark animation (.npz or .csv)")
     p.add_argument("-o", "--output", required=True, help="out.mp4, out.gif, a new folder, out.pvd or out.glb")
     p.add_argument("--audio", help="sound to mux into the .mp4 (wav, flac, mp3, or a video's audio)")
-    p.add_argument("--face", help="face photo, or a face name with --palette (default: a drawn portrait on "
-                                  "the first frame)")
+    p.add_argument("--face", help="face photo, a video (e.g. the puppet's training video: its first frame "
+                                  "with a face), or a face name with --palette (default: a drawn portrait "
+                                  "on the first frame)")
     p.add_argument("--palette", help="folder of faces (NAME.png + NAME.json points) to pick --face from")
     p.add_argument("--face-points", help="the photo's points: JSON {\"points\": [[x, y], ...]}, CSV, or .npz "
-                                         "(default: detect 68 landmarks with dlib)")
+                                         "(a video's: its first frame's, e.g. track's landmarks; default: "
+                                         "detect 68 landmarks with dlib)")
     p.add_argument("--truth", help="ground-truth animation: render side by side (prediction | truth)")
     p.add_argument("--mode", choices=["vertex", "au"], default=None,
                    help="drive vertices directly (default) or through the action-unit basis")

@@ -25,7 +25,7 @@ from voicepuppet import _core
 
 __all__ = [
     "TrackResult", "track_frames", "track_video", "delaunay_edges", "load_init_points",
-    "auto_init", "NoFaceError", "VariableFrameRateWarning", "on_uniform_grid", "save_landmarks",
+    "auto_init", "first_face", "NoFaceError", "VariableFrameRateWarning", "on_uniform_grid", "save_landmarks",
     "load_landmarks", "lip_patch_sides", "eye_corner_sides", "DLIB_MODEL_PATHS",
     "face_size", "working_scale_factor", "points_to_working", "points_to_full",
     "LARGE_FACE_IOD", "WORKING_IOD", "LARGE_FACE_RMS_RADIUS", "WORKING_RMS_RADIUS",
@@ -770,7 +770,15 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     times = video.frame_times(path)
     start = 0
     if isinstance(init, str) and init == "auto":
-        start, first, points = _first_face(path, first, fps, progress, times)
+        try:
+            start, first, points = first_face(path, first, fps, progress)
+        except NoFaceError as exc:
+            raise NoFaceError(f"--init auto: {exc}; pass the first-frame points with --init points.json") from None
+        if start:
+            when = times[start] if times is not None and start < len(times) else start / fps
+            warnings.warn(f"--init auto: no face on the first frame of {str(path)!r}; found one at "
+                          f"frame {start} ({when:.2f} s), where tracking starts (the {start} frames "
+                          "before it are lost)", stacklevel=2)
     elif isinstance(init, (str, os.PathLike)):
         points, names = load_init_points(init)
     else:
@@ -812,12 +820,12 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     return result
 
 
-def _first_face(path, first: np.ndarray, fps: float, progress: bool,
-                times: np.ndarray | None = None) -> tuple[int, np.ndarray, np.ndarray]:
-    """``(frame index, frame, 68 points)`` of the first frame :func:`auto_init` finds a face on:
-    the first frame, else the first probe (one frame every :data:`AUTO_INIT_STRIDE_S` s up to
-    :data:`AUTO_INIT_SCAN_S` s) with a face, or the earliest of the frames since the probe before
-    it that has one. ``times`` (the frames' time stamps, or None) date the warning."""
+def first_face(path, first: np.ndarray, fps: float, progress: bool = False) -> tuple[int, np.ndarray, np.ndarray]:
+    """``(frame index, frame, 68 points)`` of the first frame of the video ``path`` that
+    :func:`auto_init` finds a face on: ``first`` (its first frame, as decoded), else the first
+    probe (one frame every :data:`AUTO_INIT_STRIDE_S` s up to :data:`AUTO_INIT_SCAN_S` s at
+    ``fps``) with a face, or the earliest of the frames since the probe before it that has one.
+    The frame is returned as decoded (grey). Raises :class:`NoFaceError` if none has a face."""
     from tqdm.auto import tqdm
 
     from voicepuppet import video
@@ -854,16 +862,11 @@ def _first_face(path, first: np.ndarray, fps: float, progress: bool,
                         continue
                     t, frame, points = u, earlier, found
                     break
-                when = times[t] if times is not None and t < len(times) else t / fps
-                warnings.warn(f"--init auto: no face on the first frame of {str(path)!r}; found one at "
-                              f"frame {t} ({when:.2f} s), where tracking starts (the {t} frames "
-                              "before it are lost)", stacklevel=3)
                 return t, frame, points
     finally:
         frames.close()
-    raise NoFaceError(f"--init auto found no face in the first {seen / fps:.1f} s of {str(path)!r} (the "
-                      f"first frame, then one every {AUTO_INIT_STRIDE_S:g} s); check that the face is in "
-                      "view, upright and lit, or pass the first-frame points with --init points.json")
+    raise NoFaceError(f"no face in the first {seen / fps:.1f} s of {str(path)!r} (the first frame, then one "
+                      f"every {AUTO_INIT_STRIDE_S:g} s); check that the face is in view, upright and lit")
 
 
 def _lost_before(result: TrackResult, start: int) -> TrackResult:
