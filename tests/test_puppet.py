@@ -263,3 +263,34 @@ def test_tied_puppet_file_round_trip_and_log_density(tmp_path):
                                    rtol=1e-10)
     with pytest.raises(ValueError, match="vocal_covariance must be one of"):
         Puppet.train([pts], features_list=[feats], fps=30.0, n_states=5, vocal_covariance="shared")
+
+
+def test_the_band_of_the_training_audio_is_the_puppets(tmp_path):
+    """Audio sampled at 8 kHz for training: the puppet analyses every audio low-passed at 4 kHz
+    (band_hz, said in a warning, kept in the file), so 16 kHz audio reaches its vocal model as
+    band-limited as its training audio was. A whole-band puppet given 8 kHz audio warns and names
+    --audio-band; 16 kHz audio gives no warning."""
+    import warnings
+
+    from voicepuppet.audio import AudioWarning, FeatureSet, extract, prepare
+
+    pts, _, _ = _planted(np.random.default_rng(3), T=600)
+    g = np.random.default_rng(4)
+    narrow = prepare(0.1 * g.standard_normal(20 * 8000), 8000)
+    wide = prepare(0.1 * g.standard_normal(20 * 16000), 16000)
+    kw = dict(fps=30.0, n_states=4, n_iter=5, guide_weight=4.0)
+    with pytest.warns(AudioWarning, match="sampled at 8000 Hz .*low-passed at 4000 Hz"):
+        p = Puppet.train([pts], [narrow], **kw)
+    assert p.feature_set.settings()["band_hz"] == 4000
+    p.save(tmp_path / "narrow.vpp")
+    q = load(tmp_path / "narrow.vpp")
+    banded = extract(wide, fps=30.0, features=FeatureSet.named("puppet", band_hz=4000.0)).values
+    np.testing.assert_array_equal(q.audio_features(wide), banded)
+    assert not np.allclose(extract(wide, fps=30.0).values, banded)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        whole = Puppet.train([pts], [wide], **kw)
+        assert whole.feature_set.settings()["band_hz"] is None
+        whole.animate(wide)
+    with pytest.warns(AudioWarning, match=r"sampled at 8000 Hz.*up to 8000 Hz.*--audio-band 4000"):
+        whole.animate(narrow)

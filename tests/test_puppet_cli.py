@@ -155,6 +155,24 @@ def test_cpp_example_animates_a_non_default_vocal_model_like_python(workdir, tmp
     _assert_cpp_animates_like_python(exe, path, d / "test.wav", tmp_path)
 
 
+def test_train_audio_band(workdir, tmp_path, capsys):
+    """--audio-band 4000: the puppet low-passes all audio at 4 kHz (kept in the file, shown by
+    info); a band the analysis cannot hold is refused before training."""
+    d = workdir
+    common = ["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"), "--states", "6",
+              "--iterations", "12", "--quiet", "--guide-weight", "4"]
+    assert main(common + ["-o", str(tmp_path / "tel.vpp"), "--audio-band", "4000"]) == 0
+    tel = load(tmp_path / "tel.vpp")
+    assert tel.feature_set.settings()["band_hz"] == 4000
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "tel.vpp")]) == 0
+    assert "low-passed at 4000 Hz" in capsys.readouterr().out
+    for bad in ("-3", "9000"):
+        assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--audio-band", bad]) == 2
+        assert "band_hz must be a frequency" in capsys.readouterr().err
+    assert not (tmp_path / "bad.vpp").exists()
+
+
 def test_guide_switches(workdir, tmp_path, capsys):
     d = workdir
     common = ["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"), "--states", "6",

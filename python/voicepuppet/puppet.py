@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -245,6 +246,8 @@ class Puppet:
 
         fset = vaudio.as_feature_set(opt["feature_set"])
         if audio_list is not None:
+            sources = [a if isinstance(a, vaudio.Audio) else vaudio.load_audio(a) for a in sources]
+            fset = _training_band(fset, sources)
             feats = [vaudio.extract(a, fps=fps, features=fset, n_out=int(n), progress=progress)
                      for a, n in zip(sources, lengths)]
             names = list(feats[0].names)
@@ -313,11 +316,22 @@ class Puppet:
     # -------------------------------------------------------------------------- animation
     def audio_features(self, audio, n_out: int | None = None, progress: bool = False) -> np.ndarray:
         """Raw (unstandardised) features [T, A] of ``audio`` at the puppet's rate, with the
-        puppet's feature set."""
+        puppet's feature set. Audio of a narrower band than the puppet analyses (8 kHz telephone
+        audio for a puppet trained on wider-band sound) is warned about (``AudioWarning``)."""
         from voicepuppet import audio as vaudio
 
-        return vaudio.extract(audio, fps=self.fps, features=self.feature_set, n_out=n_out,
-                              progress=progress).values
+        audio = audio if isinstance(audio, vaudio.Audio) else vaudio.load_audio(audio)
+        fset = self.feature_set
+        band = fset.settings()["band_hz"] or 0.5 * audio.rate
+        if 0.5 * audio.source_rate < band * (1 - 1e-9):
+            where = f" {audio.path!r}" if audio.path else ""
+            warnings.warn(f"audio{where} is sampled at {audio.source_rate} Hz, so its sound stops at "
+                          f"{0.5 * audio.source_rate:g} Hz, and this puppet learned sound up to {band:g} Hz: "
+                          "its features are not those the puppet knows and the animation is poorer (8 kHz "
+                          "audio on the demo's puppet: lip error 32 -> 54 px^2); for such audio train the "
+                          f"puppet with --audio-band {0.5 * audio.source_rate:g} (docs/puppet.md)",
+                          vaudio.AudioWarning, stacklevel=3)
+        return vaudio.extract(audio, fps=self.fps, features=fset, n_out=n_out, progress=progress).values
 
     def animate(self, audio=None, *, fps: float | None = None, posterior: bool = False,
                 features=None, states=None, states_fps: float | None = None,
@@ -408,6 +422,25 @@ class Puppet:
         p = check_output_path(path, (".vpp",), "puppet file")
         _core.write_puppet_file(os.fspath(p), json.dumps(self.metadata), self.arrays)
         return p
+
+
+def _training_band(fset, sounds):
+    """``fset`` with ``band_hz`` lowered to the narrowest training sound's band (half its
+    source rate) when that is narrower than what ``fset`` analyses: the puppet then hears every
+    audio as band-limited as its training audio was (8 kHz training audio and 16 kHz novel audio
+    otherwise give features the vocal model never saw). A warning says so."""
+    from voicepuppet import audio as vaudio
+
+    band = fset.settings()["band_hz"] or 0.5 * min(a.rate for a in sounds)
+    narrow = min(sounds, key=lambda a: a.source_rate)
+    if 0.5 * narrow.source_rate >= band * (1 - 1e-9):
+        return fset
+    edge = 0.5 * narrow.source_rate
+    where = f" {narrow.path!r}" if narrow.path else ""
+    warnings.warn(f"training audio{where} is sampled at {narrow.source_rate} Hz (sound up to {edge:g} Hz): "
+                  f"the puppet analyses all audio low-passed at {edge:g} Hz (--audio-band), so wider-band "
+                  "audio animates as its training audio sounded", vaudio.AudioWarning, stacklevel=3)
+    return vaudio.FeatureSet(fset.features, {**fset.options, "band_hz": edge}, fset.name)
 
 
 def _context_option(opt: dict, name: str, reader: str) -> int:
@@ -506,6 +539,8 @@ def _jsonable(value):
         return [_jsonable(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
     if isinstance(value, np.generic):
         return value.item()
+    if hasattr(value, "to_json"):  # a FeatureSet
+        return json.loads(value.to_json())
     return value
 
 

@@ -78,6 +78,13 @@ def _train(args) -> int:
         raise ValueError(f"{len(audios)} --audio files for {max(len(videos), len(marks))} sequences; give one each")
     if marks and not videos and not audios:
         raise ValueError("--landmarks needs --audio (or the videos they were tracked from)")
+    feature_set = args.feature_set
+    if args.audio_band is not None:  # checked here, before any tracking
+        from voicepuppet.audio.stream import BandLimiter
+
+        BandLimiter(args.audio_band, vaudio.loading.DEFAULT_RATE)
+        named = vaudio.as_feature_set(feature_set)
+        feature_set = vaudio.FeatureSet(named.features, {**named.options, "band_hz": args.audio_band}, named.name)
     n = max(len(videos), len(marks))
     # Every sound before any tracking: a video without an audio track fails in a second, not
     # after minutes of tracking it (and the ones before it).
@@ -113,7 +120,7 @@ def _train(args) -> int:
             points_list.append(seg[0])
             audio_list.append(seg[1])
     options = {k: v for k, v in {"n_states": args.states, "n_iter": args.iterations, "parts": args.parts,
-                                  "prior": args.prior, "feature_set": args.feature_set,
+                                  "prior": args.prior, "feature_set": feature_set,
                                   "vocal_features": args.vocal_features,
                                   "vocal_covariance": args.vocal_covariance,
                                   "guide": args.guide, "guide_context": args.guide_context,
@@ -249,6 +256,10 @@ def add_parser(sub) -> None:
     p.add_argument("--parts", choices=["upper_lower"], help="separate upper- and lower-face models (§5.1; 68-point landmarks)")
     p.add_argument("--prior", choices=["entropic", "ml"], help="entropic MAP (default) or conventional Baum-Welch")
     p.add_argument("--feature-set", help="audio feature set (default: puppet)")
+    p.add_argument("--audio-band", type=float, metavar="HZ",
+                   help="low-pass the training audio, and all audio the puppet animates, at HZ before analysis: "
+                        "4000 for a puppet of telephone audio (sampled at 8 kHz; default: the whole band, or "
+                        "the narrowest training audio's; docs/puppet.md)")
     p.add_argument("--vocal-features", choices=["audio", "projected"],
                    help="what the vocal Gaussians are fitted on: the audio features (default) or their learned "
                         "projection onto the face (with --vocal-covariance tied: better on voices the puppet "

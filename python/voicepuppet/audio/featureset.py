@@ -52,6 +52,9 @@ DEFAULT_OPTIONS = {
     "formant_max_bandwidth": 1000.0,
     "pitch_floor": 75.0,
     "pitch_ceiling": 600.0,
+    "band_hz": None,         # low-pass the audio at this frequency (Hz) before any analysis
+                             # (stream.BandLimiter): 4000 makes a puppet for telephone audio
+                             # (sampled at 8 kHz); None: the analysis rate's whole band
 }
 
 #: Named feature sets. "puppet" is Brand's mix (section 4.1): LPC and RASTA-PLP cepstra,
@@ -100,6 +103,11 @@ class FeatureSet:
             if k not in DEFAULT_OPTIONS:
                 raise ValueError(f"unknown feature option {k!r}; known: "
                                  f"{', '.join(DEFAULT_OPTIONS)}")
+        band = self.options.get("band_hz")
+        if band is not None and (isinstance(band, bool) or not isinstance(band, (int, float, np.integer, np.floating))
+                                 or not 0 < band < float("inf")):
+            raise ValueError(f"feature option band_hz must be a frequency in Hz above 0 (e.g. 4000 for "
+                             f"telephone audio) or None, got {band!r}")
         object.__setattr__(self, "features", feats)
         object.__setattr__(self, "options", dict(self.options))
 
@@ -297,6 +305,10 @@ def _extract(source, fps, features, n_out, progress, options, reference: bool) -
     else:
         raise ValueError(f"n_out must be a positive whole number of frames, got {n_out!r}")
     want = set(fset.features)
+    if opt["band_hz"] is not None and (reference or want & {"f0", "voicing"}):
+        from .stream import BandLimiter
+
+        x = BandLimiter(opt["band_hz"], rate)(x)  # the stream's front end filters its own input
     cols: dict[str, tuple[list[str], np.ndarray]] = {}
     framewise = [f for f in fset.features if f not in ("f0", "voicing")]
     stages = [bool(framewise), bool(want & {"f0", "voicing"})]
@@ -308,7 +320,7 @@ def _extract(source, fps, features, n_out, progress, options, reference: bool) -
         bar.set_postfix_str("spectra, lpc, formants")
         sub = FeatureSet(tuple(framewise), fset.options, fset.name)
         s = StreamingFeatures(sub, fps=fps, rate=rate)
-        values = s.process(x, T)
+        values = s.process(audio.samples, T)
         for f in framewise:
             idx = [j for j, n in enumerate(s.names) if _feature_of(n) == f]
             cols[f] = ([s.names[j] for j in idx], values[:, idx])
