@@ -328,7 +328,7 @@ class Puppet:
             warnings.warn(f"audio{where} is sampled at {audio.source_rate} Hz, so its sound stops at "
                           f"{0.5 * audio.source_rate:g} Hz, and this puppet learned sound up to {band:g} Hz: "
                           "its features are not those the puppet knows and the animation is poorer (8 kHz "
-                          "audio on the demo's puppet: lip error 32 -> 54 px^2); for such audio train the "
+                          "audio on the demo's data: lip error 34 -> 54 px^2); for such audio train the "
                           f"puppet with --audio-band {0.5 * audio.source_rate:g} (docs/puppet.md)",
                           vaudio.AudioWarning, stacklevel=3)
         return vaudio.extract(audio, fps=self.fps, features=fset, n_out=n_out, progress=progress).values

@@ -368,11 +368,14 @@ class StreamingFeatures:
     def _limited(self, x: np.ndarray) -> np.ndarray:
         return x if self._band is None else self._band(x)
 
+    def _reset_band(self) -> None:
+        if self._band is not None:
+            self._band.reset()
+
     def flush(self) -> np.ndarray:
         """End of the stream: the remaining frames, up to ``ceil(n_samples * fps / rate)`` in
         total (windows past the end see zeros, as offline). Then the object is reset."""
-        if self._band is not None:
-            self._band.reset()
+        self._reset_band()
         return self._core.flush()
 
     def process(self, samples, n_out: int | None = None) -> np.ndarray:
@@ -381,15 +384,12 @@ class StreamingFeatures:
         the stream before and after."""
         x = pcm_to_float(samples)
         T = n_frames(x.shape[0], self.rate, self.fps) if n_out is None else int(n_out)
-        if self._band is not None:
-            self._band.reset()
+        self._reset_band()
         values = self._core.process(self._limited(x), T)
-        if self._band is not None:
-            self._band.reset()
+        self._reset_band()
         return values
 
     def reset(self) -> None:
         """Forget the stream (a new stream starts at time 0)."""
         self._core.reset()
-        if self._band is not None:
-            self._band.reset()
+        self._reset_band()
