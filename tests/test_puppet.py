@@ -266,7 +266,7 @@ def test_tied_puppet_file_round_trip_and_log_density(tmp_path):
 
 
 def test_the_band_of_the_training_audio_is_the_puppets(tmp_path):
-    """Audio sampled at 8 kHz for training: the puppet analyses every audio low-passed at 4 kHz
+    """Audio sampled at 8 kHz for training: the puppet band-limits every audio to 4 kHz
     (band_hz, said in a warning, kept in the file), so 16 kHz audio reaches its vocal model as
     band-limited as its training audio was. A whole-band puppet given 8 kHz audio warns and names
     --audio-band; 16 kHz audio gives no warning."""
@@ -279,7 +279,7 @@ def test_the_band_of_the_training_audio_is_the_puppets(tmp_path):
     narrow = prepare(0.1 * g.standard_normal(20 * 8000), 8000)
     wide = prepare(0.1 * g.standard_normal(20 * 16000), 16000)
     kw = dict(fps=30.0, n_states=4, n_iter=5, guide_weight=4.0)
-    with pytest.warns(AudioWarning, match="sampled at 8000 Hz .*low-passed at 4000 Hz"):
+    with pytest.warns(AudioWarning, match="sampled at 8000 Hz .*band-limits all audio to 4000 Hz"):
         p = Puppet.train([pts], [narrow], **kw)
     assert p.feature_set.settings()["band_hz"] == 4000
     p.save(tmp_path / "narrow.vpp")

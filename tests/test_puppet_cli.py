@@ -166,7 +166,7 @@ def test_train_audio_band(workdir, tmp_path, capsys):
     assert tel.feature_set.settings()["band_hz"] == 4000
     capsys.readouterr()
     assert main(["info", str(tmp_path / "tel.vpp")]) == 0
-    assert "low-passed at 4000 Hz" in capsys.readouterr().out
+    assert "band-limited to 4000 Hz" in capsys.readouterr().out
     for bad in ("-3", "9000"):
         assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--audio-band", bad]) == 2
         assert "band_hz must be a frequency" in capsys.readouterr().err

@@ -48,7 +48,7 @@ def describe_puppet(path) -> list[str]:
              if p._core.projected else "the audio features")
     band = p.feature_set.settings()["band_hz"]
     lines.append(f"audio: feature set {p.feature_set.name} ({p._core.n_features} features, deltas "
-                 f"±{p._core.delta_width}" + (f", low-passed at {band:g} Hz" if band else "")
+                 f"±{p._core.delta_width}" + (f", band-limited to {band:g} Hz" if band else "")
                  + f"); vocal Gaussians on {vocal}, {opt.get('vocal_covariance', 'full')} covariances")
     if not p.guided:
         lines.append("guide: none (Brand's trajectory solve alone)")

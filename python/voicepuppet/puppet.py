@@ -438,7 +438,7 @@ def _training_band(fset, sounds):
     edge = 0.5 * narrow.source_rate
     where = f" {narrow.path!r}" if narrow.path else ""
     warnings.warn(f"training audio{where} is sampled at {narrow.source_rate} Hz (sound up to {edge:g} Hz): "
-                  f"the puppet analyses all audio low-passed at {edge:g} Hz (--audio-band), so wider-band "
+                  f"the puppet band-limits all audio to {edge:g} Hz (--audio-band), so wider-band "
                   "audio animates as its training audio sounded", vaudio.AudioWarning, stacklevel=3)
     return vaudio.FeatureSet(fset.features, {**fset.options, "band_hz": edge}, fset.name)
 

@@ -257,7 +257,7 @@ def add_parser(sub) -> None:
     p.add_argument("--prior", choices=["entropic", "ml"], help="entropic MAP (default) or conventional Baum-Welch")
     p.add_argument("--feature-set", help="audio feature set (default: puppet)")
     p.add_argument("--audio-band", type=float, metavar="HZ",
-                   help="low-pass the training audio, and all audio the puppet animates, at HZ before analysis: "
+                   help="band-limit the training audio, and all audio the puppet animates, to HZ before analysis: "
                         "4000 for a puppet of telephone audio (sampled at 8 kHz; default: the whole band, or "
                         "the narrowest training audio's; docs/puppet.md)")
     p.add_argument("--vocal-features", choices=["audio", "projected"],

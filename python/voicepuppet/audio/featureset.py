@@ -52,9 +52,9 @@ DEFAULT_OPTIONS = {
     "formant_max_bandwidth": 1000.0,
     "pitch_floor": 75.0,
     "pitch_ceiling": 600.0,
-    "band_hz": None,         # low-pass the audio at this frequency (Hz) before any analysis
-                             # (stream.BandLimiter): 4000 makes a puppet for telephone audio
-                             # (sampled at 8 kHz); None: the analysis rate's whole band
+    "band_hz": None,         # limit the audio to this band (Hz) before any analysis, by
+                             # resampling to 2 band_hz and back (stream.BandLimiter): 4000 makes
+                             # a puppet for telephone audio (8 kHz); None: the whole band
 }
 
 #: Named feature sets. "puppet" is Brand's mix (section 4.1): LPC and RASTA-PLP cepstra,
@@ -308,7 +308,7 @@ def _extract(source, fps, features, n_out, progress, options, reference: bool) -
     if opt["band_hz"] is not None and (reference or want & {"f0", "voicing"}):
         from .stream import BandLimiter
 
-        x = BandLimiter(opt["band_hz"], rate)(x)  # the stream's front end filters its own input
+        x = BandLimiter(opt["band_hz"], rate).apply(x)  # the stream's front end limits its own input
     cols: dict[str, tuple[list[str], np.ndarray]] = {}
     framewise = [f for f in fset.features if f not in ("f0", "voicing")]
     stages = [bool(framewise), bool(want & {"f0", "voicing"})]

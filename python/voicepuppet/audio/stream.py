@@ -204,46 +204,66 @@ def column_names(fset: FeatureSet) -> tuple:
 
 
 class BandLimiter:
-    """The ``band_hz`` feature option: a causal elliptic low-pass (order 10, 0.1 dB ripple in the
-    pass band up to ``band_hz``, 80 dB down in the stop band) that keeps its state from chunk to
-    chunk, so a recording filtered whole and pushed in pieces comes out the same. At
-    ``band_hz = 4000`` a 16 kHz recording keeps the band an 8 kHz (telephone) recording has.
+    """The ``band_hz`` feature option: the audio resampled to ``2 band_hz`` and back, on a
+    stream (two :class:`StreamResampler`), so a 16 kHz recording reaches the analysis as the
+    same sound sampled at ``2 band_hz`` would (an 8 kHz telephone recording at ``band_hz =
+    4000``), and audio already of that band passes nearly unchanged. The output equals
+    ``resample_poly(resample_poly(x, m, r), r, m)`` (``m / r`` the ratio of the two rates) cut
+    to the input's length, whole or chunk by chunk.
 
     Parameters
     ----------
     band_hz : float
-        Pass-band edge (Hz), below ``rate / 2``.
+        The band's edge (Hz), below ``rate / 2``, with ``2 band_hz`` a whole number of Hz.
     rate : int
         Sample rate (Hz) of the samples filtered.
     """
 
     def __init__(self, band_hz: float, rate: int):
-        from scipy.signal import ellip
-
         try:
             band = float(band_hz)
         except (TypeError, ValueError):
             band = float("nan")
-        if not 0.0 < band < 0.5 * rate:
+        if not (0.0 < band < 0.5 * rate and float(2 * band).is_integer()):
             raise ValueError(f"features: band_hz must be a frequency between 0 and half the analysis rate "
-                             f"({0.5 * rate:g} Hz), got {band_hz!r}; e.g. 4000 for telephone audio")
+                             f"({0.5 * rate:g} Hz), twice it a whole number of Hz, got {band_hz!r}; e.g. "
+                             "4000 for telephone audio")
         self.band_hz, self.rate = band, int(rate)
-        self._sos = ellip(10, 0.1, 80.0, band, fs=rate, output="sos")
+        self._down = StreamResampler(self.rate, int(2 * band))
+        self._up = StreamResampler(int(2 * band), self.rate)
+        self.delay_s = sum((len(resample_taps(r.up, r.down)) // 2) / (rate_in * r.up)
+                           for r, rate_in in ((self._down, self.rate), (self._up, int(2 * band))))
         self.reset()
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        """The next chunk (n,) filtered."""
-        from scipy.signal import sosfilt
+    def push(self, x: np.ndarray) -> np.ndarray:
+        """The next chunk (n,); returns the band-limited samples completed so far (fewer than
+        pushed while the filters wait for the samples after them: :attr:`delay_s`)."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        self._n_in += x.size
+        return self._release(self._up.push(self._down.push(x)))
 
-        x = np.asarray(x, dtype=np.float64)
-        if x.size == 0:  # scipy cannot filter an empty chunk; the state stays as it is
-            return x
-        y, self._zi = sosfilt(self._sos, x, zi=self._zi)
-        return y
+    def flush(self) -> np.ndarray:
+        """End of the stream: the remaining samples (as many in all as were pushed); then reset."""
+        tail = np.concatenate([self._up.push(self._down.flush()), self._up.flush()])
+        out = self._release(tail)
+        self.reset()
+        return out
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        """A whole recording (n,) band-limited, length n."""
+        self.reset()
+        return np.concatenate([self.push(x), self.flush()])
 
     def reset(self) -> None:
-        """Forget the past samples (a new stream starts in silence)."""
-        self._zi = np.zeros((self._sos.shape[0], 2))
+        """Forget the stream (a new one starts at time 0)."""
+        self._down.flush()
+        self._up.flush()
+        self._n_in = self._n_out = 0
+
+    def _release(self, y: np.ndarray) -> np.ndarray:
+        y = y[:max(0, self._n_in - self._n_out)]  # the up-sampler's last sample can be one past the input
+        self._n_out += y.size
+        return y
 
 
 class StreamingFeatures:
@@ -333,7 +353,8 @@ class StreamingFeatures:
     def lookahead_s(self) -> float:
         """Seconds of audio after a frame's centre needed before the frame can be computed
         (the right half of the longest analysis window; formants add their tracker's wait,
-        bounded by ``formant_lag`` frames when that is set)."""
+        bounded by ``formant_lag`` frames when that is set; ``band_hz`` adds its resamplers'
+        half filters, :attr:`BandLimiter.delay_s`)."""
         o, la = self._options, 0.0
         if self.want & {"mfcc", "mfcc_deltas", "rasta_plp", "bands", "log_energy"}:
             la = max(la, (o.n_fft - o.n_fft // 2) / self.rate)
@@ -348,7 +369,7 @@ class StreamingFeatures:
             if self.formant_lag is not None:
                 fl += self.formant_lag / self.fps
             la = max(la, fl)
-        return la
+        return la + (0.0 if self._band is None else self._band.delay_s)
 
     def push(self, samples) -> np.ndarray:
         """Feed a chunk of samples (any length, including 0).
@@ -363,20 +384,15 @@ class StreamingFeatures:
         ndarray, shape (K, D)
             The frames completed by this chunk (K >= 0), in order.
         """
-        return self._core.push(self._limited(pcm_to_float(samples)))
-
-    def _limited(self, x: np.ndarray) -> np.ndarray:
-        return x if self._band is None else self._band(x)
-
-    def _reset_band(self) -> None:
-        if self._band is not None:
-            self._band.reset()
+        x = pcm_to_float(samples)
+        return self._core.push(x if self._band is None else self._band.push(x))
 
     def flush(self) -> np.ndarray:
         """End of the stream: the remaining frames, up to ``ceil(n_samples * fps / rate)`` in
         total (windows past the end see zeros, as offline). Then the object is reset."""
-        self._reset_band()
-        return self._core.flush()
+        if self._band is None:
+            return self._core.flush()
+        return np.vstack([self._core.push(self._band.flush()), self._core.flush()])
 
     def process(self, samples, n_out: int | None = None) -> np.ndarray:
         """A whole recording in one call (the offline front end): ``n_out`` frames (default
@@ -384,12 +400,10 @@ class StreamingFeatures:
         the stream before and after."""
         x = pcm_to_float(samples)
         T = n_frames(x.shape[0], self.rate, self.fps) if n_out is None else int(n_out)
-        self._reset_band()
-        values = self._core.process(self._limited(x), T)
-        self._reset_band()
-        return values
+        return self._core.process(x if self._band is None else self._band.apply(x), T)
 
     def reset(self) -> None:
         """Forget the stream (a new stream starts at time 0)."""
         self._core.reset()
-        self._reset_band()
+        if self._band is not None:
+            self._band.reset()
