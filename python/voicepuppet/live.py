@@ -255,6 +255,7 @@ class LivePuppet:
         if rate_i != rate or rate_i < 8000:
             raise ValueError(f"rate must be a whole number of Hz >= 8000, got {rate!r}")
         self.rate = rate_i
+        puppet.check_band(rate_i, "the live audio", stacklevel=2)
         self.resampler = None if rate_i == ANALYSIS_RATE else StreamResampler(rate_i, ANALYSIS_RATE)
         self.lag_ms = float(lag_ms)
         self.samples_in = 0

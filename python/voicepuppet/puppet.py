@@ -321,17 +321,30 @@ class Puppet:
         from voicepuppet import audio as vaudio
 
         audio = audio if isinstance(audio, vaudio.Audio) else vaudio.load_audio(audio)
-        fset = self.feature_set
-        band = fset.settings()["band_hz"] or 0.5 * audio.rate
-        if 0.5 * audio.source_rate < band * (1 - 1e-9):
-            where = f" {audio.path!r}" if audio.path else ""
-            warnings.warn(f"audio{where} is sampled at {audio.source_rate} Hz, so its sound stops at "
-                          f"{0.5 * audio.source_rate:g} Hz, and this puppet learned sound up to {band:g} Hz: "
-                          "its features are not those the puppet knows and the animation is poorer (8 kHz "
-                          "audio on the demo's data: lip error 34 -> 54 px^2); for such audio train the "
-                          f"puppet with --audio-band {0.5 * audio.source_rate:g} (docs/puppet.md)",
-                          vaudio.AudioWarning, stacklevel=3)
-        return vaudio.extract(audio, fps=self.fps, features=fset, n_out=n_out, progress=progress).values
+        self.check_band(audio.source_rate, f"audio {audio.path!r}" if audio.path else "audio", stacklevel=3)
+        return vaudio.extract(audio, fps=self.fps, features=self.feature_set, n_out=n_out,
+                              progress=progress).values
+
+    @property
+    def band_hz(self) -> float:
+        """The band (Hz) the puppet analyses audio in: its feature set's ``band_hz``, else the
+        whole band of the 16 kHz analysis."""
+        from voicepuppet.audio.loading import DEFAULT_RATE
+
+        return float(self.feature_set.settings()["band_hz"] or 0.5 * DEFAULT_RATE)
+
+    def check_band(self, source_rate: int, what: str = "audio", stacklevel: int = 2) -> None:
+        """Warn (``AudioWarning``) when audio sampled at ``source_rate`` Hz is of a narrower band
+        than the puppet learned (8 kHz telephone audio for a puppet of wider-band sound)."""
+        from voicepuppet.audio import AudioWarning
+
+        edge = 0.5 * source_rate
+        if edge < self.band_hz * (1 - 1e-9):
+            warnings.warn(f"{what} is sampled at {source_rate} Hz, so its sound stops at {edge:g} Hz, and "
+                          f"this puppet learned sound up to {self.band_hz:g} Hz: its features are not those "
+                          "the puppet knows and the animation is poorer (8 kHz audio on the demo's data: "
+                          f"lip error 34 -> 54 px^2); for such audio train the puppet with --audio-band "
+                          f"{edge:g} (docs/puppet.md)", AudioWarning, stacklevel=stacklevel + 1)
 
     def animate(self, audio=None, *, fps: float | None = None, posterior: bool = False,
                 features=None, states=None, states_fps: float | None = None,
