@@ -171,6 +171,32 @@ def test_train_audio_band(workdir, tmp_path, capsys):
         assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--audio-band", bad]) == 2
         assert "band_hz must be a frequency" in capsys.readouterr().err
     assert not (tmp_path / "bad.vpp").exists()
+    # `features --puppet` gives the puppet's own features (its band included) as the C++ example reads them
+    out = tmp_path / "f.csv"
+    assert main(["features", str(d / "test.wav"), "--puppet", str(tmp_path / "tel.vpp"), "-o", str(out), "--quiet"]) == 0
+    with open(out) as fh:
+        header = fh.readline().strip().split(",")
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert header[:2] == ["frame", "time"] and len(header) == table.shape[1]
+    np.testing.assert_array_equal(table[:, 2:], tel.audio_features(str(d / "test.wav")))
+    np.testing.assert_allclose(table[:, 1], table[:, 0] / tel.fps, atol=1e-6)
+    assert main(["features", str(d / "test.wav"), "--puppet", str(tmp_path / "tel.vpp"), "--fps", "25",
+                 "-o", str(out)]) == 2
+    assert "--puppet fixes the features and their rate; drop --fps" in capsys.readouterr().err
+
+
+def test_cpp_example_animates_the_features_command_output(workdir, tmp_path):
+    """examples/cpp fed `voicepuppet features AUDIO --puppet P.vpp -o F.csv` animates as Python."""
+    exe = _example_exe()
+    d = workdir
+    feats = tmp_path / "f.csv"
+    assert main(["features", str(d / "test.wav"), "--puppet", str(d / "p.vpp"), "-o", str(feats), "--quiet"]) == 0
+    run = subprocess.run([str(exe), str(d / "p.vpp"), str(feats), str(tmp_path / "cpp.csv")],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    cpp = np.loadtxt(tmp_path / "cpp.csv", delimiter=",", skiprows=1)[:, 2:]
+    py = load(d / "p.vpp").animate(str(d / "test.wav")).animation.points
+    np.testing.assert_allclose(cpp, py.reshape(len(py), -1), rtol=1e-9, atol=1e-9)
 
 
 def test_guide_switches(workdir, tmp_path, capsys):

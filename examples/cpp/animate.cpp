@@ -1,6 +1,6 @@
 // Animate a voice puppet from audio feature frames, without Python: the C++ side of a game
 // engine or a plug-in that computes its features itself (or reads them from `voicepuppet
-// features AUDIO -o F.csv`).
+// features AUDIO --puppet PUPPET.vpp -o F.csv`).
 //
 //   voicepuppet_animate PUPPET.vpp FEATURES.csv OUT.csv [--fps F] [--posterior]
 //

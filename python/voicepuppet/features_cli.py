@@ -1,7 +1,8 @@
 """``voicepuppet features AUDIO_OR_VIDEO -o feats.npz --fps 29.97``: the audio front end.
 
 Writes an ``.npz`` with ``features`` (T, D), ``names`` (D,), ``times`` (T,), ``fps``,
-``duration``, ``feature_set`` (JSON) and ``voiced`` (T,) when F0 was computed.
+``duration``, ``feature_set`` (JSON) and ``voiced`` (T,) when F0 was computed, or a ``.csv``
+(``frame,time,<names>``). ``--puppet P.vpp`` computes the puppet's own features at its rate.
 """
 
 from __future__ import annotations
@@ -13,16 +14,28 @@ def _run(args) -> int:
 
     if args.features and args.set:
         raise UserError("give either --set or --features, not both")
-    spec = args.features or args.set or audio.DEFAULT_SET
-    fset = audio.as_feature_set(spec)
+    if not args.output.lower().endswith((".npz", ".csv")):
+        raise UserError(f"output must end in .npz or .csv, got {args.output!r}")
+    puppet = None
+    if args.puppet:
+        given = [o for o, v in (("--set", args.set), ("--features", args.features), ("--deltas", args.deltas),
+                                ("--fps", args.fps), ("--rate", args.rate)) if v]
+        if given:
+            raise UserError(f"--puppet fixes the features and their rate; drop {', '.join(given)}")
+        from voicepuppet.puppet import load
+
+        puppet = load(args.puppet)
+        fset, fps = puppet.feature_set, puppet.fps
+    else:
+        fset = audio.as_feature_set(args.features or args.set or audio.DEFAULT_SET)
+        fps = 29.97 if args.fps is None else args.fps
     if args.deltas and "mfcc_deltas" not in fset.features:
         feats = fset.features + (() if "mfcc" in fset.features else ("mfcc",)) + ("mfcc_deltas",)
         fset = audio.FeatureSet(feats, fset.options, fset.name)
-    if not args.output.endswith(".npz"):
-        raise UserError(f"output must end in .npz, got {args.output!r}")
-    sound = audio.load_audio(args.input, rate=args.rate)
-    feats = audio.extract(sound, fps=args.fps, features=fset, n_out=args.frames,
-                          progress=not args.quiet)
+    sound = audio.load_audio(args.input, rate=args.rate or audio.loading.DEFAULT_RATE)
+    if puppet is not None:
+        puppet.check_band(sound.source_rate, f"audio {args.input!r}")
+    feats = audio.extract(sound, fps=fps, features=fset, n_out=args.frames, progress=not args.quiet)
     feats.save(args.output)
     print(f"{args.input}: {sound.duration:.2f} s at {sound.source_rate} Hz "
           f"({sound.channels} ch) -> {len(feats)} frames x {len(feats.names)} features "
@@ -38,8 +51,12 @@ def add_parser(sub) -> None:
                                    "energies, F0, energy) centred on video frame times.")
     p.add_argument("input", help="audio file (wav, flac, ogg, mp3) or video with sound "
                                  "(mp4, mov, mkv, avi)")
-    p.add_argument("-o", "--output", required=True, help="output .npz")
-    p.add_argument("--fps", type=float, default=29.97, help="output frame rate (default 29.97)")
+    p.add_argument("-o", "--output", required=True,
+                   help="output .npz, or .csv (frame,time,features: what examples/cpp reads)")
+    p.add_argument("--puppet", metavar="PUPPET.vpp",
+                   help="the features a puppet reads, at its frame rate (its feature set and options, e.g. its "
+                        "band): what to feed its C++ Puppet::animate")
+    p.add_argument("--fps", type=float, default=None, help="output frame rate (default 29.97)")
     p.add_argument("--set", choices=sorted(FEATURE_SETS),
                    help="named feature set (default: puppet)")
     p.add_argument("--features", help=f"comma-separated features from: {', '.join(FEATURES)}")
@@ -47,7 +64,7 @@ def add_parser(sub) -> None:
     p.add_argument("--frames", type=int, default=None,
                    help="number of output frames (e.g. the video's frame count; default: "
                         "ceil(duration * fps))")
-    p.add_argument("--rate", type=int, default=16000,
+    p.add_argument("--rate", type=int, default=None,
                    help="analysis sample rate in Hz (default 16000)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)

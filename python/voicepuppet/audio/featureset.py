@@ -200,18 +200,26 @@ class Features:
 
     def save(self, path) -> None:
         """Write ``.npz``: ``features`` (T, D), ``names``, ``times``, ``fps``, ``duration``,
-        ``feature_set`` (JSON), ``voiced`` (if known). Atomic (temporary file, then rename)."""
+        ``feature_set`` (JSON), ``voiced`` (if known); or ``.csv``: a ``frame,time,<names>``
+        header and a row per frame (what ``examples/cpp`` reads). Atomic (temporary file, then
+        rename)."""
         path = os.fspath(path)
-        if not path.endswith(".npz"):
-            raise ValueError(f"features: output must end in .npz, got {path!r}")
-        tmp = path[:-4] + ".tmp.npz"
-        payload = {"features": self.values, "names": np.array(self.names), "times": self.times,
-                   "fps": np.float64(self.fps), "duration": np.float64(self.duration),
-                   "feature_set": np.array(self.feature_set.to_json())}
-        if self.voiced is not None:
-            payload["voiced"] = self.voiced
+        suffix = path[-4:].lower()
+        if suffix not in (".npz", ".csv"):
+            raise ValueError(f"features: output must end in .npz or .csv, got {path!r}")
+        tmp = path[:-4] + ".tmp" + suffix
         try:
-            np.savez(tmp, **payload)
+            if suffix == ".csv":
+                table = np.column_stack([np.arange(len(self)), self.times, self.values])
+                np.savetxt(tmp, table, delimiter=",", fmt=["%d", "%.6f"] + ["%.17g"] * self.values.shape[1],
+                           header=",".join(("frame", "time") + tuple(self.names)), comments="")
+            else:
+                payload = {"features": self.values, "names": np.array(self.names), "times": self.times,
+                           "fps": np.float64(self.fps), "duration": np.float64(self.duration),
+                           "feature_set": np.array(self.feature_set.to_json())}
+                if self.voiced is not None:
+                    payload["voiced"] = self.voiced
+                np.savez(tmp, **payload)
             os.replace(tmp, path)
         finally:
             if os.path.exists(tmp):
