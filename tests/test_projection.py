@@ -88,6 +88,45 @@ def test_cross_fitted_predictions_never_see_their_own_targets():
     np.testing.assert_array_equal(np.concatenate(blocks), np.arange(23))
 
 
+def test_copies_of_a_recording_stay_in_one_fold():
+    """groups: sequences that are copies of one recording (its noisy conditions) are never on
+    both sides of a fold, with few groups (blocks, aligned across the copies) and with many
+    (whole groups); the cross-fitted prediction of a copy is then unmoved by wrecking its other
+    copies' targets too, which the ungrouped folds do not promise."""
+    rng = np.random.default_rng(11)
+    for base in ([120, 90], [40, 55, 30, 60, 45, 50]):
+        base = np.array(base)
+        k = 3
+        lengths = np.tile(base, k)
+        groups = np.tile(np.arange(len(base)), k)
+        folds = cross_fit_folds(lengths, 5, groups)
+        np.testing.assert_array_equal(np.sort(np.concatenate(folds)), np.arange(lengths.sum()))
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        where = np.empty(lengths.sum(), dtype=int)
+        for j, f in enumerate(folds):
+            where[f] = j
+        for s in range(len(base)):
+            copies = [where[starts[s + c * len(base)]:starts[s + c * len(base)] + base[s]] for c in range(k)]
+            for c in copies[1:]:
+                np.testing.assert_array_equal(c, copies[0])  # frame t of each copy: one fold
+        X = rng.normal(size=(lengths.sum(), 4))
+        X[len(X) // k:] = np.tile(X[:len(X) // k], (k - 1, 1)) + rng.normal(0, 0.1, (len(X) - len(X) // k, 4))
+        Y = np.tile((X[:len(X) // k] @ rng.normal(size=(4, 2))), (k, 1)) + rng.normal(0, 0.5, (len(X), 2))
+        yhat = cross_fit(X, Y, lengths, groups=groups)
+        for j, fold in enumerate(folds):
+            Y2 = Y.copy()
+            Y2[fold] += rng.normal(0, 10, (len(fold), 2))
+            np.testing.assert_array_equal(cross_fit(X, Y2, lengths, groups=groups)[fold], yhat[fold])
+        plain = cross_fit_folds(lengths, 5)
+        split = any(len({tuple(np.isin(np.arange(starts[s + c * len(base)], starts[s + c * len(base)] + 3), f))
+                         for c in range(k)}) > 1 for f in plain for s in range(len(base)))
+        assert split == (len(lengths) >= 5)  # without groups, whole-sequence folds part the copies
+    with pytest.raises(ValueError, match="one label per sequence"):
+        cross_fit_folds([10, 10], 5, groups=[0])
+    np.testing.assert_array_equal(np.concatenate(cross_fit_folds([40, 55, 30, 60, 45, 50], 5, np.arange(6))),
+                                  np.concatenate(cross_fit_folds([40, 55, 30, 60, 45, 50], 5)))
+
+
 def test_stored_map_is_sklearn_ridge_standardised_by_the_cross_fitted_predictions():
     from sklearn.linear_model import Ridge
 

@@ -54,12 +54,14 @@ class RidgeBaseline:
         return cho_solve(cho_factor(G + alpha * np.eye(len(G)), lower=True), B)
 
     @limited
-    def fit(self, A_list, Y_list) -> "RidgeBaseline":
+    def fit(self, A_list, Y_list, folds=None) -> "RidgeBaseline":
+        """Fit on the sequences ``A_list`` / ``Y_list``, α chosen by ``n_folds``-fold CV over
+        contiguous blocks of their stacked frames, or over ``folds`` (frame indices) if given."""
         X = np.vstack([context_stack(a, self.k) for a in A_list])
         Y = np.vstack(Y_list)
         self.x_mean, self.y_mean = X.mean(axis=0), Y.mean(axis=0)
         Xc, Yc = X - self.x_mean, Y - self.y_mean
-        folds = np.array_split(np.arange(len(X)), self.n_folds)
+        folds = np.array_split(np.arange(len(X)), self.n_folds) if folds is None else folds
         # Normal equations per fold once; a fold's training system is the total minus the fold.
         parts = [(Xc[f].T @ Xc[f], Xc[f].T @ Yc[f]) for f in folds]
         G, B = sum(p[0] for p in parts), sum(p[1] for p in parts)

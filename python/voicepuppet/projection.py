@@ -36,34 +36,53 @@ GUIDES = ("ridge", "none")
 VOCAL_FEATURES = ("audio", "projected")
 
 
-def cross_fit_folds(lengths, n_folds: int = 5) -> list:
+def cross_fit_folds(lengths, n_folds: int = 5, groups=None) -> list:
     """Frame indices of the cross-fitting folds over sequences of ``lengths`` (concatenated).
 
     With at least ``n_folds`` sequences a fold is a run of whole consecutive sequences; with
     fewer, every sequence is cut into ``n_folds`` consecutive blocks and fold j holds block j of
-    each (so one long training video is cross-fitted too).
+    each (so one long training video is cross-fitted too). ``groups`` (one label per sequence)
+    keeps sequences together: copies of one recording (its noisy conditions, all of one length)
+    are then never on both sides of a fold; the count that matters is that of the groups.
     """
     lengths = np.asarray(lengths, dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
     seq_frames = [np.arange(s, s + n) for s, n in zip(starts, lengths)]
-    if len(lengths) >= n_folds:
-        return [np.concatenate([seq_frames[i] for i in g]) for g in np.array_split(np.arange(len(lengths)), n_folds)]
+    labels = np.arange(len(lengths)) if groups is None else np.asarray(groups)
+    if len(labels) != len(lengths):
+        raise ValueError(f"groups must give one label per sequence: {len(labels)} for {len(lengths)}")
+    order = list(dict.fromkeys(labels.tolist()))  # the groups in order of first appearance
+    if len(order) >= n_folds:
+        chunks = [set(c) for c in np.array_split(np.array(order, dtype=object), n_folds)]
+        return [np.concatenate([f for f, g in zip(seq_frames, labels.tolist()) if g in c]) for c in chunks]
     blocks = [np.array_split(f, n_folds) for f in seq_frames]
     return [np.concatenate([b[j] for b in blocks]) for j in range(n_folds)]
 
 
-def cross_fit(X, Y, lengths, n_folds: int = 5) -> np.ndarray:
+def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None) -> np.ndarray:
     """Cross-fitted ridge predictions (T, K) of ``Y`` from the rows of ``X`` (T, C): the frames
     of each fold of :func:`cross_fit_folds` predicted by a :class:`RidgeBaseline` (its own α
-    choice) fitted on the other folds, so no frame's prediction has seen its own target."""
+    choice) fitted on the other folds, so no frame's prediction has seen its own target (nor,
+    with ``groups``, another copy of it)."""
     yhat = np.empty(np.shape(Y), dtype=np.float64)
-    for fold in cross_fit_folds(lengths, n_folds):
+    lengths = np.asarray(lengths, dtype=np.int64)
+    seq = np.repeat(np.arange(len(lengths)), lengths)
+    labels = None if groups is None else np.asarray(groups)
+    for fold in cross_fit_folds(lengths, n_folds, labels):
         rest = np.setdiff1d(np.arange(len(X)), fold)
-        yhat[fold] = RidgeBaseline(0).fit([X[rest]], [Y[rest]]).predict(X[fold])
+        ridge = RidgeBaseline(0)
+        if labels is None:
+            ridge.fit([X[rest]], [Y[rest]])
+        else:  # α's own folds keep the copies together too
+            cut = np.flatnonzero((np.diff(rest) != 1) | (np.diff(seq[rest]) != 0)) + 1
+            runs = np.split(rest, cut)
+            ridge.fit([X[rest]], [Y[rest]], folds=cross_fit_folds([len(r) for r in runs], ridge.n_folds,
+                                                                  [labels[seq[r[0]]] for r in runs]))
+        yhat[fold] = ridge.predict(X[fold])
     return yhat
 
 
-def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, what: str, option: str):
+def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, what: str, option: str, groups=None):
     """The ridge from ±k frames of the first ``columns`` of ``standardized`` (T, A') to ``face``
     (T, K), its arguments checked (``option`` names the context in errors, ``what`` the map):
     ``(Y, k, yhat, full)``, the face as float, k, the cross-fitted predictions (T, K) and the
@@ -87,7 +106,9 @@ def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, wh
     bounds = np.concatenate([[0], np.cumsum(lengths)])
     # Context is stacked per sequence (edges repeated), then frames go to folds.
     X = np.vstack([context_stack(Z[a:b], k) for a, b in zip(bounds[:-1], bounds[1:])])
-    return Y, k, cross_fit(X, Y, lengths, n_folds), RidgeBaseline(0).fit([X], [Y])
+    full = RidgeBaseline(0)
+    full.fit([X], [Y], folds=None if groups is None else cross_fit_folds(lengths, full.n_folds, groups))
+    return Y, k, cross_fit(X, Y, lengths, n_folds, groups), full
 
 
 #: The guide's fixed weight λ (training option ``guide_weight`` given as a number; the default
@@ -104,7 +125,7 @@ GUIDE_WEIGHTS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0)
 
 
 def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5,
-              weight: float = GUIDE_WEIGHT):
+              weight: float = GUIDE_WEIGHT, groups=None):
     """Fit the guide: the ridge's prediction ŷ of the face from ±k frames of audio and the
     covariance R of its cross-fitted residuals, used as evidence in the trajectory solve
     (``+ λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)``, ``cpp/include/voicepuppet/puppet.hpp``).
@@ -126,6 +147,8 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
         Cross-fitting folds (:func:`cross_fit_folds`).
     weight : float
         λ written as ``guide/weight`` (>= 0).
+    groups : array of labels, optional
+        One per sequence: sequences that are copies of one recording (:func:`cross_fit_folds`).
 
     Returns
     -------
@@ -139,7 +162,7 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
         α, folds, context, columns and the residuals' mean variance (for the metadata).
     """
     Y, k, yhat, full = _context_ridge(standardized, face, lengths, context=context, columns=columns,
-                                      n_folds=n_folds, what="the guide", option="guide_context")
+                                      n_folds=n_folds, what="the guide", option="guide_context", groups=groups)
     res = Y - yhat
     R = np.cov(res, rowvar=False, bias=True).reshape(Y.shape[1], Y.shape[1])
     arrays = {"guide/map": np.ascontiguousarray(full.W),
