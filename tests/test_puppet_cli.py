@@ -185,6 +185,24 @@ def test_train_audio_band(workdir, tmp_path, capsys):
     assert "--puppet fixes the features and their rate; drop --fps" in capsys.readouterr().err
 
 
+def test_train_noise_snrs(workdir, tmp_path, capsys):
+    """--noise-snrs 20,10 reaches the training (kept in the file's options, the vocal side
+    changed, the facial machine not); malformed lists are refused before training."""
+    d = workdir
+    common = ["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"), "--states", "6",
+              "--iterations", "12", "--quiet", "--guide-weight", "4"]
+    assert main(common + ["-o", str(tmp_path / "plain.vpp")]) == 0
+    assert main(common + ["-o", str(tmp_path / "noisy.vpp"), "--noise-snrs", "20,10"]) == 0
+    plain, noisy = load(tmp_path / "plain.vpp"), load(tmp_path / "noisy.vpp")
+    assert noisy.metadata["training"]["options"]["noise_snrs"] == [20.0, 10.0]
+    np.testing.assert_array_equal(noisy.arrays["hmm/part0/transmat"], plain.arrays["hmm/part0/transmat"])
+    assert not np.allclose(noisy.arrays["hmm/part0/vocal_means"], plain.arrays["hmm/part0/vocal_means"])
+    capsys.readouterr()
+    for bad in ("loud", ",", "20,nan"):
+        assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--noise-snrs", bad]) == 2
+        assert "--noise-snrs takes SNRs in dB" in capsys.readouterr().err
+    assert not (tmp_path / "bad.vpp").exists()
+
 def test_cpp_example_animates_the_features_command_output(workdir, tmp_path):
     """examples/cpp fed `voicepuppet features AUDIO --puppet P.vpp -o F.csv` animates as Python."""
     exe = _example_exe()

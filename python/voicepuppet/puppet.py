@@ -73,6 +73,8 @@ TRAIN_DEFAULTS = {
                              # the training audio, or a number >= 0 (earlier versions: 4)
     "min_covar": 0.1,        # facial variance floor, x the mean data variance: chosen by CV (docs/results.md)
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
+    "noise_snrs": (),        # SNRs (dB) of white-noise copies of the training audio the vocal side
+                             # also learns from, for noisy audio (docs/puppet.md); () none
     "seed": 0,
 }
 #: Test-time adaptation (``Puppet.animate(adapt=...)``): the kinds and the prior / iterations
@@ -265,6 +267,8 @@ class Puppet:
         ext = [_core.append_deltas(np.ascontiguousarray(f, dtype=np.float64), w) for f in raw]
         std = vaudio.Standardizer.fit(np.vstack(ext))
         A = np.vstack([std.transform(f) for f in ext])
+        noisy = _noisy_conditions(sources if audio_list is not None else None, lengths, fps, fset, opt,
+                                  lambda f: std.transform(_core.append_deltas(f, w)))
 
         fs = FaceSpace.fit(points_list, opt["n_components"], max_components=opt["max_components"],
                            parts=opt["parts"])
@@ -294,7 +298,7 @@ class Puppet:
                            "iterations": len(hmm.history_),  # states and arcs (ints) from diag
                            **{key: v if isinstance(v, int) else float(v)
                               for key, v in diag.items() if np.isscalar(v)}})
-        vocal, vocal_info = _fit_vocal_side(A, Y, lengths, gammas, opt, columns=raw[0].shape[1])
+        vocal, vocal_info = _fit_vocal_side(A, Y, lengths, gammas, opt, columns=raw[0].shape[1], noisy=noisy)
         arrays.update(vocal)
         from voicepuppet import __version__
 
@@ -307,7 +311,7 @@ class Puppet:
         metadata["training"].update(vocal_info)
         if opt["guide"] == "ridge" and opt["guide_weight"] == "cv":
             lam, mse = _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt,
-                                                     progress=progress)
+                                                     noisy=noisy, progress=progress)
             arrays["guide/weight"] = np.array([lam])
             metadata["training"]["guide"]["weight"] = lam
             metadata["training"]["guide"]["weight_cv"] = {"weights": list(GUIDE_WEIGHTS), "mse": mse}
@@ -465,19 +469,25 @@ def _context_option(opt: dict, name: str, reader: str) -> int:
     return int(k)
 
 
-def _fit_vocal_side(A, Y, lengths, gammas, opt: dict, *, columns: int) -> tuple[dict, dict]:
+def _fit_vocal_side(A, Y, lengths, gammas, opt: dict, *, columns: int, noisy=()) -> tuple[dict, dict]:
     """Everything of a puppet that maps audio to the facial states, given the facial HMMs'
     occupancies ``gammas`` (one (T, N) per part) of the training frames: the guide (option
     ``guide``), the projection (``vocal_features``) and each part's vocal Gaussians (§4.3).
     ``A`` are the standardised features (T, A'), ``Y`` the face coordinates of all parts and
-    ``columns`` the features' count without deltas. Returns (arrays, metadata entries)."""
+    ``columns`` the features' count without deltas; ``noisy`` holds the same frames' features
+    in each noise condition (option ``noise_snrs``, :func:`_noisy_conditions`), which the vocal
+    Gaussians also learn from with the same occupancies. Returns (arrays, metadata entries)."""
     arrays, info = {}, {}
     if opt["guide"] == "ridge":
         # The ridge baseline's map (features without deltas, its own alpha) and the covariance
         # of its cross-fitted residuals, in the puppet's face space: evidence in the solve.
         weight = GUIDE_WEIGHT if opt["guide_weight"] == "cv" else float(opt["guide_weight"])
-        guide, info["guide"] = fit_guide(A, Y, lengths, context=int(opt["guide_context"]), columns=columns,
-                                         weight=weight)
+        # Noisy conditions: the ridge learns from them too, each a copy of the clean sequences,
+        # kept in their fold (so the residuals it is weighted by are of audio it has not heard).
+        k = len(noisy) + 1
+        guide, info["guide"] = fit_guide(np.vstack([A, *noisy]), np.vstack([Y] * k), list(lengths) * k,
+                                         context=int(opt["guide_context"]), columns=columns, weight=weight,
+                                         groups=np.tile(np.arange(len(lengths)), k) if noisy else None)
         arrays.update(guide)
     V = A
     if opt["vocal_features"] == "projected":
@@ -486,10 +496,45 @@ def _fit_vocal_side(A, Y, lengths, gammas, opt: dict, *, columns: int) -> tuple[
         V, proj, info["projection"] = fit_projection(A, Y, lengths, context=k,
                                                      columns=columns if k != 0 else A.shape[1])
         arrays.update(proj)
+    if len(noisy):
+        V = np.vstack([V, *noisy])  # the projection refuses noisy conditions (Puppet.train)
     for p, gamma in enumerate(gammas):
+        gamma = np.vstack([gamma] * (len(noisy) + 1))
         vm, vc = remap(gamma, V, opt["vocal_covariance"], shrinkage=opt["vocal_shrinkage"] * V.shape[1])
         arrays.update({f"hmm/part{p}/vocal_means": vm, f"hmm/part{p}/vocal_covars": vc})
     return arrays, info
+
+
+def _noisy_conditions(sounds, lengths, fps, fset, opt, standardize) -> list:
+    """The training audio's features in each noise condition of option ``noise_snrs``: for each
+    SNR (dB), every sequence's audio with white Gaussian noise at that SNR (of the sequence's
+    mean power; seeded by ``seed``) analysed as the clean audio is and ``standardize``d, stacked
+    like the clean features: a list of (T, A') arrays, one per SNR (empty without the option)."""
+    from voicepuppet import audio as vaudio
+
+    snrs = opt["noise_snrs"]
+    if isinstance(snrs, (int, float)) or not all(isinstance(v, (int, float, np.integer, np.floating))
+                                                 and not isinstance(v, bool) and np.isfinite(v) for v in snrs):
+        raise ValueError(f"noise_snrs must be a list of SNRs in dB (e.g. [20, 10]), got {snrs!r}")
+    if not len(snrs):
+        return []
+    if sounds is None:
+        raise ValueError("noise_snrs adds noise to the training audio: give audio_list, not features_list")
+    if opt["vocal_features"] != "audio":
+        raise ValueError("noise_snrs trains the vocal Gaussians on the audio features: use it with "
+                         "vocal_features='audio'")
+    rng = np.random.default_rng([int(opt["seed"]), 20261203])
+    out = []
+    for snr in snrs:
+        rows = []
+        for a, n in zip(sounds, lengths):
+            power = float(np.mean(a.samples ** 2)) if a.samples.size else 0.0
+            x = a.samples + rng.normal(0.0, np.sqrt(power / 10.0 ** (float(snr) / 10.0)), a.samples.shape)
+            noisy = vaudio.prepare(np.clip(x, -1.0, 1.0), a.rate, target_rate=None, remove_dc=False)
+            f = vaudio.extract(noisy, fps=fps, features=fset, n_out=int(n)).values
+            rows.append(standardize(np.ascontiguousarray(f, dtype=np.float64)))
+        out.append(np.vstack(rows))
+    return out
 
 
 def _runs(frames, sequence) -> list:
@@ -500,7 +545,7 @@ def _runs(frames, sequence) -> list:
     return np.split(frames, cut)
 
 
-def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt, *,
+def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt, *, noisy=(),
                                   progress: bool = False) -> tuple[float, list]:
     """λ of :data:`GUIDE_WEIGHTS` with the least squared error of the face on held-out
     training audio (training option ``guide_weight="cv"``).
@@ -524,7 +569,7 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
         rest_lengths = [len(r) for r in _runs(rest, seq)]
         try:
             vocal, _ = _fit_vocal_side(A[rest], Y[rest], rest_lengths, [g[rest] for g in gammas], opt,
-                                       columns=raw[0].shape[1])
+                                       columns=raw[0].shape[1], noisy=[N[rest] for N in noisy])
         except ValueError as exc:  # a fold too small for what the puppet fits: say which step
             raise ValueError(f"choosing the guide's weight by cross-validation on {len(A)} training "
                              f"frames: {exc}; or fix the weight (guide_weight={GUIDE_WEIGHT:g})") from None
