@@ -349,5 +349,6 @@ def test_noisy_copies_make_the_puppet_hear_through_noise():
         Puppet.train([pts], features_list=[np.zeros((len(pts), 3))], noise_snrs=(10,), **kw)
     with pytest.raises(ValueError, match="vocal_features='audio'"):
         Puppet.train([pts], [prepare(x, rate)], noise_snrs=(10,), vocal_features="projected", **kw)
-    with pytest.raises(ValueError, match="noise_snrs must be a list of SNRs"):
-        Puppet.train([pts], [prepare(x, rate)], noise_snrs=10, **kw)
+    for bad in (10, "20,10", [20, float("nan")]):
+        with pytest.raises(ValueError, match="noise_snrs must be a list of SNRs"):
+            Puppet.train([pts], [prepare(x, rate)], noise_snrs=bad, **kw)

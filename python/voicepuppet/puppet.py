@@ -512,8 +512,8 @@ def _noisy_conditions(sounds, lengths, fps, fset, opt, standardize) -> list:
     like the clean features: a list of (T, A') arrays, one per SNR (empty without the option)."""
     from voicepuppet import audio as vaudio
 
-    snrs = opt["noise_snrs"]
-    if isinstance(snrs, (int, float)) or not all(isinstance(v, (int, float, np.integer, np.floating))
+    snrs = () if opt["noise_snrs"] is None else opt["noise_snrs"]
+    if isinstance(snrs, (int, float, str)) or not all(isinstance(v, (int, float, np.integer, np.floating))
                                                  and not isinstance(v, bool) and np.isfinite(v) for v in snrs):
         raise ValueError(f"noise_snrs must be a list of SNRs in dB (e.g. [20, 10]), got {snrs!r}")
     if not len(snrs):
@@ -530,7 +530,9 @@ def _noisy_conditions(sounds, lengths, fps, fset, opt, standardize) -> list:
         for a, n in zip(sounds, lengths):
             power = float(np.mean(a.samples ** 2)) if a.samples.size else 0.0
             x = a.samples + rng.normal(0.0, np.sqrt(power / 10.0 ** (float(snr) / 10.0)), a.samples.shape)
-            noisy = vaudio.prepare(np.clip(x, -1.0, 1.0), a.rate, target_rate=None, remove_dc=False)
+            with warnings.catch_warnings():  # the copy's clipping is ours, not the user's recording's
+                warnings.simplefilter("ignore", vaudio.AudioWarning)
+                noisy = vaudio.prepare(np.clip(x, -1.0, 1.0), a.rate, target_rate=None, remove_dc=False)
             f = vaudio.extract(noisy, fps=fps, features=fset, n_out=int(n)).values
             rows.append(standardize(np.ascontiguousarray(f, dtype=np.float64)))
         out.append(np.vstack(rows))
