@@ -59,6 +59,14 @@ def cross_fit_folds(lengths, n_folds: int = 5, groups=None) -> list:
     return [np.concatenate([b[j] for b in blocks]) for j in range(n_folds)]
 
 
+def sequence_runs(frames, sequence) -> list:
+    """Sorted frame indices cut into runs of consecutive frames of one sequence each
+    (``sequence[t]``: the sequence of frame t)."""
+    frames = np.asarray(frames)
+    cut = np.flatnonzero((np.diff(frames) != 1) | (np.diff(sequence[frames]) != 0)) + 1
+    return np.split(frames, cut)
+
+
 def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None) -> np.ndarray:
     """Cross-fitted ridge predictions (T, K) of ``Y`` from the rows of ``X`` (T, C): the frames
     of each fold of :func:`cross_fit_folds` predicted by a :class:`RidgeBaseline` (its own α
@@ -74,8 +82,7 @@ def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None) -> np.ndarray:
         if labels is None:
             ridge.fit([X[rest]], [Y[rest]])
         else:  # α's own folds keep the copies together too
-            cut = np.flatnonzero((np.diff(rest) != 1) | (np.diff(seq[rest]) != 0)) + 1
-            runs = np.split(rest, cut)
+            runs = sequence_runs(rest, seq)
             ridge.fit([X[rest]], [Y[rest]], folds=cross_fit_folds([len(r) for r in runs], ridge.n_folds,
                                                                   [labels[seq[r[0]]] for r in runs]))
         yhat[fold] = ridge.predict(X[fold])

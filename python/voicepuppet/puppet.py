@@ -47,7 +47,7 @@ from voicepuppet.blas import limited
 from voicepuppet.animation import Animation, check_output_path
 from voicepuppet.face import FaceSpace, check_landmarks, observations
 from voicepuppet.projection import (GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES, cross_fit_folds,
-                                     fit_guide, fit_projection)
+                                     fit_guide, fit_projection, sequence_runs)
 
 #: What ``Puppet.train`` uses unless told otherwise (recorded in each puppet's metadata).
 TRAIN_DEFAULTS = {
@@ -539,14 +539,6 @@ def _noisy_conditions(sounds, lengths, fps, fset, opt, standardize) -> list:
     return out
 
 
-def _runs(frames, sequence) -> list:
-    """Sorted frame indices cut into runs of consecutive frames of one sequence each
-    (``sequence[t]``: the sequence of frame t)."""
-    frames = np.asarray(frames)
-    cut = np.flatnonzero((np.diff(frames) != 1) | (np.diff(sequence[frames]) != 0)) + 1
-    return np.split(frames, cut)
-
-
 def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt, *, noisy=(),
                                   progress: bool = False) -> tuple[float, list]:
     """λ of :data:`GUIDE_WEIGHTS` with the least squared error of the face on held-out
@@ -568,7 +560,7 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
     for fold in tqdm(folds, desc="guide weight (cross-validation)", unit="fold", disable=not progress,
                      leave=False):
         rest = np.setdiff1d(np.arange(len(A)), fold)
-        rest_lengths = [len(r) for r in _runs(rest, seq)]
+        rest_lengths = [len(r) for r in sequence_runs(rest, seq)]
         try:
             vocal, _ = _fit_vocal_side(A[rest], Y[rest], rest_lengths, [g[rest] for g in gammas], opt,
                                        columns=raw[0].shape[1], noisy=[N[rest] for N in noisy])
@@ -576,7 +568,7 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
             raise ValueError(f"choosing the guide's weight by cross-validation on {len(A)} training "
                              f"frames: {exc}; or fix the weight (guide_weight={GUIDE_WEIGHT:g})") from None
         core = _core.Puppet(json.dumps(metadata), {**arrays, **vocal})
-        for piece in _runs(fold, seq):
+        for piece in sequence_runs(fold, seq):
             s = seq[piece[0]]
             x = np.ascontiguousarray(raw[s][piece - bounds[s]], dtype=np.float64)
             faces = core.animate_faces(x, weights)

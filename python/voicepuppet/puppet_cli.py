@@ -90,8 +90,7 @@ def _train(args) -> int:
         try:
             noise_snrs = tuple(float(v) for v in args.noise_snrs.split(",") if v.strip())
         except ValueError:
-            raise ValueError(f"--noise-snrs takes SNRs in dB separated by commas (e.g. 20,10), got "
-                             f"{args.noise_snrs!r}") from None
+            noise_snrs = ()
         if not noise_snrs or not all(np.isfinite(noise_snrs)):
             raise ValueError(f"--noise-snrs takes SNRs in dB separated by commas (e.g. 20,10), got "
                              f"{args.noise_snrs!r}")
