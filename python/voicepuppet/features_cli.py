@@ -34,8 +34,9 @@ def _run(args) -> int:
         fset = audio.FeatureSet(feats, fset.options, fset.name)
     sound = audio.load_audio(args.input, rate=args.rate or audio.loading.DEFAULT_RATE)
     if puppet is not None:
-        puppet.check_band(sound.source_rate, f"audio {args.input!r}")
-    feats = audio.extract(sound, fps=fps, features=fset, n_out=args.frames, progress=not args.quiet)
+        feats = puppet.extract(sound, n_out=args.frames, progress=not args.quiet)
+    else:
+        feats = audio.extract(sound, fps=fps, features=fset, n_out=args.frames, progress=not args.quiet)
     feats.save(args.output)
     print(f"{args.input}: {sound.duration:.2f} s at {sound.source_rate} Hz "
           f"({sound.channels} ch) -> {len(feats)} frames x {len(feats.names)} features "

@@ -320,14 +320,19 @@ class Puppet:
     # -------------------------------------------------------------------------- animation
     def audio_features(self, audio, n_out: int | None = None, progress: bool = False) -> np.ndarray:
         """Raw (unstandardised) features [T, A] of ``audio`` at the puppet's rate, with the
-        puppet's feature set. Audio of a narrower band than the puppet analyses (8 kHz telephone
-        audio for a puppet trained on wider-band sound) is warned about (``AudioWarning``)."""
+        puppet's feature set (:meth:`extract`'s values)."""
+        return self.extract(audio, n_out=n_out, progress=progress, stacklevel=4).values
+
+    def extract(self, audio, n_out: int | None = None, progress: bool = False, stacklevel: int = 2):
+        """The :class:`voicepuppet.audio.Features` the puppet reads from ``audio`` (a file or
+        :class:`voicepuppet.audio.Audio`): its feature set at its rate. Audio of a narrower band
+        than the puppet analyses (8 kHz telephone audio for a puppet trained on wider-band sound)
+        is warned about (``AudioWarning``, :meth:`check_band`)."""
         from voicepuppet import audio as vaudio
 
         audio = audio if isinstance(audio, vaudio.Audio) else vaudio.load_audio(audio)
-        self.check_band(audio.source_rate, f"audio {audio.path!r}" if audio.path else "audio", stacklevel=3)
-        return vaudio.extract(audio, fps=self.fps, features=self.feature_set, n_out=n_out,
-                              progress=progress).values
+        self.check_band(audio.source_rate, f"audio {audio.path!r}" if audio.path else "audio", stacklevel=stacklevel)
+        return vaudio.extract(audio, fps=self.fps, features=self.feature_set, n_out=n_out, progress=progress)
 
     @property
     def band_hz(self) -> float:

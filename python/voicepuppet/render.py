@@ -787,8 +787,6 @@ def _video_face(path: Path, detect: bool, why: Exception) -> tuple[np.ndarray, n
     """(RGB frame, its 68 points) of the video ``path`` for :func:`load_face`: with ``detect``
     its first frame with a face, else its first frame (points None). ``why`` is the picture
     reader's refusal, reported when ``path`` is no video either."""
-    import itertools
-
     import cv2
 
     from voicepuppet import video
@@ -807,15 +805,11 @@ def _video_face(path: Path, detect: bool, why: Exception) -> tuple[np.ndarray, n
     if not detect:
         return cv2.cvtColor(first, cv2.COLOR_BGR2RGB), None
     try:
-        t, _, pts = first_face(path, cv2.cvtColor(first, cv2.COLOR_BGR2GRAY), info.fps or 29.97)
+        _, frame, pts = first_face(path, first, info.fps or 29.97, grey=False)
     except NoFaceError as exc:
         raise ValueError(f"face video: {exc}; pass a photo with --face, or the first frame's 68 landmarks "
                          "with --face-points") from None
-    if t:
-        frames = video.iter_frames(path, grey=False)
-        first = next(itertools.islice(frames, t, None))
-        frames.close()
-    return cv2.cvtColor(first, cv2.COLOR_BGR2RGB), pts
+    return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), pts
 
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")

@@ -820,12 +820,14 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     return result
 
 
-def first_face(path, first: np.ndarray, fps: float, progress: bool = False) -> tuple[int, np.ndarray, np.ndarray]:
+def first_face(path, first: np.ndarray, fps: float, progress: bool = False,
+               grey: bool = True) -> tuple[int, np.ndarray, np.ndarray]:
     """``(frame index, frame, 68 points)`` of the first frame of the video ``path`` that
     :func:`auto_init` finds a face on: ``first`` (its first frame, as decoded), else the first
     probe (one frame every :data:`AUTO_INIT_STRIDE_S` s up to :data:`AUTO_INIT_SCAN_S` s at
     ``fps``) with a face, or the earliest of the frames since the probe before it that has one.
-    The frame is returned as decoded (grey). Raises :class:`NoFaceError` if none has a face."""
+    The frame is returned as decoded: grey, or BGR without ``grey``. Raises
+    :class:`NoFaceError` if none has a face."""
     from tqdm.auto import tqdm
 
     from voicepuppet import video
@@ -836,7 +838,7 @@ def first_face(path, first: np.ndarray, fps: float, progress: bool = False) -> t
         pass
     stride = max(1, int(round(AUTO_INIT_STRIDE_S * fps)))
     last = int(AUTO_INIT_SCAN_S * fps)
-    frames = video.iter_frames(path)
+    frames = video.iter_frames(path, grey=grey)
     seen = 0
     try:
         with tqdm(total=last // stride, desc="looking for a face", unit="frame", disable=not progress,
