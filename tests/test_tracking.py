@@ -299,6 +299,36 @@ def test_coincident_detections_are_set_apart_the_way_the_face_goes():
     assert tracking._separate_coincident(rest) is rest
 
 
+def test_init_points_with_a_closed_mouth_are_set_apart_with_a_warning(tmp_path):
+    """A user's 68 points in whole pixels (another detector's, a closed mouth) were refused by the
+    spring mesh ("points 62 and 66 coincide"); load_init_points now sets them apart as auto_init
+    does and says so. Other layouts keep their points (the mesh names the pair)."""
+    import json
+
+    from voicepuppet.animation import neutral_landmarks
+
+    closed = np.round(neutral_landmarks() + [100.0, 80.0])
+    closed[[67, 66, 65]] = closed[[61, 62, 63]]
+    path = tmp_path / "closed.json"
+    path.write_text(json.dumps({"points": closed.tolist()}))
+    with pytest.warns(UserWarning, match=r"points 61, 62, 63, 65, 66, 67 in .*closed\.json.* moved 0\.5 px apart"):
+        pts, _ = tracking.load_init_points(path)
+    np.testing.assert_array_equal(pts, tracking._separate_coincident(closed))
+    tracking.delaunay_edges(pts)
+    csv = tmp_path / "closed.csv"  # the CSV form alike
+    csv.write_text("x,y\n" + "\n".join(f"{x},{y}" for x, y in closed))
+    with pytest.warns(UserWarning, match="share positions"):
+        np.testing.assert_array_equal(tracking.load_init_points(csv)[0], pts)
+    open_mouth = tmp_path / "open.json"  # distinct points: loaded as given, no warning
+    open_mouth.write_text(json.dumps({"points": np.round(neutral_landmarks() + 100.0).tolist()}))
+    np.testing.assert_array_equal(tracking.load_init_points(open_mouth)[0], np.round(neutral_landmarks() + 100.0))
+    few = tmp_path / "few.json"
+    few.write_text(json.dumps({"points": [[10, 10], [40, 10], [25, 40], [40, 10]]}))
+    np.testing.assert_array_equal(tracking.load_init_points(few)[0][3], [40.0, 10.0])
+    with pytest.raises(ValueError, match="coincide"):
+        tracking.delaunay_edges(tracking.load_init_points(few)[0])
+
+
 def test_auto_init_tracks_a_closed_mouth(tmp_path):
     """The performer at rest (seed 3, mouth closed): dlib puts inner lip points 62 and 66 on one
     pixel, which stopped `track --init auto` ("points 62 and 66 coincide"); now the face is

@@ -936,6 +936,10 @@ def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
     """Reads first-frame points: JSON ``{"points": [[x, y], ...], "names": [...]}`` (names
     optional) or CSV with one ``x,y`` row per point (an optional header row is skipped).
 
+    Points of the 68-point layout that share a position (a closed mouth in whole pixels) are
+    moved :data:`SEPARATE_PX` apart as :func:`auto_init` moves dlib's, with a warning; other
+    layouts keep them (the spring mesh then refuses the pair, naming it).
+
     Returns ``(points (P, 2), names or None)``.
     """
     p = Path(path)
@@ -970,7 +974,18 @@ def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
                     continue  # header
                 raise ValueError(f"init points file {str(p)!r} line {k + 1} is not 'x,y': {line!r}") from None
         pts = np.asarray(rows, dtype=np.float64).reshape(-1, 2)
-    return _check_points(pts, f"points in {str(p)!r}"), names
+    pts = _check_points(pts, f"points in {str(p)!r}")
+    from voicepuppet.face_layout import N_POINTS
+
+    if len(pts) == N_POINTS:
+        separated = _separate_coincident(pts)
+        moved = np.flatnonzero(np.any(separated != pts, axis=1))
+        if len(moved):
+            warnings.warn(f"points {', '.join(map(str, moved))} in {str(p)!r} share positions (a closed mouth "
+                          f"given in whole pixels?); moved {SEPARATE_PX:g} px apart as --init auto does",
+                          stacklevel=2)
+        pts = separated
+    return pts, names
 
 
 def auto_init(frame: np.ndarray, instead: str = "--init points.json") -> np.ndarray:
