@@ -22,6 +22,7 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from voicepuppet import _core
+from voicepuppet.face_layout import N_POINTS, OUTER_EYE_CORNERS
 
 __all__ = [
     "TrackResult", "track_frames", "track_video", "delaunay_edges", "load_init_points",
@@ -975,8 +976,6 @@ def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
                 raise ValueError(f"init points file {str(p)!r} line {k + 1} is not 'x,y': {line!r}") from None
         pts = np.asarray(rows, dtype=np.float64).reshape(-1, 2)
     pts = _check_points(pts, f"points in {str(p)!r}")
-    from voicepuppet.face_layout import N_POINTS
-
     if len(pts) == N_POINTS:
         separated = _separate_coincident(pts)
         moved = np.flatnonzero(np.any(separated != pts, axis=1))
@@ -1034,7 +1033,6 @@ def _separate_coincident(points: np.ndarray) -> np.ndarray:
     turned by the head's roll (the outer eye corners' line): upper lip up, lower lip down.
     """
     from voicepuppet.animation import neutral_landmarks
-    from voicepuppet.face_layout import OUTER_EYE_CORNERS
 
     _, index, counts = np.unique(points, axis=0, return_inverse=True, return_counts=True)
     index = index.reshape(-1)
