@@ -271,6 +271,56 @@ def test_auto_init_waits_for_a_face_that_appears_later(tmp_path, write_avi):
         tracking.track_video(blank, "auto", passes=1, progress=False)
 
 
+def test_auto_init_looks_for_a_face_for_a_minute(tmp_path, write_avi, monkeypatch):
+    """A title card longer than 10 s: the probes go on to AUTO_INIT_SCAN_S (a minute) and
+    tracking starts where the face comes in; a longer video with no face in that time is refused
+    with how to cut it where the face is."""
+    _dlib_or_skip()
+    from voicepuppet import video
+
+    face, _ = video.read_grey_frames(_carphone())
+    card = np.full((300,) + face.shape[1:], 128, np.uint8)  # 12 s at 25 fps
+    path = write_avi(tmp_path / "card.avi", np.concatenate([card, face[:10]]), fps=25.0)
+    decoded, _ = video.read_grey_frames(path)
+
+    def has_face(t):
+        try:
+            tracking.auto_init(decoded[t], max_pixels=tracking.PROBE_MAX_PIXELS)
+            return True
+        except tracking.NoFaceError:
+            return False
+
+    expect = next(t for t in range(300, len(decoded)) if has_face(t))  # a blank card has none
+    with pytest.warns(UserWarning, match=f"found one at frame {expect} "):
+        r = tracking.track_video(path, "auto", passes=1, progress=False, patch_radius=4, levels=2)
+    assert r.start == expect and r.lost[:expect].all() and not r.lost[expect].all()
+    monkeypatch.setattr(tracking, "AUTO_INIT_SCAN_S", 2.0)
+    with pytest.raises(tracking.NoFaceError, match=r"no face in the first 2\.0 s of .*cut the video to start "
+                                                    r"there \(ffmpeg -ss SECONDS -i card\.avi start\.mp4\)"):
+        tracking.track_video(path, "auto", passes=1, progress=False)
+
+
+def test_probes_upsample_the_frame_only_up_to_probe_max_pixels():
+    """The carphone face (53 px) needs dlib's first upsampling; on a grey canvas that upsampled
+    is just within PROBE_MAX_PIXELS a probe finds it, on one just over it only the first frame's
+    full search does."""
+    _dlib_or_skip()
+    from voicepuppet import video
+
+    face = video.read_grey_frames(_carphone())[0][0]
+    budget = tracking.PROBE_MAX_PIXELS
+    for side, found in ((int(np.sqrt(budget / 4)), True), (int(np.sqrt(budget / 4)) + 2, False)):
+        canvas = np.full((side, side), 128, np.uint8)
+        canvas[:face.shape[0], :face.shape[1]] = face
+        full = tracking.auto_init(canvas)
+        assert (full[:, 0].max() < face.shape[1]) and (full[:, 1].max() < face.shape[0])
+        if found:
+            np.testing.assert_array_equal(tracking.auto_init(canvas, max_pixels=budget), full)
+        else:
+            with pytest.raises(tracking.NoFaceError):
+                tracking.auto_init(canvas, max_pixels=budget)
+
+
 def test_coincident_detections_are_set_apart_the_way_the_face_goes():
     """dlib's whole pixels put a closed mouth's inner lips on one point; _separate_coincident
     moves each SEPARATE_PX / 2 away from the others, the upper lip up and the lower down in the

@@ -11,9 +11,11 @@ Command line: ``voicepuppet track VIDEO -o landmarks.npz [--init points.json|aut
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import os
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,9 +39,14 @@ DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
 # With init="auto" and no face on the first frame (a title card, a fade-in, someone stepping into
 # view), the detector looks at one frame every AUTO_INIT_STRIDE_S seconds of the first
 # AUTO_INIT_SCAN_S seconds; tracking starts on the earliest frame with a face (those between the
-# last faceless probe and the first with a face are looked at one by one).
+# last faceless probe and the first with a face are looked at one by one). Those looks upsample
+# the frame (dlib's way to find faces under its 80 px window) only while the upsampled frame
+# has at most PROBE_MAX_PIXELS: a faceless 1920x1080 frame costs dlib 0.11 s unsampled and
+# 1.9 s upsampled twice, so 120 looks stay seconds; the smallest face they find is ~20 px on a
+# 320x320 frame, ~40 px on 640x480 and ~80 px from 1280x720 up (the first frame: any size).
 AUTO_INIT_STRIDE_S = 0.5
-AUTO_INIT_SCAN_S = 10.0
+AUTO_INIT_SCAN_S = 60.0
+PROBE_MAX_PIXELS = 1 << 21
 # How far apart (px) auto_init sets landmarks the detector put on one pixel (a closed mouth's
 # inner lips): the spring mesh's triangulation needs distinct points.
 SEPARATE_PX = 0.5
@@ -747,8 +754,8 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     init : (P, 2) points on the first frame, a JSON/CSV file of them (see
         :func:`load_init_points`), or ``"auto"`` for a landmark detector (:func:`auto_init`);
         with ``"auto"`` and no face on the first frame, one frame every
-        :data:`AUTO_INIT_STRIDE_S` s of the first :data:`AUTO_INIT_SCAN_S` s is looked at, and
-        tracking starts on the earliest frame with a face (a warning says where; the frames
+        :data:`AUTO_INIT_STRIDE_S` s of the first :data:`AUTO_INIT_SCAN_S` s is looked at
+        (:func:`first_face`), and tracking starts on the earliest frame with a face (a warning says where; the frames
         before it are lost, ``TrackResult.start``)
     edges, passes, progress, working_scale, **options : as in :func:`track_frames`
     cache_bytes : decoded grey frames (at the working scale: resized ones when the face is
@@ -826,9 +833,10 @@ def first_face(path, first: np.ndarray, fps: float, progress: bool = False,
     """``(frame index, frame, 68 points)`` of the first frame of the video ``path`` that
     :func:`auto_init` finds a face on: ``first`` (its first frame, as decoded), else the first
     probe (one frame every :data:`AUTO_INIT_STRIDE_S` s up to :data:`AUTO_INIT_SCAN_S` s at
-    ``fps``) with a face, or the earliest of the frames since the probe before it that has one.
-    The frame is returned as decoded: grey, or BGR without ``grey``. Raises
-    :class:`NoFaceError` if none has a face."""
+    ``fps``) with a face, or the earliest of the frames since the probe before it that has one;
+    after the first frame the detector upsamples only up to :data:`PROBE_MAX_PIXELS`. The frame
+    is returned as decoded: grey, or BGR without ``grey``. Raises :class:`NoFaceError` if none
+    has a face."""
     from tqdm.auto import tqdm
 
     from voicepuppet import video
@@ -854,13 +862,13 @@ def first_face(path, first: np.ndarray, fps: float, progress: bool = False,
                     continue
                 bar.update(1)
                 try:
-                    points = auto_init(frame)
+                    points = auto_init(frame, max_pixels=PROBE_MAX_PIXELS)
                 except NoFaceError:
                     since = []
                     continue
                 for u, earlier in since:
                     try:
-                        found = auto_init(earlier)
+                        found = auto_init(earlier, max_pixels=PROBE_MAX_PIXELS)
                     except NoFaceError:
                         continue
                     t, frame, points = u, earlier, found
@@ -868,8 +876,10 @@ def first_face(path, first: np.ndarray, fps: float, progress: bool = False,
                 return t, frame, points
     finally:
         frames.close()
+    cut = (f"; if it comes in later, cut the video to start there (ffmpeg -ss SECONDS -i {Path(path).name} "
+           "start.mp4)") if seen > last else ""
     raise NoFaceError(f"no face in the first {seen / fps:.1f} s of {str(path)!r} (the first frame, then one "
-                      f"every {AUTO_INIT_STRIDE_S:g} s); check that the face is in view, upright and lit")
+                      f"every {AUTO_INIT_STRIDE_S:g} s); check that the face is in view, upright and lit{cut}")
 
 
 def _lost_before(result: TrackResult, start: int) -> TrackResult:
@@ -987,8 +997,13 @@ def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
     return pts, names
 
 
-def auto_init(frame: np.ndarray, instead: str = "--init points.json") -> np.ndarray:
+def auto_init(frame: np.ndarray, instead: str = "--init points.json",
+              max_pixels: int | None = None) -> np.ndarray:
     """Finds 68 face landmarks on a frame with dlib's shape predictor (iBUG 300-W layout).
+
+    dlib's detector looks at the frame, then (no face found) at it upsampled once and twice, each
+    time twice the size on a side for faces half as small; with ``max_pixels`` only the sizes of
+    at most that many pixels after the first (see :data:`PROBE_MAX_PIXELS`).
 
     Needs the ``dlib-bin`` (or ``dlib``) wheel and the model file from Debian's ``libdlib-data``
     (``/usr/share/dlib/shape_predictor_68_face_landmarks.dat``) or the path in the environment
@@ -1009,18 +1024,40 @@ def auto_init(frame: np.ndarray, instead: str = "--init points.json") -> np.ndar
                          "apt-get install libdlib-data, or set VOICEPUPPET_DLIB_MODEL to "
                          f"shape_predictor_68_face_landmarks.dat, or pass the points with {instead}")
     g = _grey(frame, 0, None)
-    detector = dlib.get_frontal_face_detector()
     faces = []
-    for upsample in (0, 1, 2):
-        faces = list(detector(g, upsample))
-        if faces:
-            break
-    if not faces:
-        raise NoFaceError(f"dlib's detector found no face on the frame; pass the points with {instead}")
-    face = max(faces, key=lambda r: r.width() * r.height())
-    shape = dlib.shape_predictor(model)(g, face)
+    with _DLIB_LOCK:
+        for upsample in (0, 1, 2):
+            if upsample and max_pixels is not None and g.size * 4 ** upsample > max_pixels:
+                break
+            faces = list(_dlib_detector()(g, upsample))
+            if faces:
+                break
+        if not faces:
+            raise NoFaceError(f"dlib's detector found no face on the frame; pass the points with {instead}")
+        face = max(faces, key=lambda r: r.width() * r.height())
+        shape = _dlib_predictor(model)(g, face)
     points = np.array([[shape.part(i).x, shape.part(i).y] for i in range(shape.num_parts)], dtype=np.float64)
     return _separate_coincident(points)
+
+
+# dlib's detector takes 0.26 s to build and its 68-point model 0.5 s to load, more than a look
+# at a frame: built once per process (a face search looks at up to 120 frames), used one thread
+# at a time.
+_DLIB_LOCK = threading.Lock()
+
+
+@functools.lru_cache(maxsize=1)
+def _dlib_detector():
+    import dlib
+
+    return dlib.get_frontal_face_detector()
+
+
+@functools.lru_cache(maxsize=2)
+def _dlib_predictor(model: str):
+    import dlib
+
+    return dlib.shape_predictor(model)
 
 
 def _separate_coincident(points: np.ndarray) -> np.ndarray:
