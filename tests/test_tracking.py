@@ -72,6 +72,7 @@ def test_planted_truth_beats_lucas_kanade_and_recovers_after_occlusion(planted):
     # The passes and their convergence are reported.
     assert [p["pass"] for p in result.passes] == [1, 2]
     assert result.passes[0]["max_rel_length_change"] > 0
+    assert result.passes[0]["max_length_change"] > 0 and result.passes[1]["max_length_change"] is None
     assert result.passes[1]["mean_point_change"] >= 0
 
 

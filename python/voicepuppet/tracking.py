@@ -160,9 +160,9 @@ class TrackResult:
         :func:`voicepuppet.video.nominal_rate`; ``times`` says when each frame is)
     edges : (E, 2) int64 spring edges
     rest_length, stiffness : (E,) the springs of the last pass
-    passes : one dict per pass: ``pass``, ``max_rel_length_change`` (of the springs it
-        re-estimated), ``mean_point_change`` (px, mean displacement from the previous pass),
-        ``lost_fraction``
+    passes : one dict per pass: ``pass``, ``max_rel_length_change`` and ``max_length_change``
+        (px; of the springs it re-estimated), ``mean_point_change`` (px, mean displacement from
+        the previous pass), ``lost_fraction``
     names : optional (P,) landmark names
     working_scale : the factor f the frames were resized by for tracking (1: full resolution;
         see :func:`working_scale_factor`); points, rest lengths (px) and stiffnesses (px^-2)
@@ -651,11 +651,13 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
                                                 progress, f"tracking pass {k + 1}/{passes}", reacquire)
         row = {"pass": k + 1, "lost_fraction": float(lost.mean()), "reacquired": reacquired,
                "mean_point_change": None if prev is None else float(np.linalg.norm(pts - prev, axis=2).mean()),
-               "max_rel_length_change": None}
+               "max_rel_length_change": None, "max_length_change": None}
         if k + 1 < passes:
             new = _core.estimate_springs(pts.reshape(len(pts), -1), lost, mesh, min_sigma, frame_points)
             old_len = np.asarray(mesh.rest_length)
-            row["max_rel_length_change"] = float(np.max(np.abs(np.asarray(new.rest_length) - old_len) / old_len))
+            change = np.abs(np.asarray(new.rest_length) - old_len)
+            row["max_rel_length_change"] = float(np.max(change / old_len))
+            row["max_length_change"] = float(np.max(change))
             mesh = _soften_opening(new, edges, lip_floor) if lips else new
         history.append(row)
         prev = pts
@@ -664,8 +666,9 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         pts = points_to_full(pts, scale)
         rest_length, stiffness = rest_length / scale, stiffness * scale**2
         for row in history:
-            if row["mean_point_change"] is not None:
-                row["mean_point_change"] /= scale
+            for key in ("mean_point_change", "max_length_change"):
+                if row[key] is not None:
+                    row[key] /= scale
     return TrackResult(points=pts, confidence=conf, lost=lost, fps=float(fps), edges=edges,
                        rest_length=rest_length, stiffness=stiffness,
                        passes=history, names=list(names) if names is not None else None, working_scale=scale,
@@ -1202,11 +1205,11 @@ def _cli(args) -> int:
         written.append(Path(args.overlay))
     T, P, _ = result.points.shape
     for row in result.passes:
-        change = row["max_rel_length_change"]
+        change = row["max_length_change"]
         moved = row["mean_point_change"]
         print(f"pass {row['pass']}: lost {100 * row['lost_fraction']:.1f}% of point-frames"
               + (f", points moved {moved:.3f} px on average from the previous pass" if moved is not None else "")
-              + (f", spring lengths re-estimated (largest change {100 * change:.1f}%)" if change is not None else ""))
+              + (f", spring lengths re-estimated (largest change {change:.2f} px)" if change is not None else ""))
     if result.reacquired:
         print(f"face lost and found again (mesh restarted) at frame{'s' if len(result.reacquired) > 1 else ''} "
               + ", ".join(f"{t} ({t / result.fps:.2f} s)" for t in result.reacquired))
