@@ -129,8 +129,9 @@ def test_remap_is_the_weighted_gaussian(rng):
 
 def test_bad_training_input(rng):
     pts = rng.normal(size=(100, 5, 2)) * 10 + 100
-    with pytest.raises(ValueError, match="too few"):
-        Puppet.train([pts], features_list=[rng.normal(size=(100, 3))], n_states=40)
+    with pytest.raises(ValueError, match=r"100 training frames \(4\.0 s at 25 fps\) are too few for 40 states: .*"
+                                         r"400 frames \(16\.0 s\) of video, or fewer states .*--states 10\)"):
+        Puppet.train([pts], features_list=[rng.normal(size=(100, 3))], n_states=40, fps=25.0)
     with pytest.raises(ValueError, match="one audio per landmark"):
         Puppet.train([pts, pts], features_list=[rng.normal(size=(100, 3))], n_states=4)
     with pytest.raises(ValueError, match="unknown training options"):

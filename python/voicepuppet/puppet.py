@@ -243,8 +243,11 @@ class Puppet:
         points_list = [check_landmarks(p, f"landmarks of sequence {i}") for i, p in enumerate(points_list)]
         lengths = np.array([len(p) for p in points_list])
         if lengths.sum() < 10 * opt["n_states"]:
-            raise ValueError(f"{lengths.sum()} training frames are too few for {opt['n_states']} states; "
-                             "give at least 10 frames per state (more video, or fewer n_states)")
+            need = 10 * opt["n_states"]
+            raise ValueError(f"{lengths.sum()} training frames ({lengths.sum() / fps:.1f} s at {fps:g} fps) are too "
+                             f"few for {opt['n_states']} states: give at least 10 frames per state, {need} frames "
+                             f"({need / fps:.1f} s) of video, or fewer states (n_states; train --states "
+                             f"{max(lengths.sum() // 10, 1)})")
 
         fset = vaudio.as_feature_set(opt["feature_set"])
         if audio_list is not None:
