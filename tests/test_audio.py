@@ -250,6 +250,22 @@ def test_clipping_warns(rng):
     x = np.clip(3 * rng.standard_normal(RATE), -1, 1)
     with pytest.warns(audio.AudioWarning, match="clipped"):
         audio.prepare(x, RATE)
+    low = np.clip(0.2 * rng.standard_normal((RATE, 2)), -0.9, 0.3)  # stereo, then clipped at -1 only
+    low[:: 100] = -1.0
+    with pytest.warns(audio.AudioWarning, match=r"1\.00% of samples are at full scale"):
+        audio.prepare(low, RATE)
+
+
+def test_files_are_read_without_loss_in_half_the_memory(tmp_path, rng):
+    """Files are decoded to float32 (16- and 24-bit PCM exactly) and mixed in float64: the
+    samples are the float64 mean of the channels' PCM values."""
+    for subtype, full in (("PCM_16", 2 ** 15), ("PCM_24", 2 ** 23)):
+        pcm = rng.integers(-full, full, size=(4000, 2))
+        path = tmp_path / f"stereo_{subtype}.wav"
+        sf.write(path, pcm.astype(np.int32) * (2 ** 31 // full), RATE, subtype=subtype)
+        a = audio.load_audio(path, rate=None, remove_dc=False)
+        np.testing.assert_array_equal(a.samples, pcm.mean(axis=1) / full)
+        assert a.samples.dtype == np.float64 and a.channels == 2
 
 
 def test_standardizer_fit_transform_and_arrays(rng):

@@ -66,7 +66,7 @@ def _read_soundfile(path: str):
     import soundfile as sf
 
     try:
-        data, rate = sf.read(path, dtype="float64", always_2d=True)
+        data, rate = sf.read(path, dtype="float32", always_2d=True)  # PCM up to 24 bits exactly
     except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
         return None, None, exc
     return data, int(rate), None
@@ -93,8 +93,8 @@ def _read_pyav(path: str):
                              "in FFmpeg); convert it to wav or flac with the tool that made it")
         rate = ctx.sample_rate or stream.rate
         channels = ctx.channels if hasattr(ctx, "channels") else len(ctx.layout.channels)
-        # Resample to planar float64 so every codec's sample format comes out the same.
-        resampler = av.AudioResampler(format="dblp", layout=None, rate=None)
+        # Resample to planar float32 so every codec's sample format comes out the same.
+        resampler = av.AudioResampler(format="fltp", layout=None, rate=None)
         chunks = []
         # Keep audio in sync with the video: time 0 is the start of the first video stream,
         # so audio that starts later is preceded by silence and audio before it is dropped.
@@ -117,14 +117,14 @@ def _read_pyav(path: str):
                              f"(codec {ctx.name!r}: {exc}); convert it to wav, "
                              "e.g. ffmpeg -i IN -vn -ac 1 out.wav") from exc
     if not chunks:
-        return np.zeros((0, max(1, channels))), int(rate)
+        return np.zeros((0, max(1, channels)), np.float32), int(rate)
     data = np.concatenate(chunks, axis=1).T  # (n, channels)
     shift = int(round(((first_time or video_start) - video_start) * rate))
     if shift > 0:
-        data = np.concatenate([np.zeros((shift, data.shape[1])), data])
+        data = np.concatenate([np.zeros((shift, data.shape[1]), data.dtype), data])
     elif shift < 0:
         data = data[-shift:]
-    return np.ascontiguousarray(data, dtype=np.float64), int(rate)
+    return np.ascontiguousarray(data), int(rate)
 
 
 def _resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
@@ -172,7 +172,8 @@ def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc:
     elif x.dtype.kind == "u":
         half = float(2 ** (8 * x.dtype.itemsize - 1))
         x = (x.astype(np.float64) - half) / half
-    x = x.astype(np.float64, copy=False)
+    if x.dtype not in (np.float32, np.float64):
+        x = x.astype(np.float64)
     if x.ndim == 1:
         x = x[:, None]
     if x.ndim != 2:
@@ -197,14 +198,17 @@ def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc:
                          "the original file)")
     if target_rate is not None and int(target_rate) < MIN_RATE:
         raise ValueError(f"audio: target_rate must be at least {MIN_RATE} Hz, got {target_rate}")
-    peak = np.max(np.abs(x))
+    # Without temporaries the size of x (an hour of 48 kHz stereo is 2.8 GB of float64).
+    peak = max(float(x.max()), -float(x.min()))
     if peak >= 1.0 - 1e-6:
-        clipped = float(np.mean(np.abs(x) >= peak * (1.0 - 1e-6)))
+        at = peak * (1.0 - 1e-6)
+        clipped = (np.count_nonzero(x >= at) + np.count_nonzero(x <= -at)) / x.size
         if clipped > 1e-3:
             warnings.warn(f"audio{where}: {100 * clipped:.2f}% of samples are at full scale "
                           "(clipped); formants and LPC features will be distorted",
                           AudioWarning, stacklevel=2)
-    mono = x.mean(axis=1) if channels > 1 else x[:, 0].copy()
+    # Files are read as float32 (half the memory of float64); the mix and all after it are float64.
+    mono = x.mean(axis=1, dtype=np.float64) if channels > 1 else x[:, 0].astype(np.float64)
     out_rate = rate if target_rate is None else int(target_rate)
     mono = _resample(mono, rate, out_rate)
     if remove_dc:
