@@ -268,7 +268,8 @@ def add_parser(sub) -> None:
     p.add_argument("--noise-snrs", metavar="DB[,DB...]",
                    help="also learn the vocal side from copies of the training audio with white noise at these "
                         "SNRs (dB), e.g. 20,10: a puppet for noisy recordings (on the demo's data: at 20 dB SNR Err "
-                        "0.688 -> 0.520, +0.009 on clean audio; docs/puppet.md)")
+                        "0.688 -> 0.520, +0.009 on clean audio; as much on pink noise, less under other voices; "
+                        "docs/puppet.md)")
     p.add_argument("--audio-band", type=float, metavar="HZ",
                    help="band-limit the training audio, and all audio the puppet animates, to HZ before analysis: "
                         "4000 for a puppet of telephone audio (sampled at 8 kHz; default: the whole band, or "
