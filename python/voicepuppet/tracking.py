@@ -41,7 +41,7 @@ DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
 # AUTO_INIT_SCAN_S seconds; tracking starts on the earliest frame with a face (those between the
 # last faceless probe and the first with a face are looked at one by one). Those looks upsample
 # the frame (dlib's way to find faces under its 80 px window) only while the upsampled frame
-# has at most PROBE_MAX_PIXELS: a faceless 1920x1080 frame costs dlib 0.11 s unsampled and
+# has at most PROBE_MAX_PIXELS: a faceless 1920x1080 frame costs dlib 0.11 s as it is and
 # 1.9 s upsampled twice, so 120 looks stay seconds; the smallest face they find is ~20 px on a
 # 320x320 frame, ~40 px on 640x480 and ~80 px from 1280x720 up (the first frame: any size).
 AUTO_INIT_STRIDE_S = 0.5
@@ -758,8 +758,8 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
         :func:`load_init_points`), or ``"auto"`` for a landmark detector (:func:`auto_init`);
         with ``"auto"`` and no face on the first frame, one frame every
         :data:`AUTO_INIT_STRIDE_S` s of the first :data:`AUTO_INIT_SCAN_S` s is looked at
-        (:func:`first_face`), and tracking starts on the earliest frame with a face (a warning says where; the frames
-        before it are lost, ``TrackResult.start``)
+        (:func:`first_face`), and tracking starts on the earliest frame with a face (a warning
+        says where; the frames before it are lost, ``TrackResult.start``)
     edges, passes, progress, working_scale, **options : as in :func:`track_frames`
     cache_bytes : decoded grey frames (at the working scale: resized ones when the face is
         large) are kept in memory up to this size when ``passes > 1``; longer videos are
