@@ -261,6 +261,33 @@ def test_cli_render(tmp_path, capsys):
     assert not (tmp_path / "a.webm").exists()
 
 
+def test_a_large_face_image_renders_scaled_down_to_fit_hd(tmp_path, capsys):
+    """Without --size a face image over 1920x1080 (1080x1920 upright) renders scaled down to fit
+    it, aspect kept, and says so; smaller images and a given --size render as asked."""
+    from PIL import Image
+
+    from voicepuppet.cli import main
+
+    assert R.default_size(4000, 3000) == (1440, 1080) and R.default_size(3000, 4000) == (1080, 1440)
+    assert R.default_size(3000, 3000) == (1080, 1080) and R.default_size(2000, 500) == (1920, 480)
+    assert R.default_size(1920, 1080) == (1920, 1080) and R.default_size(641, 481) == (642, 482)
+    W, H = 1200, 1800
+    lm = neutral_landmarks(W, H)
+    Image.fromarray(R.portrait_image(lm, W, H)).save(tmp_path / "tall.png")
+    (tmp_path / "tall.json").write_text(json.dumps({"points": lm.tolist()}))
+    anim = procedural_animation(2, 10.0, width=W, height=H)
+    save_animation(anim, tmp_path / "a.npz")
+    face = ["--face", str(tmp_path / "tall.png"), "--face-points", str(tmp_path / "tall.json"), "--quiet"]
+    assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "big"), *face]) == 0
+    assert "rendering the 1200x1800 face image at 1080x1620 (--size WxH" in capsys.readouterr().out
+    with Image.open(tmp_path / "big" / "frame_000000.png") as im:
+        assert im.size == (1080, 1620)
+    assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "small"), "--size", "300x450", *face]) == 0
+    assert "rendering the" not in capsys.readouterr().out
+    with Image.open(tmp_path / "small" / "frame_000001.png") as im:
+        assert im.size == (300, 450)
+
+
 def test_animator_controls_exaggerate_and_expression_offset(tmp_path):
     from voicepuppet import export as E
     from voicepuppet.animation import add_offset, exaggerate
