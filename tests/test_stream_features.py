@@ -452,3 +452,70 @@ def test_a_band_limited_feature_set_hears_wide_audio_as_telephone_audio(speech):
     want = extract(a, band_hz=4000.0).values
     np.testing.assert_allclose(got[:len(want)], want, rtol=1e-9, atol=1e-9)
     assert s.lookahead_s() == pytest.approx(StreamingFeatures("puppet").lookahead_s() + 0.0025)
+
+
+def test_level_db_brings_every_recording_to_one_level_and_its_pauses_to_one_floor(speech):
+    """The level_db option: a recording is scaled so its speech level is level_db, and its frames
+    more than GATE_BELOW_DB under that become dither DITHER_BELOW_DB under it (speech frames
+    untouched), so a recording and the same 20 dB quieter give the same features (to rounding),
+    digital silence and a quiet noise floor become the dither, a near-silent recording is raised
+    by at most MAX_GAIN_DB, and the same input gives the same samples."""
+    from voicepuppet.audio.stream import (DITHER_BELOW_DB, GATE_BELOW_DB, MAX_GAIN_DB, LevelNormalizer,
+                                          speech_level_db)
+
+    level = -20.0
+    a, b = (prepare(g * speech, RATE, target_rate=None, remove_dc=False) for g in (1.0, 0.1))
+    fa = extract(a, fps=29.97, features="puppet", level_db=level).values
+    fb = extract(b, fps=29.97, features="puppet", level_db=level).values
+    np.testing.assert_allclose(fa, fb, rtol=0, atol=1e-7 * np.abs(fa).max())
+    assert not np.allclose(extract(a, fps=29.97).values, extract(b, fps=29.97).values, atol=1e-3)
+    ref = reference_extract(a, fps=29.97, features="puppet", level_db=level).values
+    np.testing.assert_allclose(fa, ref, rtol=0, atol=1e-9 * np.abs(ref).max())  # the oracle does the same
+    norm = LevelNormalizer(level, RATE)
+    y = norm.apply(speech)
+    assert abs(speech_level_db(y, RATE) - level) < 0.1
+    np.testing.assert_array_equal(y, norm.apply(speech))  # seeded: the same samples again
+    gain = 10 ** ((level - speech_level_db(speech, RATE)) / 20)
+    loudest = np.argmax(np.abs(speech))
+    assert y[loudest] == pytest.approx(speech[loudest] * gain, rel=1e-12)  # speech as it was, scaled
+    silent = norm.apply(np.zeros(RATE))
+    dither_rms = 10 ** ((level - DITHER_BELOW_DB) / 20)
+    assert np.sqrt(np.mean(silent ** 2)) == pytest.approx(dither_rms, rel=0.02)
+    floor = 10 ** ((speech_level_db(speech, RATE) - GATE_BELOW_DB - 3) / 20)  # a floor just under the gate
+    roomy = np.concatenate([speech, floor * np.random.default_rng(SEED).standard_normal(RATE)])
+    pause = norm.apply(roomy)[speech.size + 160:]
+    assert np.sqrt(np.mean(pause ** 2)) == pytest.approx(dither_rms, rel=0.05)  # the floor became the dither
+    quiet = norm.apply(10 ** (-50 / 20) * speech)  # speech 50 dB down: raised 30 dB, not ~37
+    assert speech_level_db(quiet, RATE) == pytest.approx(speech_level_db(speech, RATE) - 50 + MAX_GAIN_DB, abs=0.1)
+    with pytest.raises(ValueError, match="level_db must be a speech level in dBFS"):
+        extract(a, fps=29.97, level_db=12)
+
+
+def test_a_stream_at_a_known_level_is_the_recording_and_otherwise_estimates_it(speech):
+    """Given the recording's level the stream is scaled as the recording is (the same frames for
+    any chunking); without it the gain is 1 for the first LEVEL_SETTLE_S, then that of the
+    LEVEL_PERCENTILE of what has been heard (to the histogram's 0.25 dB)."""
+    from voicepuppet.audio.stream import LEVEL_SETTLE_S, LevelNormalizer, speech_level_db
+
+    x = 0.1 * speech
+    au = prepare(x, RATE, target_rate=None, remove_dc=False)
+    ref = extract(au, fps=29.97, features="puppet", level_db=-20.0).values
+    got, _ = stream(x, chunking(x.size, "random", np.random.default_rng(SEED)), level_db=-20.0,
+                    input_level_db=speech_level_db(au.samples, RATE))
+    np.testing.assert_array_equal(got, ref)
+    whole = speech_level_db(x, RATE)
+    known, heard = LevelNormalizer(-20.0, RATE, input_level_db=whole), LevelNormalizer(-20.0, RATE)
+    g_known = known.gain(whole)
+    step = 4000
+    for start in range(0, x.size - step, step):
+        chunk = x[start:start + step]
+        fixed, est = known.push(chunk), heard.push(chunk)
+        loud = np.abs(chunk * g_known) > 0.03  # in speech frames, left as they are but for the gain
+        if not loud.any():
+            continue
+        gain = g_known * np.median(est[loud] / fixed[loud])
+        if start < LEVEL_SETTLE_S * RATE:
+            assert gain == pytest.approx(1.0, rel=1e-6)
+        else:
+            so_far = speech_level_db(x[:start], RATE)
+            assert 20 * np.log10(gain) == pytest.approx(min(-20.0 - so_far, 30.0), abs=0.25)

@@ -55,6 +55,10 @@ DEFAULT_OPTIONS = {
     "band_hz": None,         # limit the audio to this band (Hz) before any analysis, by
                              # resampling to 2 band_hz and back (stream.BandLimiter): 4000 makes
                              # a puppet for telephone audio (8 kHz); None: the whole band
+    "level_db": None,        # bring each recording's speech level to this (dBFS) and turn its frames
+                             # 35 dB under it into dither, before any analysis (stream.LevelNormalizer):
+                             # pauses look alike whatever the noise floor, and so do loud and
+                             # quiet recordings; None: the samples as they are
 }
 
 #: Named feature sets. "puppet" is Brand's mix (section 4.1): LPC and RASTA-PLP cepstra,
@@ -108,6 +112,11 @@ class FeatureSet:
                                  or not 0 < band < float("inf")):
             raise ValueError(f"feature option band_hz must be a frequency in Hz above 0 (e.g. 4000 for "
                              f"telephone audio) or None, got {band!r}")
+        level = self.options.get("level_db")
+        if level is not None and (isinstance(level, bool) or not isinstance(level, (int, float, np.integer, np.floating))
+                                  or not -100.0 <= level <= 0.0):
+            raise ValueError(f"feature option level_db must be a speech level in dBFS between -100 and 0 "
+                             f"(e.g. -20) or None, got {level!r}")
         object.__setattr__(self, "features", feats)
         object.__setattr__(self, "options", dict(self.options))
 
@@ -313,6 +322,10 @@ def _extract(source, fps, features, n_out, progress, options, reference: bool) -
     else:
         raise ValueError(f"n_out must be a positive whole number of frames, got {n_out!r}")
     want = set(fset.features)
+    if opt["level_db"] is not None and (reference or want & {"f0", "voicing"}):
+        from .stream import LevelNormalizer
+
+        x = LevelNormalizer(opt["level_db"], rate).apply(x)  # as the stream's front end does its own input
     if opt["band_hz"] is not None and (reference or want & {"f0", "voicing"}):
         from .stream import BandLimiter
 
