@@ -54,8 +54,8 @@ def test_info_describes_puppet_files(tmp_path, capsys):
     assert f"{g}: written by voicepuppet {__version__}; 68 points at 25 fps, part face" in out
     assert "trained on 600 frames (5 sequences), entropic prior, seed 0" in out
     assert f"part face: {guided.n_states(0)} states" in out
-    assert ("audio: feature set puppet (4 features, deltas ±1); vocal Gaussians on the audio features, "
-            "full covariances") in out
+    assert ("audio: feature set puppet (4 features, deltas ±1, levels as recorded); vocal Gaussians on the "
+            "audio features, full covariances") in out
     cv = guided.metadata["training"]["guide"]["weight_cv"]
     assert (f"guide: the ridge's face over ±2 frames, weight {guided.guide_weight:g}, chosen by "
             f"cross-validation (face error per frame at each weight: 0: {cv['mse'][0]:.4g}, ") in out

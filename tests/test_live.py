@@ -20,6 +20,7 @@ import pytest
 
 from voicepuppet.animation import neutral_landmarks
 from voicepuppet.audio import load_audio, prepare, samples
+from voicepuppet.audio.stream import speech_level_db
 from voicepuppet.live import TRUSTED_GUIDE_WEIGHT, LivePuppet, split_lag
 
 SEED = 20261123
@@ -97,7 +98,8 @@ def test_large_lags_give_the_offline_animation(puppet, speech, posterior, fps):
     ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False), fps=fps,
                     posterior=posterior).animation.points
     live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, delta_lag=-1,
-                      decode_lag=2000, trajectory_lag=2000)
+                      decode_lag=2000, trajectory_lag=2000, input_level_db=speech_level_db(x, 16000))
+    assert p.feature_set.settings()["level_db"] == -20.0  # training's default: levels brought to -20 dBFS
     assert live.delta_lag == p._core.delta_width == 2
     assert (live.guide_lag, live.guide_weight) == (5, p.guide_weight)  # the exact guide at the file's λ, as offline
     assert math.isinf(live.latency_s)
@@ -172,9 +174,10 @@ def test_other_input_rate_is_resampled_on_the_stream(puppet, speech):
 
     p, _ = puppet
     y = resample_poly(speech[:24000], 3, 1)  # 48 kHz
-    ref = p.animate(prepare(y, 48000, remove_dc=False)).animation.points
+    au = prepare(y, 48000, remove_dc=False)
+    ref = p.animate(au).animation.points
     live = LivePuppet(p, rate=48000, formant_lag=-1, delta_lag=-1, decode_lag=1000,
-                      trajectory_lag=1000)
+                      trajectory_lag=1000, input_level_db=speech_level_db(au.samples, 16000))
     got = stream_all(live, y, random_chunks(y.shape[0], np.random.default_rng(SEED + 1)))
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-6 * np.abs(ref).max())
 
@@ -209,15 +212,16 @@ def test_guide_weight_zero_streams_brands_trajectory(puppet, speech):
     ref0 = p.animate(au, guide_weight=0).animation.points
     guided = p.animate(au).animation.points
     assert np.abs(guided - ref0).max() > 0.05
+    level = speech_level_db(x, 16000)
     live = LivePuppet(p, guide_weight=0, formant_lag=-1, delta_lag=-1, decode_lag=2000,
-                      trajectory_lag=2000)
+                      trajectory_lag=2000, input_level_db=level)
     assert (live.guide_lag, live.guide_weight) == (0, 0.0)  # nothing waits for an unused guide
     got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED + 5)))
     np.testing.assert_allclose(got, ref0, rtol=0, atol=1e-8 * np.abs(ref0).max())
     # another weight is the offline solve with that weight
     ref2 = p.animate(au, guide_weight=2.5).animation.points
     live = LivePuppet(p, guide_weight=2.5, posterior=False, formant_lag=-1, delta_lag=-1,
-                      decode_lag=2000, trajectory_lag=2000)
+                      decode_lag=2000, trajectory_lag=2000, input_level_db=level)
     got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED + 6)))
     np.testing.assert_allclose(got, ref2, rtol=0, atol=1e-8 * np.abs(ref2).max())
 
@@ -309,7 +313,8 @@ def test_cli_file_json_lines(puppet, speech, tmp_path):
     assert [r_["frame"] for r_ in recs] == list(range(ref.shape[0]))
     pts = np.array([r_["points"] for r_ in recs])
     assert pts.shape == ref.shape
-    live = LivePuppet(p, lag_ms=150)
+    level = speech_level_db(x_loaded, 16000)  # a file's level is known before it plays
+    live = LivePuppet(p, lag_ms=150, input_level_db=level)
     own = stream_all(live, x_loaded, [(a, a + 160) for a in range(0, x_loaded.shape[0], 160)])
     np.testing.assert_allclose(pts, own, atol=0.006)  # JSON rounds to 0.01 px
     summary = json.loads(r.stderr.decode().split("voicepuppet live: ", 1)[1])
@@ -324,7 +329,7 @@ def test_cli_file_json_lines(puppet, speech, tmp_path):
         r = run_cli([str(path), "--input", str(wav), "--no-realtime", "--lag-ms", "150", *extra])
         assert r.returncode == 0, r.stderr.decode()
         got = np.array([json.loads(s)["points"] for s in r.stdout.decode().splitlines()])
-        own = stream_all(LivePuppet(p, lag_ms=150, **want), x_loaded,
+        own = stream_all(LivePuppet(p, lag_ms=150, input_level_db=level, **want), x_loaded,
                          [(a, a + 160) for a in range(0, x_loaded.shape[0], 160)])
         np.testing.assert_allclose(got, own, atol=0.006)
         assert np.abs(got - pts).max() > 0.05  # not the default stream
@@ -344,6 +349,18 @@ def test_cli_raw_pcm_on_stdin(puppet, speech):
     assert "stopped mid-sample; 1 trailing byte(s) ignored" in r.stderr.decode()
     n = len(r.stdout.decode().splitlines())
     assert n == math.ceil(16000 / 16000 * FPS)
+    # --input-level: the stream scaled from the first sample by the level given, as a LivePuppet
+    # told the same level (standard input's own level is otherwise estimated as it comes)
+    x = np.frombuffer(pcm[:-1], dtype="<i2") / 32768.0
+    level = speech_level_db(x, 16000) - 6.0
+    r = run_cli([str(path), "--input", "-", "--lag-ms", "100", "--input-level", str(level)], stdin=pcm)
+    assert r.returncode == 0, r.stderr.decode()
+    got = np.array([json.loads(s_)["points"] for s_ in r.stdout.decode().splitlines()])
+    own = stream_all(LivePuppet(path, lag_ms=100, input_level_db=level), x, [(a, a + 80) for a in range(0, x.size, 80)])
+    np.testing.assert_allclose(got, own, atol=0.006)
+    estimated = np.array([json.loads(s_)["points"] for s_ in
+                          run_cli([str(path), "--input", "-", "--lag-ms", "100"], stdin=pcm).stdout.decode().splitlines()])
+    assert np.abs(estimated - got).max() > 0.05  # the level given is not the one estimated
     # stereo float PCM at 48 kHz
     st = np.repeat(speech[:48000:3, None], 2, axis=1)
     from scipy.signal import resample_poly
@@ -534,7 +551,8 @@ def test_projected_puppet_large_lags_give_the_offline_animation(projected, speec
     ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False), fps=fps,
                     posterior=posterior).animation.points
     live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, delta_lag=-1,
-                      projection_lag=-1, decode_lag=2000, trajectory_lag=2000)
+                      projection_lag=-1, decode_lag=2000, trajectory_lag=2000,
+                      input_level_db=speech_level_db(x, 16000))
     assert (live.delta_lag, live.projection_lag) == (0, 5)
     got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED + 3)))
     assert got.shape == ref.shape

@@ -8,7 +8,7 @@ import pytest
 
 from voicepuppet import _core, puppet as vpuppet
 from voicepuppet.face import observations
-from voicepuppet.puppet import Puppet, load, remap
+from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, load, remap
 
 
 def _planted(rng, T=900, P=12):
@@ -285,7 +285,7 @@ def test_the_band_of_the_training_audio_is_the_puppets(tmp_path):
     assert p.feature_set.settings()["band_hz"] == 4000
     p.save(tmp_path / "narrow.vpp")
     q = load(tmp_path / "narrow.vpp")
-    banded = extract(wide, fps=30.0, features=FeatureSet.named("puppet", band_hz=4000.0)).values
+    banded = extract(wide, fps=30.0, features=FeatureSet.named("puppet", band_hz=4000.0, level_db=-20.0)).values
     np.testing.assert_array_equal(q.audio_features(wide), banded)
     assert not np.allclose(extract(wide, fps=30.0).values, banded)
     with warnings.catch_warnings():
@@ -312,6 +312,49 @@ def _tone_performer(seed, T=900, fps=30.0, rate=16000):
     hz = np.array([300.0, 1100.0, 2600.0])[np.repeat(states, rate // int(fps))]
     x = 0.3 * np.sin(2 * np.pi * np.cumsum(hz) / rate)
     return pts, x, rate, states
+
+
+def _resting_tone_performer(seed, T=900, fps=30.0, rate=16000, floor_db=None, gain=1.0):
+    """_planted's three facial states, the rest state's sound digital silence (or white noise at
+    ``floor_db`` dBFS: a room's floor, which speech masks and pure tones would not, so it is in the
+    rests alone), the others tones of 1100 / 2600 Hz at -13.5 dBFS; times ``gain``: (points
+    [T, P, 2], samples, rate, states)."""
+    pts, _, states = _planted(np.random.default_rng(seed), T=T)
+    per = np.repeat(states, rate // int(fps))
+    hz = np.array([0.0, 1100.0, 2600.0])[per]
+    x = 0.3 * np.sin(2 * np.pi * np.cumsum(hz) / rate) * (per > 0)
+    if floor_db is not None:
+        x = x + (per == 0) * 10 ** (floor_db / 20) * np.random.default_rng(seed + 50).standard_normal(x.size)
+    return pts, gain * x, rate, states
+
+
+def test_the_speech_level_makes_a_room_and_a_quiet_recording_sound_like_the_training():
+    """Trained where the rest state is digitally silent, a puppet hears a rest with a -60 dBFS
+    noise floor (46 dB under the tones), and the recording 20 dB quieter, as in training when
+    it brings every recording to one speech level with dither under it (audio_level, the
+    default); as recorded (audio_level=None) it decodes the states of both worse."""
+    from voicepuppet.audio import prepare
+
+    pts, x, rate, _ = _resting_tone_performer(5)
+    kw = dict(fps=30.0, n_states=6, n_iter=15, guide_weight=1.0, seed=2)
+
+    def accuracy(p, floor_db, gain):
+        _, tx, _, states = _resting_tone_performer(6, T=450, floor_db=floor_db, gain=gain)
+        decoded = p.animate(prepare(tx, rate)).states[:len(states), 0]
+        truth_of = {s: np.bincount(states[decoded == s]).argmax() for s in np.unique(decoded)}
+        return float(np.mean([truth_of[s] for s in decoded] == states[:len(decoded)]))
+
+    levelled = Puppet.train([pts], [prepare(x, rate)], **kw)
+    assert levelled.feature_set.settings()["level_db"] == TRAIN_DEFAULTS["audio_level"] == -20.0
+    raw = Puppet.train([pts], [prepare(x, rate)], audio_level=None, **kw)
+    assert raw.feature_set.settings()["level_db"] is None
+    conditions = ((None, 1.0), (-60.0, 1.0), (None, 0.1), (-60.0, 0.1))
+    acc = {name: [accuracy(p, f, g) for f, g in conditions] for name, p in (("levelled", levelled), ("raw", raw))}
+    print(acc)
+    assert min(acc["levelled"]) > 0.9
+    assert acc["raw"][0] > 0.9 and all(lv > raw + 0.04 for lv, raw in zip(acc["levelled"][1:], acc["raw"][1:]))
+    with pytest.raises(ValueError, match="audio_level must be a speech level"):
+        Puppet.train([pts], [prepare(x, rate)], audio_level="loud", **kw)
 
 
 def test_noisy_copies_make_the_puppet_hear_through_noise():

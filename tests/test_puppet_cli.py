@@ -171,6 +171,17 @@ def test_train_audio_band(workdir, tmp_path, capsys):
         assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--audio-band", bad]) == 2
         assert "band_hz must be a frequency" in capsys.readouterr().err
     assert not (tmp_path / "bad.vpp").exists()
+    # the speech level: -20 dBFS by default (as info says), another or none (levels as recorded)
+    assert tel.feature_set.settings()["level_db"] == -20.0
+    for level, want, says in (("-26", -26.0, "speech brought to -26 dBFS"), ("none", None, "levels as recorded")):
+        assert main(common + ["-o", str(tmp_path / "lv.vpp"), "--audio-level", level]) == 0
+        assert load(tmp_path / "lv.vpp").feature_set.settings()["level_db"] == want
+        capsys.readouterr()
+        assert main(["info", str(tmp_path / "lv.vpp")]) == 0
+        assert says in capsys.readouterr().out
+    assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--audio-level", "loud"]) == 2
+    assert "--audio-level takes a speech level in dBFS" in capsys.readouterr().err
+    assert not (tmp_path / "bad.vpp").exists()
     # `features --puppet` gives the puppet's own features (its band included) as the C++ example reads them
     out = tmp_path / "f.csv"
     assert main(["features", str(d / "test.wav"), "--puppet", str(tmp_path / "tel.vpp"), "-o", str(out), "--quiet"]) == 0

@@ -508,12 +508,13 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
     fps = float(seqs[0].fps) if seqs else 0.0
     if puppet:
         from .evaluation import sequence_features
-        from .puppet import TRAIN_DEFAULTS
+        from .puppet import training_feature_set
 
         features_at = sequence_features(seqs, fps, features)
+        fset = training_feature_set()  # as training from the audio would analyse it
 
         def features_of(i):
-            return features_at(i, TRAIN_DEFAULTS["feature_set"])
+            return features_at(i, fset)
 
     folds = kfold(len(seqs), k, seed)
     names = (["voice-puppet", *BASELINES] if puppet else []) + (list(dpds.MODELS) if peers else [])

@@ -361,7 +361,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     from voicepuppet.crossval import fold_summary, kfold
     from voicepuppet.evaluate import _as_face, _fold_metrics, learnt_points
     from voicepuppet.face import FaceSpace
-    from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet
+    from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, training_feature_set
 
     seqs = list(sequences)
     if not isinstance(variants, dict) or len(variants) < 2:
@@ -380,7 +380,9 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     fit = [learnt_points(s) for s in seqs]  # refuses train_points of the wrong shape up front
     fps = float(seqs[0].fps)
     features_of = sequence_features(seqs, fps, features)
-    fsets = {name: variants[name].get("feature_set", TRAIN_DEFAULTS["feature_set"]) for name in names}
+    fsets = {name: training_feature_set(variants[name].get("feature_set"),
+                                        variants[name].get("audio_level", TRAIN_DEFAULTS["audio_level"]))
+             for name in names}
 
     folds = kfold(len(seqs), k, seed)
     per_fold: dict = {n: [] for n in names}

@@ -46,9 +46,10 @@ def describe_puppet(path) -> list[str]:
                      f"{part['context_memory']:.3g} frames")
     vocal = (f"the learned projection of the audio (±{p._core.projection_context} frames)"
              if p._core.projected else "the audio features")
-    band = p.feature_set.settings()["band_hz"]
+    band, level = p.feature_set.settings()["band_hz"], p.feature_set.settings()["level_db"]
     lines.append(f"audio: feature set {p.feature_set.name} ({p._core.n_features} features, deltas "
                  f"±{p._core.delta_width}" + (f", band-limited to {band:g} Hz" if band else "")
+                 + (f", speech brought to {level:g} dBFS" if level is not None else ", levels as recorded")
                  + f"); vocal Gaussians on {vocal}, {opt.get('vocal_covariance', 'full')} covariances")
     if not p.guided:
         lines.append("guide: none (Brand's trajectory solve alone)")

@@ -163,13 +163,20 @@ class LivePuppet:
     guide_weight : float, optional
         λ of a guided puppet's guide (default: the file's, chosen at training); 0 streams Brand's unguided
         trajectory, as ``animate(guide_weight=0)``.
+    input_level_db : float, optional
+        For a puppet that brings audio to a speech level (feature option ``level_db``, the
+        default of training): the live audio's speech level in dBFS, if known
+        (:func:`voicepuppet.audio.stream.speech_level_db` of a recording of the same source),
+        so the stream is scaled as ``animate`` scales it from the first sample; without it the
+        level is estimated from what has been heard (the first second as it comes).
     """
 
     def __init__(self, puppet, lag_ms: float = 150.0, *, fps: float | None = None,
                  posterior: bool = False, rate: int = ANALYSIS_RATE, formant_lag: int | None = None,
                  delta_lag: int | None = None, projection_lag: int | None = None,
                  guide_lag: int | None = None, guide_weight: float | None = None,
-                 decode_lag: int | None = None, trajectory_lag: int | None = None):
+                 decode_lag: int | None = None, trajectory_lag: int | None = None,
+                 input_level_db: float | None = None):
         from voicepuppet import _core
 
         if isinstance(puppet, (str, os.PathLike)):
@@ -183,7 +190,7 @@ class LivePuppet:
         self.puppet = puppet
         fset = puppet.feature_set
         names = list(puppet.metadata.get("feature_names", []))
-        self.features = StreamingFeatures(fset, fps=puppet.fps, rate=ANALYSIS_RATE)
+        self.features = StreamingFeatures(fset, fps=puppet.fps, rate=ANALYSIS_RATE, input_level_db=input_level_db)
         if names and list(self.features.names) != names:
             raise ValueError(f"this puppet was trained on features the stream cannot compute "
                              f"(columns {names[:3]}...; the stream makes "
@@ -241,7 +248,7 @@ class LivePuppet:
         self.formant_lag = None if f < 0 else int(f)
         if has_formants:
             self.features = StreamingFeatures(fset, fps=puppet.fps, rate=ANALYSIS_RATE,
-                                              formant_lag=self.formant_lag)
+                                              formant_lag=self.formant_lag, input_level_db=input_level_db)
         out_fps = 0.0 if fps is None else float(fps)
         if fps is not None and not (math.isfinite(out_fps) and out_fps > 0):
             raise ValueError(f"fps must be positive, got {fps!r}")
@@ -478,8 +485,17 @@ def _read_pcm(stream, fmt: str, channels: int, block_bytes: int):
 def run_live(args, out=None) -> int:
     """The ``live`` verb (see ``add_parser``)."""
     out = out or sys.stdout
+    recording = None
+    level = getattr(args, "input_level", None)
+    if args.input != "-":
+        from voicepuppet.audio import load_audio
+        from voicepuppet.audio.stream import speech_level_db
+
+        recording = load_audio(args.input).samples
+        if level is None:  # a file's level is known before it plays: scaled as animate scales it
+            level = speech_level_db(recording, ANALYSIS_RATE)
     live = LivePuppet(args.puppet, lag_ms=args.lag_ms, fps=args.fps, posterior=args.posterior,
-                      rate=args.rate if args.input == "-" else ANALYSIS_RATE,
+                      rate=args.rate if args.input == "-" else ANALYSIS_RATE, input_level_db=level,
                       projection_lag=getattr(args, "projection_lag", None),
                       guide_lag=getattr(args, "guide_lag", None),
                       guide_weight=getattr(args, "guide_weight", None),
@@ -531,11 +547,8 @@ def run_live(args, out=None) -> int:
             for a in pcm:
                 yield a, False
         else:
-            from voicepuppet.audio import load_audio
-
-            x = load_audio(args.input).samples
-            for i in range(0, x.shape[0], chunk):
-                yield x[i:i + chunk], not args.no_realtime
+            for i in range(0, recording.shape[0], chunk):
+                yield recording[i:i + chunk], not args.no_realtime
 
     pushed = 0
     err = None
@@ -613,6 +626,11 @@ def add_parser(sub) -> None:
                         "share of --lag-ms)")
     p.add_argument("--posterior", action="store_true",
                    help="posterior-weighted synthesis instead of the fixed-lag Viterbi path")
+    p.add_argument("--input-level", type=float, default=None, metavar="DBFS",
+                   help="speech level of the live audio in dBFS, for a puppet that brings audio to a "
+                        "level (the default of train): scaled from the first sample as animate scales "
+                        "a recording of that level (default: a file's own; on standard input "
+                        "estimated from what has been heard)")
     p.add_argument("--rate", type=int, default=ANALYSIS_RATE,
                    help="sample rate of the PCM on standard input (default 16000)")
     p.add_argument("--format", choices=["s16le", "s32le", "f32le"], default="s16le",

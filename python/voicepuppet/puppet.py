@@ -75,6 +75,10 @@ TRAIN_DEFAULTS = {
     "init": "kmeans",        # state means from k-means++, or "frames": random training frames
     "noise_snrs": (),        # SNRs (dB) of white-noise copies of the training audio the vocal side
                              # also learns from, for noisy audio (docs/puppet.md); () none
+    "audio_level": -20.0,    # the feature option level_db the puppet is trained with, unless its
+                             # feature set sets one: every recording it hears brought to this
+                             # speech level (dBFS), frames 35 dB under it dither (pauses rest
+                             # whatever the noise floor; docs/puppet.md); None: as recorded
     "seed": 0,
 }
 #: Test-time adaptation (``Puppet.animate(adapt=...)``): the kinds and the prior / iterations
@@ -252,7 +256,7 @@ class Puppet:
         fset = vaudio.as_feature_set(opt["feature_set"])
         if audio_list is not None:
             sources = [a if isinstance(a, vaudio.Audio) else vaudio.load_audio(a) for a in sources]
-            fset = _training_band(fset, sources)
+            fset = _training_band(training_feature_set(fset, opt["audio_level"]), sources)
             feats = [vaudio.extract(a, fps=fps, features=fset, n_out=int(n), progress=progress)
                      for a, n in zip(sources, lengths)]
             names = list(feats[0].names)
@@ -447,6 +451,22 @@ class Puppet:
         p = check_output_path(path, (".vpp",), "puppet file")
         _core.write_puppet_file(os.fspath(p), json.dumps(self.metadata), self.arrays)
         return p
+
+
+def training_feature_set(feature_set=None, audio_level=TRAIN_DEFAULTS["audio_level"]):
+    """The feature set :meth:`Puppet.train` analyses training audio with for the options
+    ``feature_set`` and ``audio_level`` (before the narrowest training audio's band): the set
+    with its ``level_db`` set to ``audio_level`` unless it sets its own or ``audio_level`` is
+    None. What to extract features with for ``Puppet.train(features_list=...)`` to train the
+    puppet training from audio would."""
+    from voicepuppet import audio as vaudio
+
+    fset = vaudio.as_feature_set(TRAIN_DEFAULTS["feature_set"] if feature_set is None else feature_set)
+    if audio_level is None or "level_db" in fset.options:
+        return fset
+    if isinstance(audio_level, bool) or not isinstance(audio_level, (int, float, np.integer, np.floating)):
+        raise ValueError(f"audio_level must be a speech level in dBFS (e.g. -20) or None, got {audio_level!r}")
+    return vaudio.FeatureSet(fset.features, {**fset.options, "level_db": float(audio_level)}, fset.name)
 
 
 def _training_band(fset, sounds):

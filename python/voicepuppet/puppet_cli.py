@@ -94,6 +94,15 @@ def _train(args) -> int:
         if not noise_snrs or not all(np.isfinite(noise_snrs)):
             raise ValueError(f"--noise-snrs takes SNRs in dB separated by commas (e.g. 20,10), got "
                              f"{args.noise_snrs!r}")
+    level = None
+    if args.audio_level is not None:
+        try:
+            level = None if args.audio_level.strip().lower() == "none" else float(args.audio_level)
+        except ValueError:
+            level = float("nan")
+        if level is not None and not -100.0 <= level <= 0.0:
+            raise ValueError(f"--audio-level takes a speech level in dBFS between -100 and 0 (e.g. -20) or "
+                             f"'none', got {args.audio_level!r}")
     n = max(len(videos), len(marks))
     # Every sound before any tracking: a video without an audio track fails in a second, not
     # after minutes of tracking it (and the ones before it).
@@ -135,6 +144,8 @@ def _train(args) -> int:
                                   "guide": args.guide, "guide_context": args.guide_context,
                                   "guide_weight": _guide_weight_option(args.guide_weight),
                                   "seed": args.seed}.items() if v is not None}
+    if args.audio_level is not None:
+        options["audio_level"] = level
     if args.guide == "none" and (args.guide_context is not None or args.guide_weight is not None):
         raise ValueError("--guide-context and --guide-weight set the guide: drop them with --guide none")
     if args.scheduler or args.workers:
@@ -270,6 +281,11 @@ def add_parser(sub) -> None:
                         "SNRs (dB), e.g. 20,10: a puppet for noisy recordings (on the demo's data: at 20 dB SNR Err "
                         "0.688 -> 0.520, +0.009 on clean audio; as much on pink noise, less under other voices; "
                         "docs/puppet.md)")
+    p.add_argument("--audio-level", metavar="DBFS|none",
+                   help="bring every recording the puppet hears, in training and after, to this speech level "
+                        "(dBFS) and turn its frames 35 dB under that into dither, so pauses rest whatever the noise floor and quiet "
+                        "recordings animate as loud ones (default -20; none: audio as recorded, as puppets "
+                        "before 2026-12-04; docs/puppet.md)")
     p.add_argument("--audio-band", type=float, metavar="HZ",
                    help="band-limit the training audio, and all audio the puppet animates, to HZ before analysis: "
                         "4000 for a puppet of telephone audio (sampled at 8 kHz; default: the whole band, or "

@@ -105,7 +105,7 @@ def run(quick: bool = False, repeats: int = 3) -> list:
     from voicepuppet import _core
     from voicepuppet.audio import extract, load_audio, prepare
     from voicepuppet.audio.featureset import reference_extract
-    from voicepuppet.audio.stream import StreamingFeatures
+    from voicepuppet.audio.stream import StreamingFeatures, speech_level_db
     from voicepuppet.live import LivePuppet
 
     corpus, puppet = _corpus(quick)
@@ -118,8 +118,10 @@ def run(quick: bool = False, repeats: int = 3) -> list:
     # 1. streaming features vs offline extract
     per_frame = []
 
+    level = speech_level_db(audio.samples, 16000)  # a file's level, known before it plays (as `live --input`)
+
     def stream_features():
-        s = StreamingFeatures(puppet.feature_set, fps=puppet.fps)
+        s = StreamingFeatures(puppet.feature_set, fps=puppet.fps, input_level_db=level)
         rows = []
         for a in range(0, x.shape[0], CHUNK):
             c0 = time.perf_counter()
@@ -222,7 +224,7 @@ def run(quick: bool = False, repeats: int = 3) -> list:
     for lag in ((50, 150) if quick else (0, 50, 150, 330)):
         comps, lats, times = [], [], []
         for _ in range(max(1, repeats)):
-            live = LivePuppet(puppet, lag_ms=lag)
+            live = LivePuppet(puppet, lag_ms=lag, input_level_db=level)
             c0 = time.perf_counter()
             _, comp, lat = _stream_live(live, x)
             times.append(time.perf_counter() - c0)
@@ -247,6 +249,7 @@ def error_table(quick: bool = False) -> str:
     a0009). Err is eq. 7 on landmarks (mean-subtracted motion), RMSE is landmark RMSE over the
     inter-ocular distance; 'vs truth' columns compare with the performer's real landmarks."""
     from voicepuppet.audio import load_audio
+    from voicepuppet.audio.stream import speech_level_db
     from voicepuppet.live import LivePuppet
     from voicepuppet.metrics import err, landmark_rmse_iod
 
@@ -269,7 +272,8 @@ def error_table(quick: bool = False) -> str:
             e_off, r_off, e_tr, r_tr = [], [], [], []
             for c in clips:
                 x = load_audio(c.audio).samples
-                live = LivePuppet(puppet, lag_ms=lag, posterior=posterior)
+                live = LivePuppet(puppet, lag_ms=lag, posterior=posterior,
+                                  input_level_db=speech_level_db(x, 16000))
                 pts, _, _ = _stream_live(live, x)
                 o = offline[c.audio]
                 e_off.append(err(pts, o))
@@ -294,6 +298,7 @@ def _lag_price_table(puppet, clips, settings, sweep=(None, (None,)), guide_weigh
     animation and the truth as in :func:`error_table`, Viterbi, means over the clips."""
     option, values = sweep
     from voicepuppet.audio import load_audio
+    from voicepuppet.audio.stream import speech_level_db
     from voicepuppet.live import LivePuppet
     from voicepuppet.metrics import err, landmark_rmse_iod
 
@@ -308,8 +313,10 @@ def _lag_price_table(puppet, clips, settings, sweep=(None, (None,)), guide_weigh
             r = []
             for c in clips:
                 swept = {} if option is None else {option: v}
-                live = LivePuppet(puppet, **swept, **kw, guide_weight=guide_weight)
-                pts, _, _ = _stream_live(live, load_audio(c.audio).samples)
+                x = load_audio(c.audio).samples
+                live = LivePuppet(puppet, **swept, **kw, guide_weight=guide_weight,
+                                  input_level_db=speech_level_db(x, 16000))
+                pts, _, _ = _stream_live(live, x)
                 o = offline[c.audio]
                 n = min(len(pts), len(c.points))
                 r.append((err(pts, o), landmark_rmse_iod(pts, o), err(pts[:n], c.points[:n]),
