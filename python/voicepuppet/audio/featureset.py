@@ -75,6 +75,15 @@ FEATURE_SETS = {
 DEFAULT_SET = "puppet"
 
 
+def check_level_db(level) -> float:
+    """The feature option ``level_db`` as a float: a speech level in dBFS in [-100, 0]."""
+    if (isinstance(level, bool) or not isinstance(level, (int, float, np.integer, np.floating))
+            or not -100.0 <= level <= 0.0):
+        raise ValueError(f"feature option level_db must be a speech level in dBFS between -100 and 0 "
+                         f"(e.g. -20) or None, got {level!r}")
+    return float(level)
+
+
 @dataclass(frozen=True)
 class FeatureSet:
     """Which features to compute and with which settings.
@@ -112,11 +121,8 @@ class FeatureSet:
                                  or not 0 < band < float("inf")):
             raise ValueError(f"feature option band_hz must be a frequency in Hz above 0 (e.g. 4000 for "
                              f"telephone audio) or None, got {band!r}")
-        level = self.options.get("level_db")
-        if level is not None and (isinstance(level, bool) or not isinstance(level, (int, float, np.integer, np.floating))
-                                  or not -100.0 <= level <= 0.0):
-            raise ValueError(f"feature option level_db must be a speech level in dBFS between -100 and 0 "
-                             f"(e.g. -20) or None, got {level!r}")
+        if self.options.get("level_db") is not None:
+            check_level_db(self.options["level_db"])
         object.__setattr__(self, "features", feats)
         object.__setattr__(self, "options", dict(self.options))
 

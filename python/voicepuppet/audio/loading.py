@@ -198,7 +198,7 @@ def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc:
                          "the original file)")
     if target_rate is not None and int(target_rate) < MIN_RATE:
         raise ValueError(f"audio: target_rate must be at least {MIN_RATE} Hz, got {target_rate}")
-    # Without temporaries the size of x (an hour of 48 kHz stereo is 2.8 GB of float64).
+    # Without temporaries the size of x (an hour of 48 kHz stereo is 1.4 GB of float32).
     peak = max(float(x.max()), -float(x.min()))
     if peak >= 1.0 - 1e-6:
         at = peak * (1.0 - 1e-6)

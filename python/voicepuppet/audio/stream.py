@@ -38,7 +38,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from .featureset import FeatureSet, analysis_window_s, as_feature_set
+from .featureset import FeatureSet, analysis_window_s, as_feature_set, check_level_db
 from .framing import check_fps, n_frames
 from .loading import MIN_RATE
 
@@ -336,10 +336,7 @@ class LevelNormalizer:
     """
 
     def __init__(self, level_db: float, rate: int, input_level_db: float | None = None):
-        level = float(level_db)
-        if not (np.isfinite(level) and -100.0 <= level <= 0.0):
-            raise ValueError(f"features: level_db must be a speech level in dBFS between -100 and 0 "
-                             f"(e.g. -20), got {level_db!r}")
+        level = check_level_db(level_db)
         if input_level_db is not None and not np.isfinite(float(input_level_db)):
             raise ValueError(f"input_level_db must be a level in dBFS, got {input_level_db!r}")
         self.level_db, self.rate = level, int(rate)
