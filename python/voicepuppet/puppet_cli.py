@@ -279,7 +279,7 @@ def add_parser(sub) -> None:
     p.add_argument("--noise-snrs", metavar="DB[,DB...]",
                    help="also learn the vocal side from copies of the training audio with white noise at these "
                         "SNRs (dB), e.g. 20,10: a puppet for noisy recordings (on the demo's data: at 20 dB SNR Err "
-                        "0.688 -> 0.520, +0.009 on clean audio; as much on pink noise, less under other voices; "
+                        "0.630 -> 0.489, +0.041 on clean audio; as much on pink noise, less under other voices; "
                         "docs/puppet.md)")
     p.add_argument("--audio-level", metavar="DBFS|none",
                    help="bring every recording the puppet hears, in training and after, to this speech level "
