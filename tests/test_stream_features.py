@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.signal import resample_poly
 
-from voicepuppet.audio import extract, load_audio, prepare, samples
+from voicepuppet.audio import AudioWarning, extract, load_audio, prepare, samples
 from voicepuppet.audio.featureset import reference_extract
 from voicepuppet.audio.stream import (STREAMABLE, StreamingFeatures, StreamResampler,
                                       pcm_to_float)
@@ -485,7 +485,8 @@ def test_level_db_brings_every_recording_to_one_level_and_its_pauses_to_one_floo
     roomy = np.concatenate([speech, floor * np.random.default_rng(SEED).standard_normal(RATE)])
     pause = norm.apply(roomy)[speech.size + 160:]
     assert np.sqrt(np.mean(pause ** 2)) == pytest.approx(dither_rms, rel=0.05)  # the floor became the dither
-    quiet = norm.apply(10 ** (-50 / 20) * speech)  # speech 50 dB down: raised 30 dB, not ~37
+    with pytest.warns(AudioWarning, match=r"speech level is -6\d dBFS, \d\d dB under the puppet's -20: raised by 30 dB"):
+        quiet = norm.apply(10 ** (-50 / 20) * speech)  # speech 50 dB down: raised 30 dB, not ~37
     assert speech_level_db(quiet, RATE) == pytest.approx(speech_level_db(speech, RATE) - 50 + MAX_GAIN_DB, abs=0.1)
     with pytest.raises(ValueError, match="level_db must be a speech level in dBFS"):
         extract(a, fps=29.97, level_db=12)

@@ -34,13 +34,14 @@ asking for them raises ``ValueError``.
 
 from __future__ import annotations
 
+import warnings
 from fractions import Fraction
 
 import numpy as np
 
 from .featureset import FeatureSet, analysis_window_s, as_feature_set, check_level_db
 from .framing import check_fps, n_frames
-from .loading import MIN_RATE
+from .loading import MIN_RATE, AudioWarning
 
 #: Features the stream can produce.
 STREAMABLE = ("lpc", "lpc_cepstra", "rasta_plp", "mfcc", "mfcc_deltas", "formants", "bands",
@@ -359,6 +360,11 @@ class LevelNormalizer:
         self.reset()
         x = np.asarray(x, dtype=np.float64)
         level = self.input_level_db if self.input_level_db is not None else speech_level_db(x, self.rate)
+        if np.isfinite(level) and self.level_db - level > MAX_GAIN_DB:
+            warnings.warn(f"audio: the speech level is {level:.0f} dBFS, {self.level_db - level:.0f} dB under the "
+                          f"puppet's {self.level_db:g}: raised by {MAX_GAIN_DB:g} dB, the most, and still quiet "
+                          "(a recording of almost nothing? check the file or the microphone's gain)",
+                          AudioWarning, stacklevel=2)
         return self._release(x * self.gain(level), last=True)
 
     def push(self, x: np.ndarray) -> np.ndarray:
