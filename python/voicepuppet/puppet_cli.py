@@ -95,14 +95,12 @@ def _train(args) -> int:
             raise ValueError(f"--noise-snrs takes SNRs in dB separated by commas (e.g. 20,10), got "
                              f"{args.noise_snrs!r}")
     level = None
-    if args.audio_level is not None:
-        try:
-            level = None if args.audio_level.strip().lower() == "none" else float(args.audio_level)
+    if args.audio_level is not None and args.audio_level.strip().lower() != "none":
+        try:  # checked here, before any tracking
+            level = vaudio.featureset.check_level_db(float(args.audio_level))
         except ValueError:
-            level = float("nan")
-        if level is not None and not -100.0 <= level <= 0.0:
             raise ValueError(f"--audio-level takes a speech level in dBFS between -100 and 0 (e.g. -20) or "
-                             f"'none', got {args.audio_level!r}")
+                             f"'none', got {args.audio_level!r}") from None
     n = max(len(videos), len(marks))
     # Every sound before any tracking: a video without an audio track fails in a second, not
     # after minutes of tracking it (and the ones before it).

@@ -328,14 +328,16 @@ def _extract(source, fps, features, n_out, progress, options, reference: bool) -
     else:
         raise ValueError(f"n_out must be a positive whole number of frames, got {n_out!r}")
     want = set(fset.features)
-    if opt["level_db"] is not None and (reference or want & {"f0", "voicing"}):
+    # The options on the samples (the stream's own front end, in its order), once for every
+    # feature: the stream below is given the result with them off.
+    if opt["level_db"] is not None:
         from .stream import LevelNormalizer
 
-        x = LevelNormalizer(opt["level_db"], rate).apply(x)  # as the stream's front end does its own input
-    if opt["band_hz"] is not None and (reference or want & {"f0", "voicing"}):
+        x = LevelNormalizer(opt["level_db"], rate).apply(x)
+    if opt["band_hz"] is not None:
         from .stream import BandLimiter
 
-        x = BandLimiter(opt["band_hz"], rate).apply(x)  # the stream's front end limits its own input
+        x = BandLimiter(opt["band_hz"], rate).apply(x)
     cols: dict[str, tuple[list[str], np.ndarray]] = {}
     framewise = [f for f in fset.features if f not in ("f0", "voicing")]
     stages = [bool(framewise), bool(want & {"f0", "voicing"})]
@@ -345,9 +347,9 @@ def _extract(source, fps, features, n_out, progress, options, reference: bool) -
         from .stream import StreamingFeatures
 
         bar.set_postfix_str("spectra, lpc, formants")
-        sub = FeatureSet(tuple(framewise), fset.options, fset.name)
+        sub = FeatureSet(tuple(framewise), {**fset.options, "level_db": None, "band_hz": None}, fset.name)
         s = StreamingFeatures(sub, fps=fps, rate=rate)
-        values = s.process(audio.samples, T)
+        values = s.process(x, T)
         for f in framewise:
             idx = [j for j, n in enumerate(s.names) if _feature_of(n) == f]
             cols[f] = ([s.names[j] for j in idx], values[:, idx])

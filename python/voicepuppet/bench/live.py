@@ -258,6 +258,8 @@ def error_table(quick: bool = False) -> str:
             "| Err vs offline | RMSE/IOD vs offline | Err vs truth | RMSE/IOD vs truth |",
             "|---|---|---|---|---|---|---|---|"]
     clips = corpus.test
+    sounds = {c.audio: load_audio(c.audio).samples for c in clips}
+    levels = {a: speech_level_db(x, 16000) for a, x in sounds.items()}  # as `live --input` knows them
     for posterior in (False, True):
         offline = {}
         for c in clips:
@@ -271,10 +273,8 @@ def error_table(quick: bool = False) -> str:
         for lag in LAGS_MS:
             e_off, r_off, e_tr, r_tr = [], [], [], []
             for c in clips:
-                x = load_audio(c.audio).samples
-                live = LivePuppet(puppet, lag_ms=lag, posterior=posterior,
-                                  input_level_db=speech_level_db(x, 16000))
-                pts, _, _ = _stream_live(live, x)
+                live = LivePuppet(puppet, lag_ms=lag, posterior=posterior, input_level_db=levels[c.audio])
+                pts, _, _ = _stream_live(live, sounds[c.audio])
                 o = offline[c.audio]
                 e_off.append(err(pts, o))
                 r_off.append(landmark_rmse_iod(pts, o))
@@ -304,6 +304,8 @@ def _lag_price_table(puppet, clips, settings, sweep=(None, (None,)), guide_weigh
 
     offline = {c.audio: puppet.animate(load_audio(c.audio), guide_weight=guide_weight
                                        ).animation.points for c in clips}
+    sounds = {c.audio: load_audio(c.audio).samples for c in clips}
+    levels = {a: speech_level_db(x, 16000) for a, x in sounds.items()}  # as `live --input` knows them
     rows = ["| other look-aheads | look-aheads (formant, deltas, projection, guide, decoder, "
             "trajectory) | latency (ms) | Err vs offline | RMSE/IOD vs offline | Err vs truth | "
             "RMSE/IOD vs truth |",
@@ -313,10 +315,9 @@ def _lag_price_table(puppet, clips, settings, sweep=(None, (None,)), guide_weigh
             r = []
             for c in clips:
                 swept = {} if option is None else {option: v}
-                x = load_audio(c.audio).samples
                 live = LivePuppet(puppet, **swept, **kw, guide_weight=guide_weight,
-                                  input_level_db=speech_level_db(x, 16000))
-                pts, _, _ = _stream_live(live, x)
+                                  input_level_db=levels[c.audio])
+                pts, _, _ = _stream_live(live, sounds[c.audio])
                 o = offline[c.audio]
                 n = min(len(pts), len(c.points))
                 r.append((err(pts, o), landmark_rmse_iod(pts, o), err(pts[:n], c.points[:n]),
