@@ -109,6 +109,35 @@ def test_rerun_skips_verified_outputs_and_redoes_damaged_ones(client, videos, on
     assert fourth.count("done") == 3
 
 
+def test_a_points_file_warning_is_said_once_not_per_file(client, videos, tmp_path):
+    import shutil
+
+    root, _ = videos
+    folder = tmp_path / "two"
+    folder.mkdir()
+    for n in ("a.avi", "b.avi"):
+        shutil.copy(root / n, folder / n)
+    from voicepuppet.animation import neutral_landmarks
+
+    pts = np.round(neutral_landmarks() + [130.0, 0.0])  # 68 points on the face's box, whole pixels
+    pts[[67, 66, 65]] = pts[[61, 62, 63]]  # a closed mouth: the inner lips share positions
+    init = tmp_path / "closed.json"
+    init.write_text(json.dumps({"points": pts.tolist(), "names": [f"p{i}" for i in range(len(pts))]}))
+    with pytest.warns(UserWarning, match="share positions") as seen:
+        s = batch.track_folder(folder, tmp_path / "out", init=str(init), passes=1, client=client, progress=False)
+    assert sum("share positions" in str(w.message) for w in seen) == 1
+    assert s.count("done") == 2
+    assert not any("share positions" in w for f in s.files for w in f.warnings)
+    ref = tmp_path / "ref.npz"
+    with pytest.warns(UserWarning, match="share positions"):
+        batch.track_file(folder / "b.avi", ref, init=str(init), passes=1)
+    assert_same_file(tmp_path / "out" / "b.npz", ref)  # the same points and names as one by one
+    from voicepuppet.tracking import track_video
+
+    with pytest.raises(ValueError, match="a points file carries its own"):
+        track_video(folder / "a.avi", str(init), names=["x"] * 68, passes=1, progress=False)
+
+
 def test_full_disk_is_reported_per_file_and_leaves_nothing_half_written(client, videos, monkeypatch, tmp_path):
     root, init = videos
     out = tmp_path / "out"

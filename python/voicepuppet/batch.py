@@ -549,6 +549,13 @@ def track_file(video_path, out_npz, *, init="auto", passes: int = 2, **options) 
 
 @_refusals_reported
 def _track_task(video_path: str, out_stem: str, init, passes: int, options: dict) -> dict:
+    """``init``: "auto", or the points file's ``(points, names)`` as read once for the batch (its
+    warnings, e.g. coincident points moved apart, said once up front rather than per file)."""
+    if init != "auto":
+        import numpy as np
+
+        points, names = init
+        init, options = np.asarray(points, dtype=np.float64), {**options, "names": names}
     with tempfile.TemporaryDirectory(prefix="voicepuppet-batch-") as d:
         stage = Path(d) / (Path(out_stem).name + ".npz")
         track_file(video_path, stage, init=init, passes=passes, **options)
@@ -589,8 +596,8 @@ def track_folder(video_dir, out_dir, *, init="auto", passes: int = 2, client=Non
     settings = {"verb": "track", "passes": int(passes), "options": options}
     if init != "auto":
         init_path = Path(init)
-        load_init_points(init_path)  # a bad points file is refused before any work starts
-        init = str(init_path.resolve())
+        points, names = load_init_points(init_path)  # a bad points file is refused before any work starts
+        init = (points.tolist(), names)
         settings["init_sha256"] = sha256_file(init_path)
     else:
         settings["init"] = "auto"

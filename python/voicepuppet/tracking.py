@@ -747,7 +747,7 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
 
 
 def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = "auto", *,
-                edges=None, passes: int = 2, progress: bool = True, cache_bytes: int = 1 << 30,
+                names=None, edges=None, passes: int = 2, progress: bool = True, cache_bytes: int = 1 << 30,
                 working_scale="auto", **options) -> TrackResult:
     """Tracks landmarks through a video file.
 
@@ -772,7 +772,8 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
 
     info = video.probe_video(path)
     fps = info.fps if info.fps > 0 else 29.97
-    names = None
+    if names is not None and (isinstance(init, (str, os.PathLike))):
+        raise ValueError("names go with init points given as an array; a points file carries its own")
     frames_iter = video.iter_frames(path)
     first = next(frames_iter, None)
     frames_iter.close()  # releases the decoder now rather than at garbage collection
