@@ -199,5 +199,20 @@ void bind_puppet(py::module_& m) {
                r = p.animate_states(states, states_fps, fps);
              }
              return result(r);
-           }, py::arg("states"), py::arg("states_fps"), py::arg("fps") = 0.0);
+           }, py::arg("states"), py::arg("states_fps"), py::arg("fps") = 0.0)
+      .def("animate_states_guided", [](const Puppet& p, const Eigen::Ref<const IndexMatrix>& states,
+                                       double states_fps, const MatrixRef& raw, double fps, double guide_weight) {
+             AnimateOptions o;
+             o.fps = fps;
+             o.guide_weight = guide_weight;
+             AnimateResult r;
+             {
+               py::gil_scoped_release release;
+               r = p.animate_states(states, states_fps, raw, o);
+             }
+             return result(r);
+           }, py::arg("states"), py::arg("states_fps"), py::arg("raw_features"), py::arg("fps") = 0.0,
+           py::arg("guide_weight") = AnimateOptions{}.guide_weight,
+           "animate_states with the guide's evidence from the audio the states go with (raw feature\n"
+           "frames at the puppet's rate): unedited states give animate(raw_features) exactly.");
 }

@@ -158,9 +158,42 @@ def test_weight_zero_is_the_unguided_puppet_of_the_same_seed(puppets, data, part
             np.testing.assert_array_equal(guided.animate(features=feats, posterior=posterior, fps=fps).face,
                                           guided.animate(features=feats, posterior=posterior, fps=fps,
                                                          guide_weight=guided.guide_weight).face)
-    # given states are synthesised unguided, as by the unguided puppet
+    # given states alone are synthesised unguided, as by the unguided puppet
     s = guided.animate(features=feats).states
     np.testing.assert_allclose(guided.animate(states=s).face, plain.animate(states=s).face, atol=1e-12)
+
+
+@pytest.mark.parametrize("parts", [None, "upper_lower"], ids=["one-part", "upper-lower"])
+@pytest.mark.parametrize("fps", [None, 47.0], ids=["own-rate", "47fps"])
+def test_given_states_with_their_audio_are_the_guided_animation(puppets, data, parts, fps):
+    """Brand §6's editing loop: the states animate decoded, given back with the same audio,
+    give its face exactly (the guide's evidence comes from that audio); alone, the unguided
+    solve; the guide's weight applies to them as to the audio."""
+    pup = puppets[parts, "ridge"]
+    _, (_, feats) = data
+    r = pup.animate(features=feats, fps=fps)
+    again = pup.animate(features=feats, states=r.states, states_fps=r.states_fps, fps=fps)
+    np.testing.assert_array_equal(again.face, r.face)
+    np.testing.assert_array_equal(again.states, r.states)
+    for w in (0.0, 2.0):
+        np.testing.assert_array_equal(pup.animate(features=feats, states=r.states, fps=fps, guide_weight=w).face,
+                                      pup.animate(features=feats, fps=fps, guide_weight=w).face)
+    # the rate as a states file's 9-digit times give it back
+    sfps = 1.0 / float(np.median(np.diff(np.array([f"{t:.9g}" for t in np.arange(len(r.states)) / FPS],
+                                                  dtype=float))))
+    assert sfps != FPS
+    np.testing.assert_array_equal(pup.animate(features=feats, states=r.states, states_fps=sfps, fps=fps).face,
+                                  r.face)
+    with pytest.raises(ValueError, match="one path"):
+        pup.animate(features=feats, states=r.states, posterior=True)
+    with pytest.raises(ValueError, match="not decoded"):
+        pup.animate(features=feats, states=r.states, adapt="full")
+    with pytest.raises(ValueError, match="decoded from"):
+        pup.animate(features=feats, states=r.states[: len(r.states) // 2])
+    with pytest.raises(ValueError, match="give the audio or drop guide_weight"):
+        pup.animate(states=r.states, guide_weight=2.0)
+    with pytest.raises(ValueError, match="states with the audio"):
+        pup.animate(audio="x.wav", features=feats, states=r.states)
 
 
 def test_stored_guide_is_the_ridge_baseline_and_its_cross_fitted_residuals(puppets, data):
@@ -271,7 +304,7 @@ def test_bad_options_and_arrays_are_refused_by_name(puppets, data):
         plain.animate(features=test_feats, guide_weight=0.5)
     plain.animate(features=test_feats, guide_weight=0)  # 0 is Brand's solve: fine on any puppet
     s = pup.animate(features=test_feats).states
-    with pytest.raises(ValueError, match="not to given states"):
+    with pytest.raises(ValueError, match="without their audio are synthesised unguided"):
         pup.animate(states=s, guide_weight=1.0)
     K = pup.face_space.n_dims
     cases = {"guide/covariance": np.eye(K + 1), "guide/map": np.zeros((3, K)), "guide/context": np.array([101]),

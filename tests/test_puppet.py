@@ -148,7 +148,7 @@ def test_bad_animation_input(trained):
     p, _, (_, feats, _) = trained
     with pytest.raises(ValueError, match="columns"):
         p.animate(features=feats[:, :3])
-    with pytest.raises(ValueError, match="exactly one"):
+    with pytest.raises(ValueError, match="give audio or features"):
         p.animate()
     with pytest.raises(ValueError, match=r"\[0, "):
         p.animate(states=np.full(10, 99))

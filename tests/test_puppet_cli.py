@@ -63,14 +63,36 @@ def test_train_and_animate(workdir, capsys):
     truth = np.load(d / "test_states.npy")
     purity = sum(np.bincount(truth[states == s]).max() for s in np.unique(states)) / len(truth)
     assert purity > 0.9
-    # Read back (edited or not), the states give the same animation as the audio without the
-    # guide's evidence (--guide-weight 0: given states are synthesised by Brand's solve).
+    # Read back with the audio, unedited states give the animation itself (the guide from the same
+    # audio); without the audio, the audio's animation without the guide's evidence (Brand's solve,
+    # as --guide-weight 0).
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "--states-in", str(d / "s.csv"),
+                 "-o", str(d / "r.npz"), "--quiet"]) == 0
     assert main(["animate", str(d / "p.vpp"), "--states-in", str(d / "s.csv"), "-o", str(d / "b.npz")]) == 0
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "u.npz"), "--guide-weight", "0",
                  "--quiet"]) == 0
-    with np.load(d / "b.npz") as z, np.load(d / "u.npz") as u:
+    with np.load(d / "r.npz") as r, np.load(d / "b.npz") as z, np.load(d / "u.npz") as u:
+        np.testing.assert_array_equal(r["points"], pts)
         np.testing.assert_allclose(z["points"], u["points"], atol=1e-9)
         assert np.abs(u["points"] - pts).max() > 1e-6  # the default puppet is guided: its evidence moves the face
+    # an edit (frames 50-59 held in another state) changes the face there, and little far from it
+    table = np.loadtxt(d / "s.csv", delimiter=",", skiprows=1)
+    table[50:60, 2] = (table[50:60, 2] + 1) % 6
+    np.savetxt(d / "e.csv", table, fmt=["%d", "%.9g", "%d"], delimiter=",", header="frame,time,part0", comments="")
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "--states-in", str(d / "e.csv"),
+                 "-o", str(d / "e.npz"), "--quiet"]) == 0
+    with np.load(d / "e.npz") as e:
+        change = np.abs(e["points"] - pts).max(axis=(1, 2))
+    assert change[50:60].min() > 0.5 and change[:30].max() < 0.05 * change[50:60].max()
+    capsys.readouterr()
+    for extra, msg in ((["--posterior"], "--posterior does not apply"), (["--adapt", "full"], "not decoded")):
+        assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "--states-in", str(d / "s.csv"),
+                     "-o", str(d / "x.npz"), *extra]) == 2
+        assert msg in capsys.readouterr().err
+    assert main(["animate", str(d / "p.vpp"), "--states-in", str(d / "s.csv"), "-o", str(d / "x.npz"),
+                 "--guide-weight", "2"]) == 2
+    assert "give the AUDIO the states go with" in capsys.readouterr().err
+    assert not (d / "x.npz").exists()
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "c.csv"), "--fps", "50",
                  "--posterior", "--quiet"]) == 0
     assert np.loadtxt(d / "c.csv", delimiter=",", skiprows=1).shape == (400, 22)

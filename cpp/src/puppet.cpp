@@ -424,9 +424,7 @@ std::vector<RowMatrixXd> Puppet::animate_faces(const MatrixRef& raw_features, co
   return faces;
 }
 
-AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
-                                     double out_fps) const {
-  const double out = out_rate(out_fps);
+void Puppet::check_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps) const {
   if (!(states_fps > 0) || !std::isfinite(states_fps)) {
     fail_argument("states_fps must be positive, got ", states_fps);
   }
@@ -434,21 +432,69 @@ AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states
     fail_argument("states must have at least one frame and one column per face part (", n_parts(),
                   "), got ", shape_of(states));
   }
+  for (Index p = 0; p < n_parts(); ++p) {
+    const Index n = parts_[static_cast<size_t>(p)].n_states();
+    if ((states.col(p).array() < 0).any() || (states.col(p).array() >= n).any()) {
+      fail_argument("states of part ", p, " must lie in [0, ", n, ")");
+    }
+  }
+}
+
+AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
+                                     double out_fps) const {
+  check_states(states, states_fps);
+  const double out = out_rate(out_fps);
   AnimateResult r;
   r.states = states;
   std::vector<RowMatrixXd> faces;
   for (Index p = 0; p < n_parts(); ++p) {
-    const PuppetPart& pt = parts_[static_cast<size_t>(p)];
     const VectorXi s = states.col(p);
-    if ((s.array() < 0).any() || (s.array() >= pt.n_states()).any()) {
-      fail_argument("states of part ", p, " must lie in [0, ", pt.n_states(), ")");
-    }
     // The trajectory model's velocities are per training frame; states at another rate are
     // first brought to the output rate.
     faces.push_back(solve_trajectory(trajectory_model(out, p),
                                      states_fps == out ? s : resample_states(s, states_fps, out)));
   }
   r.face = side_by_side(faces, n_dims());
+  r.points = to_points(r.face);
+  return r;
+}
+
+AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
+                                     const MatrixRef& raw_features, const AnimateOptions& options) const {
+  check_states(states, states_fps);
+  if (options.posterior) {
+    fail_argument("given states are one path: posterior-weighted synthesis does not apply to them");
+  }
+  if (options.adapt.kind != AdaptKind::None) {
+    fail_argument("adaptation changes how the audio is decoded; given states are not decoded: drop it");
+  }
+  const double lambda = guide_lambda(options.guide_weight);
+  Analysis a;
+  a.out = out_rate(options.fps);
+  const RowMatrixXd z = standardize(raw_features);
+  const Index n_out = a.out == fps_ ? z.rows() : resampled_length(z.rows(), fps_, a.out);
+  if (lambda > 0) {
+    a.guide_y = guide_.apply(z);
+    if (a.out != fps_) a.guide_y = resample_weights(a.guide_y, fps_, a.out);
+  }
+  for (Index p = 0; p < n_parts(); ++p) {
+    const VectorXi s = states.col(p);
+    VectorXi path = states_fps == a.out ? s : resample_states(s, states_fps, a.out);
+    const Index m = path.size();
+    if (std::abs(m - n_out) > 1) {
+      fail_argument("the states cover ", m, " frames at ", a.out, " fps and the audio ", n_out,
+                    ": give the audio the states were decoded from (or synthesise them without audio)");
+    }
+    if (m != n_out) {  // one frame of rounding between the two rates: hold the last state, or cut
+      const Index last = path(m - 1);
+      path.conservativeResize(n_out);
+      if (n_out > m) path(n_out - 1) = last;
+    }
+    a.paths.push_back(std::move(path));
+  }
+  AnimateResult r;
+  r.states = states;
+  r.face = synthesise(a, lambda);
   r.points = to_points(r.face);
   return r;
 }

@@ -835,12 +835,13 @@ void check_rates(double fps_in, double fps_out) {
   if (!std::isfinite(fps_in) || fps_in <= 0.0) fail_argument("fps_in must be a positive frame rate, got ", fps_in);
   if (!std::isfinite(fps_out) || fps_out <= 0.0) fail_argument("fps_out must be a positive frame rate, got ", fps_out);
 }
-// ceil(T · fps_out / fps_in), tolerant to rounding of an exact ratio.
+}  // namespace
+
 Index resampled_length(Index n, double fps_in, double fps_out) {
+  check_rates(fps_in, fps_out);
   const double x = static_cast<double>(n) * fps_out / fps_in;
   return std::max<Index>(1, static_cast<Index>(std::ceil(x - 1e-9 * std::max(1.0, x))));
 }
-}  // namespace
 
 VectorXi resample_states(const IndexVectorRef& states, double fps_in, double fps_out) {
   check_rates(fps_in, fps_out);

@@ -183,6 +183,57 @@ TEST_CASE("guide: animate_faces is animate at each weight (one decoding for all)
   CHECK(throws_with<std::invalid_argument>([&] { p.animate_faces(raw, {1.0, INFINITY}); }, "guide_weight must be finite"));
 }
 
+TEST_CASE("guide: given states with their audio are guided as animate; edits change the face where made") {
+  const Puppet p(guided(0.7)), plain(unguided());
+  const RowMatrixXd raw = audio();
+  for (double fps : {0.0, 45.0}) {
+    for (double w : {-1.0, 2.0}) {
+      CAPTURE(fps);
+      CAPTURE(w);
+      AnimateOptions o;
+      o.fps = fps;
+      o.guide_weight = w;
+      const AnimateResult ref = p.animate(raw, o);
+      const AnimateResult again = p.animate_states(ref.states, 30, raw, o);
+      CHECK((again.face.array() == ref.face.array()).all());  // the same solve, bit for bit
+      CHECK((again.points.array() == ref.points.array()).all());
+      CHECK((again.states.array() == ref.states.array()).all());
+      // without the audio the same states are Brand's unguided solve, another face
+      CHECK((p.animate_states(ref.states, 30, fps).face - ref.face).cwiseAbs().maxCoeff() > 1e-3);
+    }
+  }
+  const IndexMatrix states = p.animate(raw).states;
+  IndexMatrix edited = states;
+  edited(3, 0) = 1 - edited(3, 0);
+  const RowMatrixXd d = p.animate_states(edited, 30, raw).face - p.animate(raw).face;
+  CHECK(d.row(3).cwiseAbs().maxCoeff() > 1e-3);
+  CHECK(d.row(3).cwiseAbs().maxCoeff() > 10 * d.row(11).cwiseAbs().maxCoeff());
+  // λ = 0, or an unguided puppet: the unguided solve of the states
+  AnimateOptions zero;
+  zero.guide_weight = 0;
+  CHECK((p.animate_states(states, 30, raw, zero).face.array() == p.animate_states(states, 30).face.array()).all());
+  CHECK((plain.animate_states(states, 30, raw).face.array() == plain.animate_states(states, 30).face.array()).all());
+  // one frame more than the audio (rounding of two rates) is cut; more is refused
+  IndexMatrix longer(13, 1);
+  longer << states, states.bottomRows(1);
+  CHECK((p.animate_states(longer, 30, raw).face.array() == p.animate(raw).face.array()).all());
+  const IndexMatrix half = states.topRows(6);
+  CHECK(throws_with<std::invalid_argument>([&] { p.animate_states(half, 30, raw); },
+                                           "give the audio the states were decoded from"));
+  AnimateOptions post;
+  post.posterior = true;
+  CHECK(throws_with<std::invalid_argument>([&] { p.animate_states(states, 30, raw, post); }, "one path"));
+  AnimateOptions ad;
+  ad.adapt.kind = AdaptKind::Full;
+  CHECK(throws_with<std::invalid_argument>([&] { p.animate_states(states, 30, raw, ad); }, "not decoded"));
+  AnimateOptions over;
+  over.guide_weight = 1.0;
+  CHECK(throws_with<std::invalid_argument>([&] { plain.animate_states(states, 30, raw, over); }, "needs a guided puppet"));
+  IndexMatrix bad = states;
+  bad(0, 0) = 2;
+  CHECK(throws_with<std::invalid_argument>([&] { p.animate_states(bad, 30, raw); }, "[0, 2)"));
+}
+
 TEST_CASE("guide: format version 2 only for a file with a guide; both versions read") {
   const std::string with = encode_puppet(guided()), without = encode_puppet(unguided());
   CHECK(static_cast<int>(with[8]) == 2);

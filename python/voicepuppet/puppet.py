@@ -380,9 +380,16 @@ class Puppet:
         features : array (T, A), optional
             Raw features at the puppet's rate instead of ``audio``.
         states : array (T,) or (T, parts) of int, optional
-            A (possibly edited) state sequence to synthesise from, instead of analysing audio.
+            A (possibly edited) state sequence to synthesise from, instead of decoding audio (the
+            ``states`` of an earlier result, at :attr:`Animated.states_fps`). Alone: Brand's
+            unguided solve. With the ``audio`` or ``features`` they go with: the states replace
+            the Viterbi path and nothing else changes (a guided puppet's guide comes from that
+            audio), so unedited states give the audio's animation exactly and an edit changes the
+            face around the frames it touches. They must then cover the audio's frames (to within
+            one frame).
         states_fps : float, optional
-            Rate of ``states`` (default: the puppet's).
+            Rate of ``states`` (default: the puppet's; a rate within 1 ppm of the puppet's, as read
+            back from a states file's 9-digit times, is the puppet's).
         adapt : {None, "full"}
             ``"full"``: unsupervised test-time adaptation of the input's vocal features (the
             standardised features, or their projection for a ``vocal_features="projected"``
@@ -402,19 +409,23 @@ class Puppet:
             puppet (:attr:`guided`). The choice is made on the voices of the training audio; a
             voice the puppet never heard may want a larger λ (docs/results.md, "The guide's
             weight chosen at training by cross-validation").
-            Given states (``states=``) are always synthesised unguided.
+            Given states without audio are synthesised unguided.
         """
         out_fps = float(fps) if fps is not None else self.fps
         if out_fps <= 0 or not np.isfinite(out_fps):
             raise ValueError(f"fps must be positive, got {fps!r}")
-        given = sum(x is not None for x in (audio, features, states))
-        if given != 1:
-            raise ValueError("give exactly one of audio, features or states")
+        sound = (audio is not None) + (features is not None)
+        if sound > 1 or (sound == 0 and states is None):
+            raise ValueError("give audio or features (one of them), states, or states with the audio or "
+                             "features they go with")
         if adapt is not None:
             if adapt not in ADAPT_KINDS:
                 raise ValueError(f"adapt must be None or {' or '.join(map(repr, ADAPT_KINDS))}, got {adapt!r}")
             if states is not None:
-                raise ValueError("adapt applies to audio or features, not to given states; drop adapt")
+                raise ValueError("adapt changes how the audio is decoded; given states are not decoded: drop adapt")
+        if states is not None and posterior:
+            raise ValueError("given states are one path: posterior-weighted synthesis does not apply to them; "
+                             "drop posterior (or the states)")
         if guide_weight is None:
             lam = -1.0
         else:
@@ -424,9 +435,9 @@ class Puppet:
             if not (lam >= 0 and np.isfinite(lam)):
                 raise ValueError(f"guide_weight must be None (the puppet's) or a finite number >= 0 "
                                  f"(0: unguided), got {guide_weight!r}")
-            if states is not None and lam > 0:
-                raise ValueError("guide_weight applies to audio or features, not to given states "
-                                 "(they are synthesised unguided); drop guide_weight")
+            if states is not None and not sound and lam > 0:
+                raise ValueError("guide_weight weighs the guide's prediction from the audio; given states "
+                                 "without their audio are synthesised unguided: give the audio or drop guide_weight")
         if states is not None:
             s = np.asarray(states)
             if s.ndim == 1:
@@ -434,7 +445,16 @@ class Puppet:
             if s.ndim != 2 or not np.issubdtype(s.dtype, np.integer):
                 raise ValueError(f"states must be integers of shape (T,) or (T, parts); got {s.dtype} {s.shape}")
             sf = self.fps if states_fps is None else float(states_fps)
-            r = self._core.animate_states(np.ascontiguousarray(s, dtype=np.int64), sf, out_fps)
+            if abs(sf / self.fps - 1.0) < 1e-6:
+                sf = self.fps
+            s = np.ascontiguousarray(s, dtype=np.int64)
+            if not sound:
+                r = self._core.animate_states(s, sf, out_fps)
+            else:
+                if features is None:
+                    features = self.audio_features(audio, progress=progress)
+                r = self._core.animate_states_guided(s, sf, np.ascontiguousarray(features, dtype=np.float64),
+                                                     out_fps, lam)
         else:
             if features is None:
                 features = self.audio_features(audio, progress=progress)

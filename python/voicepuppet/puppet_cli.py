@@ -234,12 +234,16 @@ def _animate(args) -> int:
         raise ValueError("--adapt-tau and --adapt-iter set the adaptation: give --adapt full too")
     if args.states_in:
         if adapt:
-            raise ValueError("--adapt adapts the audio's features; with --states-in there is no audio: drop --adapt")
-        if args.guide_weight is not None and args.guide_weight != 0:
-            raise ValueError("--guide-weight weighs the guide's prediction from the audio; with --states-in "
-                             "there is no audio (the states are synthesised unguided): drop --guide-weight")
+            raise ValueError("--adapt changes how the audio is decoded; the states of --states-in are not "
+                             "decoded: drop --adapt")
+        if args.posterior:
+            raise ValueError("--states-in gives one path: --posterior does not apply to it; drop --posterior")
+        if args.audio is None and args.guide_weight is not None and args.guide_weight != 0:
+            raise ValueError("--guide-weight weighs the guide's prediction from the audio; --states-in without "
+                             "AUDIO is synthesised unguided: give the AUDIO the states go with, or drop --guide-weight")
         states, sfps = load_states(args.states_in)
-        result = puppet.animate(states=states, states_fps=sfps, fps=args.fps)
+        result = puppet.animate(args.audio, states=states, states_fps=sfps, fps=args.fps,
+                                guide_weight=args.guide_weight, progress=not args.quiet)
     else:
         if args.audio is None:
             raise ValueError("give the AUDIO to animate (or --states-in)")
@@ -332,7 +336,10 @@ def add_parser(sub) -> None:
     a.add_argument("--guide-weight", type=float, metavar="W",
                    help="weight of a guided puppet's evidence (default: the puppet's, chosen at training; "
                         "0: Brand's unguided solve; docs/results.md)")
-    a.add_argument("--states-out", metavar="S.csv", help="also write the facial state sequence (for editing)")
-    a.add_argument("--states-in", metavar="S.csv", help="synthesise from this (edited) state sequence instead of audio")
+    a.add_argument("--states-out", metavar="S.csv", help="also write the facial state sequence, the Viterbi path (for editing: read it back with --states-in and the same AUDIO)")
+    a.add_argument("--states-in", metavar="S.csv",
+                   help="synthesise from this (edited) state sequence instead of decoding the audio; with the AUDIO "
+                        "it came from, guided by it as the animation was (unedited states give the same animation, "
+                        "an edit changes the face where it is made); without AUDIO, Brand's unguided solve")
     a.add_argument("--quiet", action="store_true", help="no progress bars")
     a.set_defaults(func=_animate)

@@ -192,9 +192,20 @@ class Puppet {
   /// choosing λ needs (the training's cross-validation).
   std::vector<RowMatrixXd> animate_faces(const MatrixRef& raw_features, const std::vector<double>& guide_weights,
                                          const AnimateOptions& options = {}) const;
-  /// Synthesis from given (e.g. edited) states #T by #parts at `states_fps`.
+  /// Synthesis from given (e.g. edited) states #T by #parts at `states_fps`, unguided (Brand's
+  /// solve: there is no audio to guide it).
   AnimateResult animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
                                double out_fps = 0) const;
+  /// Synthesis from given (e.g. edited) states, with the guide's evidence from the audio they go
+  /// with (raw feature frames at the puppet's rate, as animate takes): the states replace the
+  /// Viterbi path and nothing else changes, so the states animate(raw_features, options) decoded
+  /// give its face exactly, and an edit changes the face only around the frames it touches.
+  /// options.fps and options.guide_weight as in animate; options.posterior and options.adapt
+  /// must be off (given states are not decoded). The states must cover the audio's frames at
+  /// the output rate to within one frame (the last state is held, or the extra cut).
+  /// @throws std::invalid_argument on bad states, options or lengths.
+  AnimateResult animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
+                               const MatrixRef& raw_features, const AnimateOptions& options = {}) const;
 
  private:
   double out_rate(double fps) const;
@@ -212,6 +223,8 @@ class Puppet {
   Analysis analyse(const MatrixRef& raw_features, const AnimateOptions& options, bool guide) const;
   /// animate's synthesis: the face coordinates from `a` with the guide's evidence at λ.
   RowMatrixXd synthesise(const Analysis& a, double lambda) const;
+  /// Given states checked against the parts: #T ≥ 1 rows, one column per part, each in range.
+  void check_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps) const;
   PuppetFile file_;
   double fps_ = 0;
   Index delta_width_ = 0;

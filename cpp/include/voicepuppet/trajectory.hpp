@@ -136,6 +136,10 @@ RowMatrixXd solve_trajectory(const TrajectoryModel& model, const IndexVectorRef&
 RowMatrixXd solve_trajectory_weighted(const TrajectoryModel& model, const MatrixRef& weights,
                                       const TrajectoryEvidence* evidence = nullptr);
 
+/// The number of frames resample_states and resample_weights give for #n frames at fps_in:
+/// ceil(n · fps_out / fps_in) (at least 1), tolerant to the rounding of an exact ratio.
+Index resampled_length(Index n, double fps_in, double fps_out);
+
 /// Resamples a state sequence from rate fps_in to fps_out by sample and hold: output frame k
 /// (time k / fps_out) takes the state of input frame floor(k · fps_in / fps_out), and there are
 /// ceil(T · fps_out / fps_in) output frames (every output time inside the input's duration).
