@@ -260,7 +260,7 @@ def test_defaults_and_bad_values(puppet):
         puppet.animate(features=heard, adapt="full", adapt_iter=0)
     with pytest.raises(ValueError, match="adapt_iter must be an integer"):
         puppet.animate(features=heard, adapt="full", adapt_iter=1.5)
-    with pytest.raises(ValueError, match="not to given states"):
+    with pytest.raises(ValueError, match="given states are not decoded"):
         puppet.animate(states=np.zeros(10, np.int64), adapt="full")
 
 
@@ -298,7 +298,7 @@ def test_animate_switch_and_live_refuses(tmp_path, capsys):
     assert "give --adapt full too" in capsys.readouterr().err
     assert main(["animate", str(tmp_path / "p.vpp"), "--states-in", str(tmp_path / "s.csv"), "--adapt", "full",
                  "-o", str(tmp_path / "c.npz")]) == 2
-    assert "with --states-in there is no audio" in capsys.readouterr().err
+    assert "the states of --states-in are not decoded" in capsys.readouterr().err
     assert not (tmp_path / "b.npz").exists() and not (tmp_path / "c.npz").exists()
     # Live animation has no whole input to adapt to: it has no such switch.
     with pytest.raises(SystemExit) as e:
