@@ -470,6 +470,115 @@ def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_pa
     assert len(lines) == math.ceil(160000 / 16000 * FPS)
 
 
+def _chromium():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    opts = Options()
+    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+              "--window-size=520,560"):
+        opts.add_argument(a)
+    if os.path.exists("/usr/bin/chromium"):
+        opts.binary_location = "/usr/bin/chromium"
+    service = Service("/usr/bin/chromedriver") if os.path.exists("/usr/bin/chromedriver") else Service()
+    return webdriver.Chrome(options=opts, service=service)
+
+
+def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path):
+    """``live --face``: the server gives the viewer the face's mesh and photo and each frame's
+    vertices (those ``render`` drives the mesh to, from the stream's first frame as rest); the page,
+    in headless Chromium, warps the photo triangle by triangle, and the frame it drew matches the
+    offline pyvista render of the same vertices."""
+    import base64
+    import urllib.request
+
+    import soundfile
+    from PIL import Image
+    from selenium.webdriver.support.ui import WebDriverWait
+    from websockets.sync.client import connect
+
+    from voicepuppet import render
+    from voicepuppet.animation import Animation
+    from voicepuppet.cli import build_parser
+    from voicepuppet.live import run_live
+
+    _, path = puppet
+    # a face of the puppet's layout: the drawn portrait of its rest shape, moved into a 320x300 photo
+    pts = neutral_landmarks() + [0.0, -20.0]
+    img = render.portrait_image(pts, 320, 300)
+    Image.fromarray(img).save(tmp_path / "face.png")
+    (tmp_path / "face.json").write_text(json.dumps({"points": pts.tolist()}))
+    wav = tmp_path / "in.wav"
+    soundfile.write(wav, np.tile(speech, 2)[:160000], 16000, subtype="DOUBLE")
+    port = free_port()
+    args = build_parser().parse_args(["live", str(path), "--input", str(wav), "--websocket", f"127.0.0.1:{port}",
+                                      "--face", str(tmp_path / "face.png"), "--face-points",
+                                      str(tmp_path / "face.json")])
+    out = io.StringIO()
+    result = {}
+    th = threading.Thread(target=lambda: result.setdefault("code", run_live(args, out)), daemon=True)
+    th.start()
+    for _ in range(200):
+        try:
+            ws = connect(f"ws://127.0.0.1:{port}/frames", open_timeout=2)
+            break
+        except OSError:
+            time.sleep(0.05)
+    else:
+        pytest.fail("WebSocket server did not come up")
+    with ws:
+        msg = json.loads(ws.recv(timeout=5))
+    mesh = render.load_face(tmp_path / "face.png", tmp_path / "face.json")
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/mesh.json", timeout=5) as r:
+        assert r.headers["Content-Type"] == "application/json"
+        doc = json.loads(r.read())
+    assert (doc["width"], doc["height"]) == (320, 300)
+    np.testing.assert_array_equal(doc["triangles"], mesh.faces)
+    np.testing.assert_array_equal(doc["mouth"], mesh.mouth)
+    np.testing.assert_allclose(doc["uv"], mesh.uv, atol=1e-7)
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/face.png", timeout=5) as r:
+        assert r.headers["Content-Type"] == "image/png"
+        np.testing.assert_array_equal(np.asarray(Image.open(io.BytesIO(r.read())).convert("RGB")), img)
+    assert np.array(msg["vertices"]).shape == (len(mesh.vertices), 2)
+    driver = _chromium()
+    try:
+        driver.set_page_load_timeout(20)
+        driver.get(f"http://127.0.0.1:{port}/")
+        WebDriverWait(driver, 30).until(
+            lambda d: d.execute_script("return document.body.dataset.face") == "yes"
+            and int(d.execute_script("return document.body.dataset.frames || 0")) >= 10)
+        # the frame drawn and the canvas at one moment (the page's script runs between events)
+        drawn, url = driver.execute_script(
+            "return [document.body.dataset.drawn, document.getElementById('face').toDataURL('image/png')];")
+    finally:
+        driver.quit()
+    th.join(60)
+    assert not th.is_alive() and result["code"] == 0
+    lines = [json.loads(x) for x in out.getvalue().splitlines()]
+    stream = np.array([x["points"] for x in lines])
+    # the vertices sent are render's, from the stream's first frame (stdout's points: 0.01 px)
+    want = render.mesh_animation(Animation(stream, FPS), mesh)["vertices"]
+    np.testing.assert_allclose(msg["vertices"], want[msg["frame"], :, :2], atol=0.05)
+    shot = np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB")).astype(int)
+    assert shot.shape == (300, 320, 3)
+    with render.FaceRenderer(mesh, size=(320, 300)) as r:
+        ref = r.frame(want[int(drawn)]).astype(int)
+        rest = r.frame(mesh.vertices).astype(int)
+    diff = np.abs(shot - ref).mean()
+    assert diff < 2.0, f"the viewer's frame {drawn} differs from render's by {diff:.2f} grey levels"
+    # no seams between the triangles: where render's frame is flat, the page's is too
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    grey = ref.sum(axis=2)
+    flat = maximum_filter(grey, 5) == minimum_filter(grey, 5)
+    assert flat.mean() > 0.5 and (np.abs(shot - ref).max(axis=2)[flat] > 12).mean() < 0.002
+    # and the drawn frame is that frame, not the photo at rest: where they differ, it is render's
+    moved = np.abs(ref - rest).max(axis=2) > 40
+    assert moved.sum() > 30
+    assert np.abs(shot - ref)[moved].mean() < 0.5 * np.abs(shot - rest)[moved].mean()
+
+
 def test_osc_messages(puppet, speech, tmp_path):
     """--osc sends one /voicepuppet/frame message per frame (frame, time, x0, y0, ...) over UDP."""
     import soundfile

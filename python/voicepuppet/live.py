@@ -355,12 +355,14 @@ def _host_port(text: str, what: str) -> tuple:
 
 class _WebSocketOut:
     """A WebSocket server on a local address broadcasting frames (JSON text messages) to every
-    connected client; a GET of ``/`` serves the viewer page. Runs in its own thread; clients
-    come and go without disturbing the stream."""
+    connected client; a GET of ``/`` serves the viewer page, and with a face (``files``:
+    ``/mesh.json`` and ``/face.png``, :func:`_face_files`) the files the page draws it from.
+    Runs in its own thread; clients come and go without disturbing the stream."""
 
-    def __init__(self, host: str, port: int):
+    def __init__(self, host: str, port: int, files: dict | None = None):
         import asyncio
 
+        self._files = dict(files or {})
         self._loop = asyncio.new_event_loop()
         self._ready = threading.Event()
         self._error = None
@@ -381,13 +383,21 @@ class _WebSocketOut:
 
         page = _viewer_page()
 
+        def respond(connection, body: bytes, kind: str):
+            resp = connection.respond(HTTPStatus.OK, "")
+            resp.body = body
+            for name, value in (("Content-Type", kind), ("Content-Length", str(len(body)))):
+                del resp.headers[name]  # websockets' headers keep every value set: replace, not add
+                resp.headers[name] = value
+            return resp
+
         def process_request(connection, request):
             if request.headers.get("Upgrade", "").lower() == "websocket":
                 return None
             if request.path in ("/", "/index.html"):
-                resp = connection.respond(HTTPStatus.OK, page)
-                resp.headers["Content-Type"] = "text/html; charset=utf-8"
-                return resp
+                return respond(connection, page.encode("utf-8"), "text/html; charset=utf-8")
+            if request.path in self._files:
+                return respond(connection, *self._files[request.path])
             return connection.respond(HTTPStatus.NOT_FOUND, "not found\n")
 
         async def handler(ws):
@@ -427,6 +437,48 @@ class _WebSocketOut:
         if self._server is not None and self._loop.is_running():
             self._loop.call_soon_threadsafe(self._server.close)
         self._thread.join(5)
+
+
+class _FaceDriver:
+    """The viewer's textured face (``live --face``): the face mesh of a photo or video
+    (:func:`voicepuppet.render.load_face`) and, per frame, its vertices as ``render`` drives
+    them (:func:`voicepuppet.render.mesh_animation`, mode "vertex"), the stream's first frame as
+    the rest shape it retargets from (``render`` takes the animation's first frame)."""
+
+    def __init__(self, face: str, points: str | None, n_points: int):
+        from voicepuppet import render
+
+        self._render = render
+        self.mesh = render.load_face(face, points)
+        if self.mesh.n_landmarks != n_points:
+            raise ValueError(f"the face {face!r} has {self.mesh.n_landmarks} points and the puppet's "
+                             f"landmarks {n_points}; give --face-points in the puppet's layout")
+        self.mesh.interpolation_matrix()  # the thin-plate spline, before the stream starts
+        self.reference = None
+
+    def vertices(self, points: np.ndarray) -> np.ndarray:
+        """(V, 2) image positions of the mesh's vertices for one frame's landmarks (P, 2)."""
+        from voicepuppet.animation import Animation
+
+        if self.reference is None:
+            self.reference = np.array(points, dtype=np.float64)
+        anim = Animation(np.asarray(points, dtype=np.float64)[None], 30.0)
+        return self._render.mesh_animation(anim, self.mesh, neutral=self.reference)["vertices"][0, :, :2]
+
+    def files(self) -> dict:
+        """``/mesh.json`` (the photo's size, the triangles, which of them are the mouth cavity and
+        its colour, texture coordinates as ``FaceMesh.uv``) and ``/face.png`` for the viewer."""
+        import cv2
+
+        m = self.mesh
+        ok, png = cv2.imencode(".png", np.ascontiguousarray(m.image[:, :, ::-1]))
+        if not ok:
+            raise ValueError("cannot encode the face image as PNG")
+        doc = {"width": m.size[0], "height": m.size[1], "triangles": m.faces.tolist(),
+               "mouth": m.mouth.tolist(), "mouth_colour": list(self._render._MOUTH_COLOUR),
+               "uv": np.round(m.uv, 7).tolist()}
+        return {"/mesh.json": (json.dumps(doc, separators=(",", ":")).encode(), "application/json"),
+                "/face.png": (png.tobytes(), "image/png")}
 
 
 def _viewer_page() -> str:
@@ -501,7 +553,15 @@ def run_live(args, out=None) -> int:
                       guide_weight=getattr(args, "guide_weight", None),
                       decode_lag=getattr(args, "decode_lag", None),
                       trajectory_lag=getattr(args, "trajectory_lag", None))
-    ws = _WebSocketOut(*_host_port(args.websocket, "websocket")) if args.websocket else None
+    face = None
+    if getattr(args, "face", None):
+        if not args.websocket:
+            raise ValueError("--face draws the face in the viewer page of --websocket: give --websocket HOST:PORT")
+        face = _FaceDriver(args.face, args.face_points, live._n_points)
+    elif getattr(args, "face_points", None):
+        raise ValueError("--face-points are the points of --face: give --face too")
+    ws = _WebSocketOut(*_host_port(args.websocket, "websocket"), files=face.files() if face else None) \
+        if args.websocket else None
     osc = _OscOut(*_host_port(args.osc, "osc")) if args.osc else None
     if ws is not None:
         print(f"voicepuppet live: viewer at http://{args.websocket.rpartition(':')[0] or '127.0.0.1'}"
@@ -531,6 +591,9 @@ def run_live(args, out=None) -> int:
             except BrokenPipeError:
                 raise SystemExit(0)
             if ws is not None:
+                if face is not None:  # the viewer draws the textured face from the mesh's vertices
+                    rec["vertices"] = np.round(face.vertices(pts), 2).tolist()
+                    line = json.dumps(rec, separators=(",", ":"))
                 ws.send(line)
             if osc is not None:
                 osc.send(int(k), float(t), pts)
@@ -645,6 +708,12 @@ def add_parser(sub) -> None:
                         "pace")
     p.add_argument("--websocket", metavar="HOST:PORT",
                    help="serve the frames over WebSocket (and a viewer page) on a local address")
+    p.add_argument("--face", metavar="IMAGE|VIDEO",
+                   help="with --websocket: the viewer page draws this face (a photo, or a video's first "
+                        "frame with a face, e.g. the puppet's training video) moved by the frames, as "
+                        "render does (default: the landmarks as lines)")
+    p.add_argument("--face-points", metavar="POINTS",
+                   help="the points of --face: JSON, CSV or a landmarks .npz (default: detect 68 with dlib)")
     p.add_argument("--osc", metavar="HOST:PORT",
                    help="send each frame as an OSC message /voicepuppet/frame to this address")
     p.set_defaults(func=_check_and_run)
