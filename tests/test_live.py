@@ -579,6 +579,35 @@ def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path)
     assert np.abs(shot - ref)[moved].mean() < 0.5 * np.abs(shot - rest)[moved].mean()
 
 
+def test_face_options_are_checked_before_the_stream(puppet, speech, tmp_path, capsys):
+    """--face without --websocket, --face-points without --face, a face of another layout: each
+    refused by name before any frame is written (exit code 2)."""
+    import soundfile
+    from PIL import Image
+
+    from voicepuppet import render
+    from voicepuppet.cli import main
+
+    _, path = puppet
+    wav = tmp_path / "in.wav"
+    soundfile.write(wav, speech[:8000], 16000, subtype="DOUBLE")
+    pts = neutral_landmarks()
+    face = tmp_path / "face.png"
+    Image.fromarray(render.portrait_image(pts, 320, 320)).save(face)
+    few = tmp_path / "few.json"
+    few.write_text(json.dumps({"points": pts[:10].tolist()}))
+    common = ["live", str(path), "--input", str(wav), "--no-realtime"]
+    cases = [(["--face", str(face)], "give --websocket"),
+             (["--websocket", f"127.0.0.1:{free_port()}", "--face-points", str(few)], "give --face too"),
+             (["--websocket", f"127.0.0.1:{free_port()}", "--face", str(face), "--face-points", str(few)],
+              "has 10 points and the puppet's landmarks 68")]
+    capsys.readouterr()
+    for extra, msg in cases:
+        assert main(common + extra) == 2
+        got = capsys.readouterr()
+        assert msg in got.err and got.out == ""  # refused before any frame
+
+
 def test_osc_messages(puppet, speech, tmp_path):
     """--osc sends one /voicepuppet/frame message per frame (frame, time, x0, y0, ...) over UDP."""
     import soundfile
