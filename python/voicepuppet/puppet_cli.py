@@ -335,8 +335,11 @@ def add_parser(sub) -> None:
                    help="adaptation EM iterations (default: puppet.ADAPT_DEFAULTS, 1)")
     a.add_argument("--guide-weight", type=float, metavar="W",
                    help="weight of a guided puppet's evidence (default: the puppet's, chosen at training; "
-                        "0: Brand's unguided solve; docs/results.md)")
-    a.add_argument("--states-out", metavar="S.csv", help="also write the facial state sequence, the Viterbi path (for editing: read it back with --states-in and the same AUDIO)")
+                        "0: Brand's unguided solve; lower: the lips close more fully on b, p, m, at some cost "
+                        "in lip error elsewhere; docs/results.md)")
+    a.add_argument("--states-out", metavar="S.csv",
+                   help="also write the facial state sequence, the Viterbi path (for editing: read it back with "
+                        "--states-in and the same AUDIO)")
     a.add_argument("--states-in", metavar="S.csv",
                    help="synthesise from this (edited) state sequence instead of decoding the audio; with the AUDIO "
                         "it came from, guided by it as the animation was (unedited states give the same animation, "
