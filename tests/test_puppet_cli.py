@@ -93,6 +93,9 @@ def test_train_and_animate(workdir, capsys):
                  "--guide-weight", "2"]) == 2
     assert "give the AUDIO the states go with" in capsys.readouterr().err
     assert not (d / "x.npz").exists()
+    # a video asked of animate: the render command that makes it
+    assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "x.mp4")]) == 2
+    assert "voicepuppet render anim.npz --audio" in capsys.readouterr().err and not (d / "x.mp4").exists()
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "c.csv"), "--fps", "50",
                  "--posterior", "--quiet"]) == 0
     assert np.loadtxt(d / "c.csv", delimiter=",", skiprows=1).shape == (400, 22)

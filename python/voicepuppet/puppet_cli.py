@@ -226,6 +226,10 @@ def _animate(args) -> int:
     from voicepuppet.animation import check_output_path, exaggerate, save_animation
     from voicepuppet.puppet import load
 
+    if Path(args.output).suffix.lower() in (".mp4", ".mov", ".mkv", ".webm", ".avi", ".gif"):
+        raise ValueError(f"animate writes the landmark animation (.npz or .csv), not {args.output!r}; for a "
+                         f"video, render it: voicepuppet animate ... -o anim.npz, then voicepuppet render "
+                         f"anim.npz --audio AUDIO [--face PHOTO_OR_VIDEO] -o {args.output}")
     out = check_output_path(args.output, (".npz", ".csv"), "animation file")
     puppet = load(palette_puppet(args.palette, args.puppet) if args.palette else args.puppet)
     adapt = {k: v for k, v in (("adapt", args.adapt), ("adapt_tau", args.adapt_tau),
