@@ -396,19 +396,53 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def start_live(argv):
+    """``voicepuppet live ARGV`` in a thread: (thread, its stdout, {"code": exit code} when done)."""
+    from voicepuppet.cli import build_parser
+    from voicepuppet.live import run_live
+
+    args = build_parser().parse_args(argv)
+    out = io.StringIO()
+    result = {}
+    th = threading.Thread(target=lambda: result.setdefault("code", run_live(args, out)), daemon=True)
+    th.start()
+    return th, out, result
+
+
+def connect_frames(port: int):
+    """A WebSocket client of ``live --websocket`` on ``port``, once its server is up."""
+    from websockets.sync.client import connect
+
+    for _ in range(200):
+        try:
+            return connect(f"ws://127.0.0.1:{port}/frames", open_timeout=2)
+        except OSError:
+            time.sleep(0.05)
+    pytest.fail("WebSocket server did not come up")
+
+
+def chromium():
+    """Headless Chromium through selenium (the Debian chromium and chromedriver when installed)."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    opts = Options()
+    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+              "--window-size=520,560"):
+        opts.add_argument(a)
+    if os.path.exists("/usr/bin/chromium"):
+        opts.binary_location = "/usr/bin/chromium"
+    service = Service("/usr/bin/chromedriver") if os.path.exists("/usr/bin/chromedriver") else Service()
+    return webdriver.Chrome(options=opts, service=service)
+
+
 def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_path):
     """A real-time run serving WebSocket: a client that connects and disconnects mid-stream
     does not disturb it; the viewer page, loaded in headless Chromium, draws the frames."""
     import soundfile
     from PIL import Image
-    from selenium import webdriver
-    from selenium.webdriver.chrome.options import Options
-    from selenium.webdriver.chrome.service import Service
     from selenium.webdriver.support.ui import WebDriverWait
-    from websockets.sync.client import connect
-
-    from voicepuppet.cli import build_parser
-    from voicepuppet.live import run_live
 
     _, path = puppet
     wav = tmp_path / "in.wav"
@@ -416,39 +450,17 @@ def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_pa
     audio = np.tile(speech, 2)[:160000]
     soundfile.write(wav, audio, 16000, subtype="DOUBLE")
     port = free_port()
-    args = build_parser().parse_args(["live", str(path), "--input", str(wav), "--websocket",
-                                      f"127.0.0.1:{port}", "--lag-ms", "100"])
-    out = io.StringIO()
-    result = {}
-    th = threading.Thread(target=lambda: result.setdefault("code", run_live(args, out)),
-                          daemon=True)
-    th.start()
+    th, out, result = start_live(["live", str(path), "--input", str(wav), "--websocket", f"127.0.0.1:{port}",
+                                  "--lag-ms", "100"])
     # a client that takes a few frames and leaves
     got = []
-    for _ in range(100):
-        try:
-            ws = connect(f"ws://127.0.0.1:{port}/frames", open_timeout=2)
-            break
-        except OSError:
-            time.sleep(0.05)
-    else:
-        pytest.fail("WebSocket server did not come up")
-    with ws:
+    with connect_frames(port) as ws:
         for _ in range(5):
             got.append(json.loads(ws.recv(timeout=5)))
     assert [g["frame"] for g in got] == list(range(got[0]["frame"], got[0]["frame"] + 5))
     assert np.array(got[0]["points"]).shape == (68, 2)
     # the viewer page in headless Chromium
-    opts = Options()
-    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-              "--window-size=520,560"):
-        opts.add_argument(a)
-    chromium = "/usr/bin/chromium"
-    if os.path.exists(chromium):
-        opts.binary_location = chromium
-    service = Service("/usr/bin/chromedriver") if os.path.exists("/usr/bin/chromedriver") \
-        else Service()
-    driver = webdriver.Chrome(options=opts, service=service)
+    driver = chromium()
     try:
         driver.set_page_load_timeout(20)
         driver.get(f"http://127.0.0.1:{port}/")
@@ -470,21 +482,6 @@ def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_pa
     assert len(lines) == math.ceil(160000 / 16000 * FPS)
 
 
-def _chromium():
-    from selenium import webdriver
-    from selenium.webdriver.chrome.options import Options
-    from selenium.webdriver.chrome.service import Service
-
-    opts = Options()
-    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-              "--window-size=520,560"):
-        opts.add_argument(a)
-    if os.path.exists("/usr/bin/chromium"):
-        opts.binary_location = "/usr/bin/chromium"
-    service = Service("/usr/bin/chromedriver") if os.path.exists("/usr/bin/chromedriver") else Service()
-    return webdriver.Chrome(options=opts, service=service)
-
-
 def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path):
     """``live --face``: the server gives the viewer the face's mesh and photo and each frame's
     vertices (those ``render`` drives the mesh to, from the stream's first frame as rest); the page,
@@ -496,12 +493,9 @@ def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path)
     import soundfile
     from PIL import Image
     from selenium.webdriver.support.ui import WebDriverWait
-    from websockets.sync.client import connect
 
     from voicepuppet import render
     from voicepuppet.animation import Animation
-    from voicepuppet.cli import build_parser
-    from voicepuppet.live import run_live
 
     _, path = puppet
     # a face of the puppet's layout: the drawn portrait of its rest shape, moved into a 320x300 photo
@@ -512,22 +506,9 @@ def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path)
     wav = tmp_path / "in.wav"
     soundfile.write(wav, np.tile(speech, 2)[:160000], 16000, subtype="DOUBLE")
     port = free_port()
-    args = build_parser().parse_args(["live", str(path), "--input", str(wav), "--websocket", f"127.0.0.1:{port}",
-                                      "--face", str(tmp_path / "face.png"), "--face-points",
-                                      str(tmp_path / "face.json")])
-    out = io.StringIO()
-    result = {}
-    th = threading.Thread(target=lambda: result.setdefault("code", run_live(args, out)), daemon=True)
-    th.start()
-    for _ in range(200):
-        try:
-            ws = connect(f"ws://127.0.0.1:{port}/frames", open_timeout=2)
-            break
-        except OSError:
-            time.sleep(0.05)
-    else:
-        pytest.fail("WebSocket server did not come up")
-    with ws:
+    th, out, result = start_live(["live", str(path), "--input", str(wav), "--websocket", f"127.0.0.1:{port}",
+                                  "--face", str(tmp_path / "face.png"), "--face-points", str(tmp_path / "face.json")])
+    with connect_frames(port) as ws:
         msg = json.loads(ws.recv(timeout=5))
     mesh = render.load_face(tmp_path / "face.png", tmp_path / "face.json")
     with urllib.request.urlopen(f"http://127.0.0.1:{port}/mesh.json", timeout=5) as r:
@@ -541,7 +522,7 @@ def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path)
         assert r.headers["Content-Type"] == "image/png"
         np.testing.assert_array_equal(np.asarray(Image.open(io.BytesIO(r.read())).convert("RGB")), img)
     assert np.array(msg["vertices"]).shape == (len(mesh.vertices), 2)
-    driver = _chromium()
+    driver = chromium()
     try:
         driver.set_page_load_timeout(20)
         driver.get(f"http://127.0.0.1:{port}/")
