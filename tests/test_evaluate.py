@@ -69,9 +69,10 @@ def test_cross_validation_on_planted_dpds_faces():
     assert models["dpds"]["rmse_iod"]["mean"] < models["phoneme-mean"]["rmse_iod"]["mean"] / 5
     assert models["dpds"]["loglik"]["mean"] > models["phoneme-mean"]["loglik"]["mean"]
     for m in models.values():
-        for key in ("l1", "rms", "linf", "err", "lve", "rmse_iod", "loglik"):
+        for key in ("l1", "rms", "linf", "err", "lve", "rmse_iod", "loglik", "closed"):
             v = m[key]
             assert v["low"] <= v["mean"] <= v["high"] and len(v["folds"]) == 3
+        assert all(0 <= f <= 1 for f in m["closed"]["folds"])
     table = ev.format_table(res)
     assert table.count("\n| ") == 4 and table.startswith("| model |") and "RMSE / IOD" in table
 
@@ -93,6 +94,39 @@ def test_fold_metrics_equal_direct_computation():
     Pp, Pt = fs.decode(np.concatenate(Yp)), fs.decode(np.concatenate(Yt))
     lve = np.mean(np.max(np.sum((Pp[:, 48:68] - Pt[:, 48:68]) ** 2, axis=2), axis=1))
     assert got["lve"] == pytest.approx(lve)
+    assert "closed" not in got  # no must-close frames given
+    # the closed share pools the runs of all sequences (runs do not join across sequences)
+    from voicepuppet import metrics
+
+    must = [s.labels[:40] == ph.PHONE_INDEX["M"] for s in seqs]
+    counts = [metrics.closures(fs.decode(p), fs.decode(t), m) for p, t, m in zip(Yp, Yt, must)]
+    assert sum(n for _, n in counts) > 0
+    want = sum(c for c, _ in counts) / sum(n for _, n in counts)
+    assert ev._fold_metrics(Yp, Yt, fs, None, must)["closed"] == pytest.approx(want)
+
+
+def test_closures_count_the_runs_the_prediction_closes():
+    """metrics.closures: of the runs of must-close frames, those in which the prediction's lip gap
+    (points 62-66) gets to at most 1 % of the true inter-ocular distance, in any frame of the run."""
+    from voicepuppet import metrics
+
+    truth = np.repeat(neutral_landmarks()[None], 20, axis=0)
+    iod = np.linalg.norm(truth[0, 36] - truth[0, 45])
+    pred = truth.copy()
+    gap = np.full(20, 10.0)  # open everywhere ...
+    gap[4] = 0.0             # ... but shut in the first run,
+    gap[11] = 0.01 * iod     # just at the threshold in the second,
+    gap[16] = 0.011 * iod    # just over it in the third
+    pred[:, 66] = pred[:, 62] + np.stack([np.zeros(20), gap], axis=1)
+    must = np.zeros(20, bool)
+    must[[3, 4, 5, 10, 11, 12, 16, 17, 19]] = True  # four runs: 3-5, 10-12, 16-17, 19
+    assert metrics.closures(pred, truth, must) == (2, 4)
+    assert metrics.closures(pred, truth, np.zeros(20, bool)) == (0, 0)
+    assert metrics.closures(truth, truth, must) == (0, 4)  # this rest face's lips are 2.2 px (0.023 IOD) apart
+    with pytest.raises(ValueError, match="one entry per frame"):
+        metrics.closures(pred, truth, must[:-1])
+    with pytest.raises(ValueError, match="needs points"):
+        metrics.closures(pred[:, :40], truth[:, :40], must)
 
 
 def test_split_clip_at_sentence_pauses():

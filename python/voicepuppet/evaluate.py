@@ -54,7 +54,11 @@ METRICS = {
     "err": ("Err (eq. 7)", "lower"),
     "lve": ("LVE (px²)", "lower"),
     "rmse_iod": ("RMSE / IOD", "lower"),
+    "closed": ("B/P/M closed", "higher"),
 }
+
+#: The phones whose lips must close (:func:`voicepuppet.metrics.closures`, the ``closed`` measure).
+BILABIALS = ("B", "P", "M")
 
 
 @dataclass
@@ -379,7 +383,9 @@ def load_sequences(folder, alphabet: str = "arpabet") -> list[Sequence]:
 # cross-validation
 
 
-def _fold_metrics(preds, truths, face_space, loglik: float | None) -> dict:
+def _fold_metrics(preds, truths, face_space, loglik: float | None, must_close=None) -> dict:
+    """A fold's measures from the predicted and true face coordinates of its test sequences;
+    ``must_close``: per sequence, its frames of :data:`BILABIALS` (the ``closed`` share, 68 points)."""
     from . import metrics
 
     Yp = np.concatenate(preds)
@@ -391,6 +397,12 @@ def _fold_metrics(preds, truths, face_space, loglik: float | None) -> dict:
     if Pt.shape[1] == 68:
         out["lve"] = metrics.lip_vertex_error(Pp, Pt)
         out["rmse_iod"] = metrics.landmark_rmse_iod(Pp, Pt)
+        if must_close is not None:
+            counts = [metrics.closures(face_space.decode(p), face_space.decode(t), m)
+                      for p, t, m in zip(preds, truths, must_close)]
+            runs = sum(n for _, n in counts)
+            if runs:
+                out["closed"] = sum(c for c, _ in counts) / runs
     if loglik is not None:
         out["loglik"] = loglik / len(Yt)
     return out
@@ -517,6 +529,7 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
             return features_at(i, fset)
 
     folds = kfold(len(seqs), k, seed)
+    bilabials = [phonemes.PHONES.index(p) for p in BILABIALS]
     names = (["voice-puppet", *BASELINES] if puppet else []) + (list(dpds.MODELS) if peers else [])
     per_fold: dict = {n: [] for n in names}
     alphas = []
@@ -528,26 +541,27 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         fs = FaceSpace.fit([learnt_points(s) for s in train], n_components=n_components)
         Ytr = [fs.encode(learnt_points(s))[0] for s in train]
         Yte = [fs.encode(s.points)[0] for s in test]
+        shut = [np.isin(s.labels[:len(y)], bilabials) for s, y in zip(test, Yte)]
         if puppet:
             bar.set_postfix(fold=fi + 1, model="voice-puppet")
             f_tr, f_te = [features_of(i) for i in tr_idx], [features_of(i) for i in te_idx]
             preds, pup = _puppet_predictions(train, test, fs, f_tr, f_te, n_states=n_states, seed=seed)
-            per_fold["voice-puppet"].append(_fold_metrics(preds, Yte, fs, None))
+            per_fold["voice-puppet"].append(_fold_metrics(preds, Yte, fs, None, shut))
             if pup.guided:
                 per_fold.setdefault(UNGUIDED, []).append(
-                    _fold_metrics(_unguided_predictions(pup, test, fs, f_te), Yte, fs, None))
+                    _fold_metrics(_unguided_predictions(pup, test, fs, f_te), Yte, fs, None, shut))
             bar.update()
             base, alpha = _baseline_predictions(pup, Ytr, f_tr, f_te, [len(y) for y in Yte])
             alphas.append(alpha)
             for name in BASELINES:
-                per_fold[name].append(_fold_metrics(base[name], Yte, fs, None))
+                per_fold[name].append(_fold_metrics(base[name], Yte, fs, None, shut))
                 bar.update()
         for name in (dpds.MODELS if peers else ()):
             bar.set_postfix(fold=fi + 1, model=name)
             model = dpds.MODELS[name]().fit(Ytr, [s.labels for s in train])
             preds = [model.generate(s.labels) for s in test]
             ll = model.log_likelihood(Yte, [s.labels for s in test])
-            per_fold[name].append(_fold_metrics(preds, Yte, fs, ll))
+            per_fold[name].append(_fold_metrics(preds, Yte, fs, ll, shut))
             bar.update()
     bar.close()
 
@@ -617,6 +631,9 @@ def format_table(result: dict) -> str:
                  + (f" Paired differences: mean [95% interval] of the per-fold differences (Student's t, "
                     f"{c['k'] - 1} degrees of freedom); below 0: the voice puppet's error is lower." if dcols
                     else "")
+                 + (" B/P/M closed: the share of the stretches of B, P, M whose lips the model closes (a gap of "
+                    "at most 1 % of the inter-ocular distance in one of their frames; higher is better, the "
+                    "truth 1)." if "closed" in cols else "")
                  + (" Models and face spaces learnt from the sequences' separate training landmarks "
                     "(e.g. tracked); measured against the ground truth." if c.get("separate_training_landmarks")
                     else ""))
@@ -759,8 +776,9 @@ def add_parser(sub) -> None:
                        description="k-fold cross-validation by sequence of the voice puppet, its baselines "
                                    "(ridge regression over +-5 frames of audio features, the mean face) "
                                    "and (with --peers) the four phoneme-driven models on the same folds: "
-                                   "L1, RMS, Linf, test log-likelihood, Err (eq. 7), lip vertex error and "
-                                   "landmark RMSE/IOD with 95% confidence intervals, and the puppet's "
+                                   "L1, RMS, Linf, test log-likelihood, Err (eq. 7), lip vertex error, "
+                                   "landmark RMSE/IOD and the share of B/P/M stretches whose lips close, "
+                                   "with 95% confidence intervals, and the puppet's "
                                    "paired per-fold differences from each baseline. Default data: the "
                                    "synthetic performer.")
     p.add_argument("--data", metavar="DIR", help="user data: NAME.npz + NAME.wav + NAME.TextGrid|.lab "

@@ -8,6 +8,9 @@
 - :func:`landmark_rmse_iod`: root mean squared landmark distance over the inter-ocular distance
   (outer eye corners 36 and 45 of the 68-point layout, or ``iod`` given).
 - :func:`lip_vertex_error`: per frame, the largest squared distance over the mouth points; averaged.
+- :func:`closures`: of the stretches where the lips must close (the frames of B, P, M), how many
+  the prediction closes (a perceptual measure the errors above do not see: a mouth that never
+  quite closes can have a low lip error).
 - :func:`summary`: all of them for two landmark sequences.
 """
 
@@ -17,6 +20,11 @@ import numpy as np
 
 #: Mouth points of the 68-point iBUG layout.
 IBUG68_MOUTH = tuple(range(48, 68))
+#: The middle points of the upper and lower inner lip (68-point layout): the lips' gap.
+IBUG68_LIP_GAP = (62, 66)
+#: A gap at most this fraction of the inter-ocular distance is a closed mouth (about 1 px on the
+#: synthetic performer, whose closed lips are 0.004 apart; open speech, 0.05-0.3).
+CLOSED_GAP_IOD = 0.01
 
 
 def _pair(pred, truth, what="pred and truth"):
@@ -106,6 +114,24 @@ def lip_vertex_error(pred_pts, true_pts, mouth=IBUG68_MOUTH) -> float:
         raise ValueError(f"lip vertex error needs the mouth points {mouth[0]}..{mouth[-1]}; these "
                          f"landmarks have {x.shape[1]} points: give mouth= indices")
     return float(np.mean(np.max(np.sum((x[:, mouth] - y[:, mouth]) ** 2, axis=2), axis=1)))
+
+
+def closures(pred_pts, true_pts, must_close, closed_iod: float = CLOSED_GAP_IOD,
+             gap=IBUG68_LIP_GAP) -> tuple[int, int]:
+    """Lip closures: of the runs of frames where ``must_close`` (T,) is set (the frames of the
+    bilabials B, P, M, say), how many the prediction closes, i.e. in at least one of the run's
+    frames its lips' gap (the distance of points ``gap``) is at most ``closed_iod`` of the true
+    face's inter-ocular distance. Returns ``(closed, runs)``; pool the counts over sequences."""
+    x, y = _landmarks(pred_pts, true_pts)
+    m = np.asarray(must_close, dtype=bool)
+    if m.shape != (len(x),):
+        raise ValueError(f"must_close must have one entry per frame ({len(x)}), got shape {m.shape}")
+    if x.shape[1] <= max(gap):
+        raise ValueError(f"the lips' gap needs points {gap}; these landmarks have {x.shape[1]} points: give gap=")
+    shut = np.linalg.norm(x[:, gap[0]] - x[:, gap[1]], axis=1) <= closed_iod * inter_ocular(y)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], m.astype(np.int8), [0]])))
+    runs = list(zip(edges[::2], edges[1::2]))
+    return int(sum(bool(shut[a:b].any()) for a, b in runs)), len(runs)
 
 
 def summary(pred_pts, true_pts, face_space=None) -> dict:
