@@ -270,6 +270,11 @@ class LivePuppet:
         self._n_dims = int(core.n_dims)
 
     @property
+    def n_points(self) -> int:
+        """Landmarks per frame (P of :attr:`LiveFrames.points`)."""
+        return self._n_points
+
+    @property
     def delta_lag(self) -> int:
         return int(self.core.delta_lag)
 
@@ -356,7 +361,7 @@ def _host_port(text: str, what: str) -> tuple:
 class _WebSocketOut:
     """A WebSocket server on a local address broadcasting frames (JSON text messages) to every
     connected client; a GET of ``/`` serves the viewer page, and with a face (``files``:
-    ``/mesh.json`` and ``/face.png``, :func:`_face_files`) the files the page draws it from.
+    ``/mesh.json`` and ``/face.png``, :meth:`_FaceDriver.files`) the files the page draws it from.
     Runs in its own thread; clients come and go without disturbing the stream."""
 
     def __init__(self, host: str, port: int, files: dict | None = None):
@@ -462,7 +467,7 @@ class _FaceDriver:
 
         if self.reference is None:
             self.reference = np.array(points, dtype=np.float64)
-        anim = Animation(np.asarray(points, dtype=np.float64)[None], 30.0)
+        anim = Animation(np.asarray(points, dtype=np.float64)[None], 30.0)  # one frame: its rate is unused
         return self._render.mesh_animation(anim, self.mesh, neutral=self.reference)["vertices"][0, :, :2]
 
     def files(self) -> dict:
@@ -557,7 +562,7 @@ def run_live(args, out=None) -> int:
     if getattr(args, "face", None):
         if not args.websocket:
             raise ValueError("--face draws the face in the viewer page of --websocket: give --websocket HOST:PORT")
-        face = _FaceDriver(args.face, args.face_points, live._n_points)
+        face = _FaceDriver(args.face, args.face_points, live.n_points)
     elif getattr(args, "face_points", None):
         raise ValueError("--face-points are the points of --face: give --face too")
     ws = _WebSocketOut(*_host_port(args.websocket, "websocket"), files=face.files() if face else None) \

@@ -773,7 +773,8 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     info = video.probe_video(path)
     fps = info.fps if info.fps > 0 else 29.97
     if names is not None and (isinstance(init, (str, os.PathLike))):
-        raise ValueError("names go with init points given as an array; a points file carries its own")
+        raise ValueError("names go with init points given as an array, not with a points file (which "
+                         "carries its own) or 'auto'")
     frames_iter = video.iter_frames(path)
     first = next(frames_iter, None)
     frames_iter.close()  # releases the decoder now rather than at garbage collection
