@@ -335,6 +335,11 @@ RowMatrixXd Puppet::to_points(const MatrixRef& face) const {
   return out;
 }
 
+RowMatrixXd Puppet::guide_at(const RowMatrixXd& standardized, double out) const {
+  const RowMatrixXd y = guide_.apply(standardized);
+  return out == fps_ ? y : resample_weights(y, fps_, out);
+}
+
 Puppet::Analysis Puppet::analyse(const MatrixRef& raw_features, const AnimateOptions& options,
                                  bool guide) const {
   Analysis a;
@@ -346,11 +351,7 @@ Puppet::Analysis Puppet::analyse(const MatrixRef& raw_features, const AnimateOpt
   const RowMatrixXd z = standardize(raw_features);
   const RowMatrixXd v = project(z);
   const Index T = v.rows();
-  // The guide's prediction ŷ of the face, at the output rate (interpolated as resample_weights).
-  if (guide) {
-    a.guide_y = guide_.apply(z);
-    if (a.out != fps_) a.guide_y = resample_weights(a.guide_y, fps_, a.out);
-  }
+  if (guide) a.guide_y = guide_at(z, a.out);
   const VectorXi no_lengths;
   AnimateResult& r = a.result;
   r.states.resize(T, n_parts());
@@ -473,10 +474,7 @@ AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states
   a.out = out_rate(options.fps);
   const RowMatrixXd z = standardize(raw_features);
   const Index n_out = a.out == fps_ ? z.rows() : resampled_length(z.rows(), fps_, a.out);
-  if (lambda > 0) {
-    a.guide_y = guide_.apply(z);
-    if (a.out != fps_) a.guide_y = resample_weights(a.guide_y, fps_, a.out);
-  }
+  if (lambda > 0) a.guide_y = guide_at(z, a.out);
   for (Index p = 0; p < n_parts(); ++p) {
     const VectorXi s = states.col(p);
     VectorXi path = states_fps == a.out ? s : resample_states(s, states_fps, a.out);

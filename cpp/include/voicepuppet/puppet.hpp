@@ -223,6 +223,9 @@ class Puppet {
   Analysis analyse(const MatrixRef& raw_features, const AnimateOptions& options, bool guide) const;
   /// animate's synthesis: the face coordinates from `a` with the guide's evidence at λ.
   RowMatrixXd synthesise(const Analysis& a, double lambda) const;
+  /// The guide's prediction ŷ of standardised frames at the output rate `out` (interpolated as
+  /// resample_weights).
+  RowMatrixXd guide_at(const RowMatrixXd& standardized, double out) const;
   /// Given states checked against the parts: #T ≥ 1 rows, one column per part, each in range.
   void check_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps) const;
   PuppetFile file_;
