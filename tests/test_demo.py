@@ -24,6 +24,10 @@ def test_demo_writes_everything(tmp_path):
     for row in rows.values():
         assert all(np.isfinite(v) for split in row.values() for v in split.values())
     assert rows["mean-face"]["train"]["err"] == pytest.approx(1.0, abs=0.05)
+    # the share of b, p, m whose lips close: never for the mean face (open), a share for the rest
+    assert rows["mean-face"]["test"]["closed"] == 0.0
+    assert all(0.0 <= row[split]["closed"] <= 1.0 for row in rows.values() for split in row)
+    assert "closed train | closed test" in (tmp_path / "results.md").read_text()
     assert 0 < saved["tracker_rmse_iod"] < 0.2
     assert saved["trained_on"] == "tracked"  # the default: the puppet learns what the tracker found
     assert any("[5/5]" in line for line in logs)

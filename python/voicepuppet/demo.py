@@ -99,8 +99,10 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
     log(f"[4/5] animating {len(tests)} held-out utterances and measuring against ground truth")
     cache: dict = {}
     # Measured against the ground truth; the ridge baseline learns from what the puppet learnt from.
-    results = {name: evaluation.evaluate_split(m, [(train.points[:n], train.audio)],
-                                               [(c.points, c.audio) for c in tests],
+    from voicepuppet.evaluate import bilabial_frames
+
+    results = {name: evaluation.evaluate_split(m, [(train.points[:n], train.audio, bilabial_frames(train)[:n])],
+                                               [(c.points, c.audio, bilabial_frames(c)) for c in tests],
                                                fit_points=[landmarks], cache=cache)
                for name, m in models.items()}
     timings["evaluate_s"] = time.perf_counter() - t
@@ -160,7 +162,8 @@ def _cli(args) -> int:
         print(evaluation.format_table(res, f"{name} puppet"))
         print()
     print("err: Voice Puppetry eq. 7 (0 perfect, 1 = no motion); rmse_iod: landmark RMSE / inter-ocular "
-          "distance; lve: lip vertex error (px^2). Rows: states = reconstruction from the facial state "
+          "distance; lve: lip vertex error (px^2); closed: share of the b, p, m whose lips close (truth 1). "
+          "Rows: states = reconstruction from the facial state "
           "sequence; voice = driven by the audio alone; mean-face and ridge = baselines.")
     print(f"done in {s['timings']['total_s']:.0f} s; wrote {args.out}/ (puppet.vpp, animation.npz, "
           f"heldout.wav, {'demo.mp4, ' if not args.no_render else ''}metrics.json, results.md)")

@@ -151,6 +151,14 @@ def _cut_points(segs, fps: float, n_frames: int, min_pause: float, min_frames: i
     return cuts + [n_frames]
 
 
+def bilabial_frames(clip) -> np.ndarray:
+    """(T,) bool: the frames of a performer clip whose phone is one of :data:`BILABIALS` (its lips
+    must close), from the clip's own phone timings."""
+    labels = phonemes.frame_labels(phonemes.normalize(clip.phones, _alphabet_of(clip.source)),
+                                   len(clip.points), clip.fps)
+    return np.isin(labels, [phonemes.PHONES.index(p) for p in BILABIALS])
+
+
 def split_clip(clip, min_pause: float = 0.2, name: str = "clip", train_points=None) -> list[Sequence]:
     """Cut a performer clip into utterances at the middle of pauses of ``min_pause`` s or more.
 

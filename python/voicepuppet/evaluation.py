@@ -14,7 +14,8 @@ For a train/test split of landmark sequences with their audio, :func:`evaluate_s
 
 Every prediction is compared in the same way: Err (eq. 7), L1/RMS/L∞ on face coordinates (pose
 removed), and, with the true head pose re-applied to the prediction (the puppet models the face,
-not where the head goes), landmark RMSE / inter-ocular distance and lip vertex error. Model
+not where the head goes), landmark RMSE / inter-ocular distance, lip vertex error and, where the
+sequences come with the frames of B, P, M, the share of those the prediction closes. Model
 measures: perplexity, context memory (frames), entropy rate of decoding the test audio (nats per
 frame), and bits per frame of the LZMA-compressed state sequence (the "coding" of §5.1).
 """
@@ -133,8 +134,10 @@ def decoding_entropy_rate(puppet, features) -> float:
     return float(np.mean(rates))
 
 
-def compare(pred_face, true_points, face_space) -> dict:
-    """Measures of predicted face coordinates against true landmarks (true pose re-applied)."""
+def compare(pred_face, true_points, face_space, must_close=None) -> dict:
+    """Measures of predicted face coordinates against true landmarks (true pose re-applied);
+    with ``must_close`` (T,), the frames of B, P, M, also ``closed`` (the share of their runs the
+    prediction closes, :func:`voicepuppet.metrics.closures`) and ``closed_runs``."""
     true_face, pose = face_space.encode(true_points)
     T = min(len(pred_face), len(true_face))
     pf, tf = pred_face[:T], true_face[:T]
@@ -144,6 +147,10 @@ def compare(pred_face, true_points, face_space) -> dict:
         pts = face_space.decode(pf, pose[:T])
         out["rmse_iod"] = metrics.landmark_rmse_iod(pts, true_points[:T])
         out["lve"] = metrics.lip_vertex_error(pts, true_points[:T])
+        if must_close is not None:
+            closed, runs = metrics.closures(pts, true_points[:T], np.asarray(must_close, bool)[:T])
+            if runs:
+                out["closed"], out["closed_runs"] = closed / runs, runs
     return out
 
 
@@ -155,9 +162,10 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
     Parameters
     ----------
     puppet : voicepuppet.puppet.Puppet
-    train : list of (points [T, P, 2], audio)
-        The training sequences, with the landmarks every prediction is measured against.
-    tests : list of (points, audio)
+    train : list of (points [T, P, 2], audio) or (points, audio, must_close [T] bool)
+        The training sequences, with the landmarks every prediction is measured against (and,
+        where given, the frames of B, P, M: the ``closed`` measure).
+    tests : list of (points, audio) or (points, audio, must_close)
         Held-out sequences.
     fit_points : list of [T, P, 2] arrays, optional
         The landmarks the puppet was trained on, one per training sequence, when they are not
@@ -185,12 +193,12 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
         return feats[key]
 
     if fit_points is None:
-        fit_points = [p for p, _ in train]
-    if len(fit_points) != len(train) or any(len(f) != len(p) for f, (p, _) in zip(fit_points, train)):
+        fit_points = [p for p, *_ in train]
+    if len(fit_points) != len(train) or any(len(f) != len(p) for f, (p, *_) in zip(fit_points, train)):
         raise ValueError(f"fit_points: expected one landmark array per training sequence with its frame "
-                         f"count {[len(p) for p, _ in train]}, got {[len(f) for f in fit_points]}; pass "
+                         f"count {[len(p) for p, *_ in train]}, got {[len(f) for f in fit_points]}; pass "
                          f"the landmarks the puppet was trained on, cut to the same frames")
-    z_train = [ridge_input(puppet, features("train", i, a, len(p))) for i, (p, a) in enumerate(train)]
+    z_train = [ridge_input(puppet, features("train", i, a, len(p))) for i, (p, a, *_) in enumerate(train)]
     ridge = RidgeBaseline().fit(z_train, [fs.encode(f)[0] for f in fit_points])
     mean_face = np.zeros(fs.n_dims)  # face coordinates are centred on the mean shape
 
@@ -198,7 +206,7 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
     coding = []
     for split, data in (("train", train), ("test", tests)):
         acc: dict = {}
-        for i, (points, audio) in enumerate(data):
+        for i, (points, audio, *shut) in enumerate(data):
             T = len(points)
             raw = features(split, i, audio, T)
             states = facial_states(puppet, points)
@@ -213,10 +221,11 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
             if puppet.guided:  # the same puppet without its guide's evidence
                 preds[UNGUIDED_ROW] = puppet.animate(features=raw, guide_weight=0).face
             for name, face in preds.items():
-                m = compare(face, points, fs)
+                m = compare(face, points, fs, shut[0] if shut else None)
+                runs = m.pop("closed_runs", 0)
                 slot = acc.setdefault(name, {})
-                for key, v in m.items():
-                    slot.setdefault(key, []).append((v, T))
+                for key, v in m.items():  # the closed share pooled over runs, the rest over frames
+                    slot.setdefault(key, []).append((v, runs if key == "closed" else T))
             if split == "train":
                 coding.append(bits_per_frame(states[:, 0]))
         for name, slot in acc.items():
@@ -229,7 +238,7 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
              "context_memory": float(np.mean([p["context_memory"] for p in parts])),
              "bits_per_frame": float(np.mean(coding)),
              "entropy_rate_test": float(np.mean([decoding_entropy_rate(puppet, features("test", i, a, len(p)))
-                                                 for i, (p, a) in enumerate(tests)])) if tests else None,
+                                                 for i, (p, a, *_) in enumerate(tests)])) if tests else None,
              "ridge_alpha": ridge.alpha, "guide_weight": puppet.guide_weight if puppet.guided else None,
              "guide_weight_cv": "weight_cv" in puppet.metadata["training"].get("guide", {})}
     return {"rows": rows, "model": model}
@@ -238,6 +247,8 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
 def format_table(result: dict, title: str = "") -> str:
     """A markdown table of :func:`evaluate_split`'s rows."""
     keys = ["err", "rmse_iod", "lve", "rms"]
+    if any("closed" in r.get(split, {}) for r in result["rows"].values() for split in ("train", "test")):
+        keys.append("closed")
     lines = []
     if title:
         lines += [f"**{title}**", ""]
