@@ -151,12 +151,16 @@ def _cut_points(segs, fps: float, n_frames: int, min_pause: float, min_frames: i
     return cuts + [n_frames]
 
 
+def bilabial_mask(labels) -> np.ndarray:
+    """Which frame labels (indices into :data:`voicepuppet.phonemes.PHONES`) are :data:`BILABIALS`."""
+    return np.isin(labels, [phonemes.PHONES.index(p) for p in BILABIALS])
+
+
 def bilabial_frames(clip) -> np.ndarray:
     """(T,) bool: the frames of a performer clip whose phone is one of :data:`BILABIALS` (its lips
     must close), from the clip's own phone timings."""
-    labels = phonemes.frame_labels(phonemes.normalize(clip.phones, _alphabet_of(clip.source)),
-                                   len(clip.points), clip.fps)
-    return np.isin(labels, [phonemes.PHONES.index(p) for p in BILABIALS])
+    return bilabial_mask(phonemes.frame_labels(phonemes.normalize(clip.phones, _alphabet_of(clip.source)),
+                                               len(clip.points), clip.fps))
 
 
 def split_clip(clip, min_pause: float = 0.2, name: str = "clip", train_points=None) -> list[Sequence]:
@@ -405,9 +409,9 @@ def _fold_metrics(preds, truths, face_space, loglik: float | None, must_close=No
     if Pt.shape[1] == 68:
         out["lve"] = metrics.lip_vertex_error(Pp, Pt)
         out["rmse_iod"] = metrics.landmark_rmse_iod(Pp, Pt)
-        if must_close is not None:
-            counts = [metrics.closures(face_space.decode(p), face_space.decode(t), m)
-                      for p, t, m in zip(preds, truths, must_close)]
+        if must_close is not None:  # per sequence: a run of B, P, M does not go on into the next
+            cut = np.cumsum([len(t) for t in truths])[:-1]
+            counts = [metrics.closures(p, t, m) for p, t, m in zip(np.split(Pp, cut), np.split(Pt, cut), must_close)]
             runs = sum(n for _, n in counts)
             if runs:
                 out["closed"] = sum(c for c, _ in counts) / runs
@@ -537,7 +541,6 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
             return features_at(i, fset)
 
     folds = kfold(len(seqs), k, seed)
-    bilabials = [phonemes.PHONES.index(p) for p in BILABIALS]
     names = (["voice-puppet", *BASELINES] if puppet else []) + (list(dpds.MODELS) if peers else [])
     per_fold: dict = {n: [] for n in names}
     alphas = []
@@ -549,7 +552,7 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         fs = FaceSpace.fit([learnt_points(s) for s in train], n_components=n_components)
         Ytr = [fs.encode(learnt_points(s))[0] for s in train]
         Yte = [fs.encode(s.points)[0] for s in test]
-        shut = [np.isin(s.labels[:len(y)], bilabials) for s, y in zip(test, Yte)]
+        shut = [bilabial_mask(s.labels[:len(y)]) for s, y in zip(test, Yte)]
         if puppet:
             bar.set_postfix(fold=fi + 1, model="voice-puppet")
             f_tr, f_te = [features_of(i) for i in tr_idx], [features_of(i) for i in te_idx]
