@@ -77,6 +77,25 @@ def test_cross_validation_on_planted_dpds_faces():
     assert table.count("\n| ") == 4 and table.startswith("| model |") and "RMSE / IOD" in table
 
 
+def test_closed_is_summarised_over_the_folds_with_bilabials():
+    """A fold whose test sequences hold no B, P or M has no closed share: the measure is summarised
+    over the others (listed in fold_index), for the models and the paired differences alike."""
+    from voicepuppet.crossval import kfold
+
+    rng = np.random.default_rng(SEED + 2)
+    seqs = planted_sequences(rng, n_seq=6, T=40)
+    m, aa = ph.PHONE_INDEX["M"], ph.PHONE_INDEX["AA"]
+    folds = kfold(len(seqs), 3, 0)
+    for i in folds[0][1]:  # the first fold's test sequences lose their M
+        seqs[i].labels[seqs[i].labels == m] = aa
+    assert all(any((seqs[i].labels == m).any() for i in te) for _, te in folds[1:])
+    res = ev.cross_validate(seqs, k=3, seed=0, peers=True, puppet=False, n_components=2, progress=False)
+    for entry in res["models"].values():
+        assert entry["closed"]["fold_index"] == [1, 2] and len(entry["closed"]["folds"]) == 2
+        assert len(entry["err"]["folds"]) == 3 and "fold_index" not in entry["err"]
+    assert "over the folds whose test sequences have one" in ev.format_table(res)
+
+
 def test_fold_metrics_equal_direct_computation():
     from voicepuppet.face import FaceSpace
 
@@ -228,7 +247,17 @@ def test_voice_puppet_on_the_same_folds():
     assert res["models"][ev.UNGUIDED]["err"]["folds"] != m["err"]["folds"]
     assert f"| {ev.UNGUIDED} |" in ev.format_table(res)
     np.testing.assert_allclose(res["models"]["mean-face"]["err"]["folds"], 1.0, atol=1e-12)
-    assert {"err", "lve", "rmse_iod"} <= set(res["differences"]["voice-puppet"]["ridge"])
+    assert {"err", "lve", "rmse_iod", "closed"} <= set(res["differences"]["voice-puppet"]["ridge"])
+    # a fold without B, P, M (its labels made AA): one fold left has a closed share, too few to
+    # summarise, so the measure is not reported, for the models or their differences
+    from voicepuppet.crossval import kfold
+
+    _, te = kfold(len(seqs), 2, 0)[1]
+    for i in te:
+        seqs[i].labels[ev.bilabial_mask(seqs[i].labels)] = ph.PHONE_INDEX["AA"]
+    res = ev.cross_validate(seqs, k=2, seed=0, peers=False, puppet=True, n_states=8, progress=False)
+    assert "closed" not in res["models"]["voice-puppet"] and "err" in res["models"]["voice-puppet"]
+    assert "closed" not in res["differences"]["voice-puppet"]["ridge"]
 
 
 def test_evaluate_compare_training_verb(tmp_path, capsys):

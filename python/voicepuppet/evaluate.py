@@ -476,6 +476,19 @@ def _as_face(points, n, face_space) -> np.ndarray:
 BASELINES = ("ridge", "mean-face")
 
 
+def _over_folds(values, n_folds: int, measure: str) -> dict | None:
+    """:func:`voicepuppet.crossval.fold_summary` of a measure's per-fold values ``[(fold, value)]``
+    when every fold has one; for ``closed``, over the folds that have (those whose test sequences
+    hold a B, P or M), at least two, listed in ``fold_index``; else None (not reported)."""
+    from .crossval import fold_summary
+
+    if len(values) == n_folds:
+        return fold_summary([v for _, v in values])
+    if measure == "closed" and len(values) >= 2:
+        return {**fold_summary([v for _, v in values]), "fold_index": [i for i, _ in values]}
+    return None
+
+
 @limited
 def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
                    puppet: bool = True, n_components=0.98, n_states: int = 40,
@@ -521,7 +534,7 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
     from tqdm.auto import tqdm
 
     from . import dpds
-    from .crossval import fold_summary, kfold
+    from .crossval import kfold
     from .face import FaceSpace
 
     seqs = list(sequences)
@@ -582,19 +595,17 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         "separate_training_landmarks": any(s.train_points is not None for s in seqs),
         "folds": [[seqs[i].name for i in te] for _, te in folds]}}
     for name, rows in per_fold.items():
-        entry = {}
-        for m in METRICS:
-            vals = [r[m] for r in rows if m in r]
-            if len(vals) == len(rows):
-                entry[m] = fold_summary(vals)
+        entry = {m: v for m in METRICS
+                 if (v := _over_folds([(i, r[m]) for i, r in enumerate(rows) if m in r], len(rows), m))}
         entry["frames"] = [r["frames"] for r in rows]
         result["models"][name] = entry
     if puppet:
         result["models"]["ridge"]["alpha"] = alphas
         voice = per_fold["voice-puppet"]
         result["differences"]["voice-puppet"] = {
-            name: {m: fold_summary([a[m] - b[m] for a, b in zip(voice, per_fold[name])])
-                   for m in METRICS if m in voice[0] and m in per_fold[name][0]}
+            name: {m: v for m in METRICS
+                   if (v := _over_folds([(i, a[m] - b[m]) for i, (a, b) in enumerate(zip(voice, per_fold[name]))
+                                         if m in a and m in b], len(voice), m))}
             for name in BASELINES}
     return result
 
@@ -644,7 +655,7 @@ def format_table(result: dict) -> str:
                     else "")
                  + (" B/P/M closed: the share of the stretches of B, P, M whose lips the model closes (a gap of "
                     "at most 1 % of the inter-ocular distance in one of their frames; higher is better, the "
-                    "truth 1)." if "closed" in cols else "")
+                    "truth 1), over the folds whose test sequences have one." if "closed" in cols else "")
                  + (" Models and face spaces learnt from the sequences' separate training landmarks "
                     "(e.g. tracked); measured against the ground truth." if c.get("separate_training_landmarks")
                     else ""))
