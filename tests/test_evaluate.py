@@ -287,6 +287,8 @@ def test_evaluate_compare_training_verb(tmp_path, capsys):
                                            "ml": {"n_states": 3, "n_iter": 4, "prior": "ml"}}
     assert result["variants"]["few"]["states"]["mean"] <= 3
     assert len(result["differences"]["few"]["err"]["folds"]) == 2
+    assert all(0 <= v <= 1 for v in result["variants"]["few"]["closed"]["folds"])  # the data's M
+    assert len(result["differences"]["few"]["closed"]["folds"]) == 2
     assert "--compare-training --variant" in result["command"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "c.md", "data"]
     assert main(["evaluate", "--data", str(data), "--folds", "2", "--compare-training",

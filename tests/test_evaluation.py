@@ -112,6 +112,7 @@ def test_compare_training_pairs_folds_and_separates_a_crippled_variant():
     for m in ("err", "entropy_rate", "states_err"):
         assert all(np.isfinite(good[m]["folds"])) and len(good[m]["folds"]) == 3
     assert all(0 <= v < np.log(6) for v in good["entropy_rate"]["folds"])
+    assert "closed" not in good  # the planted sequences' labels hold no B, P, M
     assert sum(len(f) for f in r["config"]["folds"]) == len(seqs)
     table = evaluation.format_comparison(r)
     assert "| good − deaf |" in table and "| deaf |" in table
@@ -158,7 +159,8 @@ def test_compare_training_learns_from_train_points_and_measures_against_the_trut
 
     seen = []  # what every fold is measured against, in the face space it fitted
     fold_metrics = ev._fold_metrics
-    monkeypatch.setattr(ev, "_fold_metrics", lambda p, t, fs, ll: seen.append((t, fs)) or fold_metrics(p, t, fs, ll))
+    monkeypatch.setattr(ev, "_fold_metrics",
+                        lambda p, t, fs, ll, shut=None: seen.append((t, fs)) or fold_metrics(p, t, fs, ll, shut))
     # reversed in time, and a fixed deformation so that the face space fitted on them differs
     offset = np.random.default_rng(3).normal(scale=0.5, size=seqs[0].points.shape[1:])
     rev = run([replace(s, train_points=s.points[::-1] + offset) for s in seqs])

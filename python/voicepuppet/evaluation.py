@@ -276,7 +276,7 @@ def format_table(result: dict, title: str = "") -> str:
 
 # ------------------------------------------------------------------ paired training comparison
 #: measures of :func:`compare_training` (all: lower is better)
-COMPARE_MEASURES = ("err", "lve", "rmse_iod", "entropy_rate", "states_err")
+COMPARE_MEASURES = ("err", "lve", "rmse_iod", "closed", "entropy_rate", "states_err")
 
 
 def sequence_features(seqs, fps: float, features=None):
@@ -334,7 +334,8 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     :meth:`voicepuppet.puppet.Puppet.train` on the same training sequences (landmarks and their
     audio features, computed once) with ``seed`` and its own options; it animates the test
     sequences' audio (Viterbi on the vocal HMM). Per fold and variant, pooled over the fold's test
-    frames: ``err`` (eq. 7), ``lve`` and ``rmse_iod`` on the face coordinates of a
+    frames: ``err`` (eq. 7), ``lve``, ``rmse_iod`` and ``closed`` (the share of B, P, M whose lips
+    close; reported when every fold's test sequences have one) on the face coordinates of a
     :class:`voicepuppet.face.FaceSpace` fitted on the fold's training sequences (as
     :func:`voicepuppet.evaluate.cross_validate`), ``entropy_rate`` of decoding the test audio
     (nats per frame, frame-weighted) and ``states_err``, the Err of the reconstruction from the
@@ -370,7 +371,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     from tqdm.auto import tqdm
 
     from voicepuppet.crossval import fold_summary, kfold
-    from voicepuppet.evaluate import _as_face, _fold_metrics, learnt_points
+    from voicepuppet.evaluate import _as_face, _fold_metrics, bilabial_mask, learnt_points
     from voicepuppet.face import FaceSpace
     from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, training_feature_set
 
@@ -401,6 +402,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     for fi, (tr, te) in enumerate(folds):
         fs = FaceSpace.fit([fit[i] for i in tr], n_components=n_components)
         Yte = [fs.encode(seqs[i].points)[0] for i in te]
+        shut = [bilabial_mask(seqs[i].labels[:len(y)]) for i, y in zip(te, Yte)]
         for name in names:
             bar.set_postfix(fold=fi + 1, variant=name)
             opts = dict(variants[name], seed=seed)
@@ -413,7 +415,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
                 s = facial_states(puppet, seqs[i].points)
                 states.append(_as_face(puppet.animate(states=s, fps=fps).animation.points, len(y), fs))
                 rates.append((decoding_entropy_rate(puppet, f), len(y)))
-            row = _fold_metrics(voice, Yte, fs, None)
+            row = _fold_metrics(voice, Yte, fs, None, shut)
             row["states_err"] = _fold_metrics(states, Yte, fs, None)["err"]
             row["entropy_rate"] = sum(r * n for r, n in rates) / sum(n for _, n in rates)
             parts = puppet.metadata["training"]["parts"]
