@@ -335,7 +335,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     audio features, computed once) with ``seed`` and its own options; it animates the test
     sequences' audio (Viterbi on the vocal HMM). Per fold and variant, pooled over the fold's test
     frames: ``err`` (eq. 7), ``lve``, ``rmse_iod`` and ``closed`` (the share of B, P, M whose lips
-    close; reported when every fold's test sequences have one) on the face coordinates of a
+    close, over the folds whose test sequences have one, as in ``cross_validate``) on the face coordinates of a
     :class:`voicepuppet.face.FaceSpace` fitted on the fold's training sequences (as
     :func:`voicepuppet.evaluate.cross_validate`), ``entropy_rate`` of decoding the test audio
     (nats per frame, frame-weighted) and ``states_err``, the Err of the reconstruction from the
@@ -370,8 +370,8 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     """
     from tqdm.auto import tqdm
 
-    from voicepuppet.crossval import fold_summary, kfold
-    from voicepuppet.evaluate import _as_face, _fold_metrics, bilabial_mask, learnt_points
+    from voicepuppet.crossval import kfold
+    from voicepuppet.evaluate import _as_face, _fold_metrics, _over_folds, bilabial_mask, learnt_points
     from voicepuppet.face import FaceSpace
     from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, training_feature_set
 
@@ -425,18 +425,21 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
             bar.update()
     bar.close()
 
-    measures = [m for m in COMPARE_MEASURES + ("states", "arcs") if all(m in r for r in per_fold[baseline])]
+    measures = [m for m in COMPARE_MEASURES + ("states", "arcs")
+                if _over_folds([(i, r[m]) for i, r in enumerate(per_fold[baseline]) if m in r], len(folds), m)]
     out = {"variants": {}, "differences": {}, "config": {
         "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
         "fps": fps, "n_components": n_components, "baseline": baseline,
         "separate_training_landmarks": any(s.train_points is not None for s in seqs),
         "options": {n: dict(variants[n]) for n in names},
         "folds": [[seqs[i].name for i in te] for _, te in folds]}}
-    for name in names:
-        out["variants"][name] = {m: fold_summary([r[m] for r in per_fold[name]]) for m in measures}
+    for name in names:  # every variant has a measure in the same folds (the folds' test sequences)
+        out["variants"][name] = {m: _over_folds([(i, r[m]) for i, r in enumerate(per_fold[name]) if m in r],
+                                                len(folds), m) for m in measures}
         if name != baseline:
             out["differences"][name] = {
-                m: fold_summary([a[m] - b[m] for a, b in zip(per_fold[name], per_fold[baseline])]) for m in measures}
+                m: _over_folds([(i, a[m] - b[m]) for i, (a, b) in enumerate(zip(per_fold[name], per_fold[baseline]))
+                                if m in a], len(folds), m) for m in measures}
     return out
 
 

@@ -458,17 +458,17 @@ class _FaceDriver:
         if self.mesh.n_landmarks != n_points:
             raise ValueError(f"the face {face!r} has {self.mesh.n_landmarks} points and the puppet's "
                              f"landmarks {n_points}; give --face-points in the puppet's layout")
-        self.mesh.interpolation_matrix()  # the thin-plate spline, before the stream starts
+        self._M = self.mesh.interpolation_matrix()  # the thin-plate spline, before the stream starts
         self.reference = None
+        self._sR = None
 
     def vertices(self, points: np.ndarray) -> np.ndarray:
-        """(V, 2) image positions of the mesh's vertices for one frame's landmarks (P, 2)."""
-        from voicepuppet.animation import Animation
-
+        """(V, 2) image positions of the mesh's vertices for one frame's landmarks (P, 2), as
+        ``render.mesh_animation`` gives them (its retargeting found once, at the first frame)."""
         if self.reference is None:
             self.reference = np.array(points, dtype=np.float64)
-        anim = Animation(np.asarray(points, dtype=np.float64)[None], 30.0)  # one frame: its rate is unused
-        return self._render.mesh_animation(anim, self.mesh, neutral=self.reference)["vertices"][0, :, :2]
+            self._sR = self._render.similarity(self.reference, self.mesh.landmarks)
+        return self.mesh.vertices[:, :2] + self._M @ ((points - self.reference) @ self._sR)
 
     def files(self) -> dict:
         """``/mesh.json`` (the photo's size, the triangles, which of them are the mouth cavity and

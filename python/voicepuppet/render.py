@@ -274,21 +274,25 @@ def portrait_image(landmarks, width: int, height: int) -> np.ndarray:
 
 # ---------------------------------------------------------------- retargeting and AU basis
 
-def retarget(points: np.ndarray, reference: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Maps landmark motion onto another face: ``target + s R (points - reference)``.
-
-    ``s R`` is the similarity (scale, rotation) that best maps ``reference`` onto ``target``
-    (orthogonal Procrustes). Shapes: points (T, P, 2), reference and target (P, 2).
-    Returns the displacements (T, P, 2) to add to ``target``.
-    """
+def similarity(reference: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``s R`` (2, 2): the similarity (scale, rotation) that best maps ``reference`` onto
+    ``target`` (orthogonal Procrustes; row vectors, ``x_ref @ sR ~ x_tgt`` about their centroids).
+    Shapes: reference and target (P, 2)."""
     ref_c = reference - reference.mean(axis=0)
     tgt_c = target - target.mean(axis=0)
     u, sv, vt = np.linalg.svd(ref_c.T @ tgt_c)
     d = np.sign(np.linalg.det(u @ vt))
     D = np.diag([1.0, d])
-    R = u @ D @ vt  # row vectors: x_ref @ R ~ x_tgt
     s = float(np.sum(sv * np.diag(D)) / max(np.sum(ref_c ** 2), 1e-300))
-    return s * (points - reference) @ R
+    return s * (u @ D @ vt)
+
+
+def retarget(points: np.ndarray, reference: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Maps landmark motion onto another face: ``target + s R (points - reference)``, ``s R`` of
+    :func:`similarity`. Shapes: points (T, P, 2), reference and target (P, 2).
+    Returns the displacements (T, P, 2) to add to ``target``.
+    """
+    return (points - reference) @ similarity(reference, target)
 
 
 def action_unit_basis(landmarks) -> np.ndarray:
