@@ -52,6 +52,29 @@ def test_planted_machine_is_recovered(trained):
     assert p.n_states() <= 8 and p.metadata["training"]["parts"][0]["states"] == p.n_states()
 
 
+def test_novel_audio_may_start_in_any_state(trained):
+    # Audio starts anywhere in the performer's manner, not where the training video began: a
+    # start vector learned from one training sequence is a point mass on its first state; the
+    # puppet's is half that and half the state occupancy of the training frames.
+    p, (_, train_feats, train_states), _ = trained
+    start = p.part_arrays(0)["startprob"]
+    path = p.animate(features=train_feats).states[:, 0]
+    share = np.bincount(path, minlength=p.n_states()) / len(path)
+    first = start - share / 2
+    assert np.all(start > 1e-3) and first.argmax() == path[0]
+    np.testing.assert_allclose(first, np.eye(p.n_states())[path[0]] / 2, atol=0.02)
+    planted = {s: np.bincount(train_states[path == s], minlength=3).argmax() for s in np.unique(path)}
+    starts = 0
+    for seed in range(20, 40):
+        _, feats, states = _planted(np.random.default_rng(seed), T=90)
+        if states[0] == train_states[0]:
+            continue
+        starts += 1
+        first = p.animate(features=feats).states[0, 0]
+        assert planted[first] == states[0], f"seed {seed}: the first frame decoded as the training's start"
+    assert starts >= 8
+
+
 def test_animate_is_the_kernels_composed(trained):
     p, _, (_, feats, _) = trained
     arr = p.part_arrays(0)

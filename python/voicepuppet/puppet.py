@@ -298,7 +298,8 @@ class Puppet:
                 distributed.fit(hmm, O, lengths, client=client)
             gammas.append(hmm.predict_proba(O, lengths))
             pre = f"hmm/part{k}/"
-            arrays.update({pre + "startprob": hmm.startprob_, pre + "transmat": hmm.transmat_,
+            arrays.update({pre + "startprob": _start_distribution(gammas[-1], lengths),
+                           pre + "transmat": hmm.transmat_,
                            pre + "face_means": hmm.means_, pre + "face_covars": hmm.covars_})
             diag = diagnostics(hmm, O, lengths)
             report.append({"part": fs.part_names[k], "face_dims": sl.stop - sl.start,
@@ -623,6 +624,20 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
             sse += [float(np.sum((face - Y[piece]) ** 2)) for face in faces]
     mse = [float(v) / len(A) for v in sse]
     return weights[int(np.argmin(sse))], mse
+
+
+def _start_distribution(gamma: np.ndarray, lengths) -> np.ndarray:
+    """The start distribution a puppet decodes novel audio from: the occupancies of the training
+    sequences' first frames, with one more sequence's worth drawn from the occupancy of all frames.
+
+    The HMM's own start vector learns where the training sequences began: from one video, a point
+    mass on its first state, so that every animation would have to begin in the face the video
+    began with. Novel audio may begin anywhere in the performer's manner; from many utterances
+    the starts stay informative (they begin in silence, as recordings do) and the occupancy
+    only smooths them."""
+    firsts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    start = gamma[firsts].sum(axis=0) + gamma.mean(axis=0)
+    return start / start.sum()
 
 
 def _count(value, name: str) -> int:
