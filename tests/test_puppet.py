@@ -419,3 +419,13 @@ def test_noisy_copies_make_the_puppet_hear_through_noise():
     for bad in (10, "20,10", [20, float("nan")]):
         with pytest.raises(ValueError, match="noise_snrs must be a list of SNRs"):
             Puppet.train([pts], [prepare(x, rate)], noise_snrs=bad, **kw)
+
+
+def test_the_package_gives_the_puppet_api_design_md_names():
+    """DESIGN.md's Python API: ``voicepuppet.Puppet.train(...)``, ``voicepuppet.load(path)``."""
+    import voicepuppet
+
+    assert voicepuppet.Puppet is Puppet and voicepuppet.load is load
+    assert {"Puppet", "load"} <= set(voicepuppet.__all__)
+    with pytest.raises(AttributeError, match="no attribute 'Pupet'"):
+        voicepuppet.Pupet

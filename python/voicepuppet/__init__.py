@@ -2,6 +2,8 @@
 
 The compiled kernels live in the private module ``voicepuppet._core``; the public API is
 spread over submodules named for what they hold (``hmm``, ``trajectory``, ``audio``, ...).
+The puppet itself is here too (DESIGN.md, "Python API"): ``voicepuppet.Puppet.train(...)``,
+``voicepuppet.load(path)``, ``puppet.animate(audio)``, ``puppet.save(path)``.
 """
 
 from importlib.metadata import PackageNotFoundError, version as _version
@@ -11,4 +13,13 @@ try:
 except PackageNotFoundError:  # running from a source tree (PYTHONPATH=python)
     __version__ = "0.1.0"
 
-__all__ = ["__version__"]
+__all__ = ["__version__", "Puppet", "load"]
+
+
+def __getattr__(name):
+    # imported on first use, so ``import voicepuppet`` (and the command line) stays light
+    if name in ("Puppet", "load"):
+        from voicepuppet import puppet
+
+        return getattr(puppet, name)
+    raise AttributeError(f"module 'voicepuppet' has no attribute {name!r}")
