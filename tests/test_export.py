@@ -9,7 +9,7 @@ import pytest
 
 from voicepuppet import export as E
 from voicepuppet import render as R
-from voicepuppet.animation import Animation, neutral_landmarks, procedural_animation, save_animation
+from voicepuppet.animation import Animation, load_animation, neutral_landmarks, procedural_animation, save_animation
 
 pytest.importorskip("pyvista")
 
@@ -129,6 +129,39 @@ def test_arkit_weights_of_a_planted_jaw_opening(tmp_path):
     doc = json.loads((tmp_path / "w.json").read_text())
     assert doc["names"] == list(E.ARKIT_NAMES)
     assert doc["frames"][-1]["weights"]["jawOpen"] == pytest.approx(1.0, abs=1e-4)
+
+
+def test_an_animation_moves_from_its_neutral_not_its_first_frame(tmp_path):
+    """Audio that begins mid-word gives an animation whose first frame is open: retargeted from
+    that frame, a photo at rest would keep its mouth shut there and open by the difference only.
+    The animation's ``neutral`` (a puppet's face in silence) is the rest it moves from, and it
+    travels in the .npz (not the .csv: frames only, rest = first frame)."""
+    from voicepuppet.cli import main
+
+    jaw = np.linspace(0.6, 1.0, 9)
+    anim = procedural_animation(9, 30.0, jaw=jaw, smile=0.0)
+    rest = neutral_landmarks()
+    np.testing.assert_allclose(procedural_animation(1, 30.0, jaw=0.0, smile=0.0).points[0], rest, atol=1e-12)
+    moved = Animation(anim.points, anim.fps, anim.names, neutral=rest)
+    col = E.ARKIT_NAMES.index("jawOpen")
+    np.testing.assert_allclose(E.arkit_weights(moved)[0][:, col], jaw, atol=1e-6)
+    np.testing.assert_allclose(E.arkit_weights(anim)[0][:, col], jaw - 0.6, atol=1e-6)
+    # the photo's mesh on the rest face: its landmark vertices are the animation's points
+    face = R.build_face_mesh(R.portrait_image(rest, 320, 320), rest)
+    v = R.mesh_animation(moved, face)["vertices"][:, :68, :2]
+    np.testing.assert_allclose(v, moved.points, atol=1e-9)
+    assert np.abs(R.mesh_animation(anim, face)["vertices"][:, :68, :2] - anim.points).max() > 10
+    save_animation(moved, tmp_path / "a.npz")
+    np.testing.assert_array_equal(load_animation(tmp_path / "a.npz").neutral, rest)
+    assert main(["export", str(tmp_path / "a.npz"), "--format", "arkit", "-o", str(tmp_path / "w.csv")]) == 0
+    table = np.loadtxt(tmp_path / "w.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(table[:, 2 + col], jaw, atol=1e-4)
+    save_animation(moved, tmp_path / "a.csv")
+    assert load_animation(tmp_path / "a.csv").neutral is None
+    with pytest.raises(ValueError, match=r"neutral must have shape \(68, 2\)"):
+        Animation(anim.points, anim.fps, neutral=rest[:10])
+    with pytest.raises(ValueError, match="neutral must be finite"):
+        Animation(anim.points, anim.fps, neutral=np.full((68, 2), np.nan))
 
 
 def _mouth(opening_iod, width_ratio, n=10):

@@ -484,7 +484,7 @@ def test_websocket_stream_and_viewer_in_headless_chromium(puppet, speech, tmp_pa
 
 def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path):
     """``live --face``: the server gives the viewer the face's mesh and photo and each frame's
-    vertices (those ``render`` drives the mesh to, from the stream's first frame as rest); the page,
+    vertices (those ``render`` drives the mesh to, from the puppet's face in silence); the page,
     in headless Chromium, warps the photo triangle by triangle, and the frame it drew matches the
     offline pyvista render of the same vertices."""
     import base64
@@ -497,7 +497,7 @@ def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path)
     from voicepuppet import render
     from voicepuppet.animation import Animation
 
-    _, path = puppet
+    p, path = puppet
     # a face of the puppet's layout: the drawn portrait of its rest shape, moved into a 320x300 photo
     pts = neutral_landmarks() + [0.0, -20.0]
     img = render.portrait_image(pts, 320, 300)
@@ -538,8 +538,10 @@ def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path)
     assert not th.is_alive() and result["code"] == 0
     lines = [json.loads(x) for x in out.getvalue().splitlines()]
     stream = np.array([x["points"] for x in lines])
-    # the vertices sent are render's, from the stream's first frame (stdout's points: 0.01 px)
-    want = render.mesh_animation(Animation(stream, FPS), mesh)["vertices"]
+    # the vertices sent are render's, from the puppet's rest face (stdout's points: 0.01 px)
+    rest_face = p.rest_face()
+    assert np.abs(rest_face - stream[0]).max() > 0.5
+    want = render.mesh_animation(Animation(stream, FPS, neutral=rest_face), mesh)["vertices"]
     np.testing.assert_allclose(msg["vertices"], want[msg["frame"], :, :2], atol=0.05)
     shot = np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB")).astype(int)
     assert shot.shape == (300, 320, 3)

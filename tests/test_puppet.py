@@ -351,6 +351,36 @@ def _resting_tone_performer(seed, T=900, fps=30.0, rate=16000, floor_db=None, ga
     return pts, gain * x, rate, states
 
 
+def test_animations_carry_the_face_the_puppet_makes_in_silence(trained, tmp_path):
+    """Rendering and export move a photo at rest by an animation's displacements from its
+    ``neutral``: the puppet sets it to its face in silence (the planted rest, whose sound was
+    silence), not the first frame, which audio that starts mid-word has open."""
+    from voicepuppet.animation import load_animation, save_animation
+    from voicepuppet.audio import prepare
+
+    pts, x, rate, states = _resting_tone_performer(5)
+    p = Puppet.train([pts], [prepare(x, rate)], fps=30.0, n_states=6, n_iter=15, guide_weight=1.0, seed=2)
+    rest = pts[states == 0].mean(axis=0)
+    opened = pts[states == 1].mean(axis=0)
+    assert np.abs(opened - rest).max() > 20 and np.abs(pts[states == 2].mean(axis=0) - rest).max() > 14
+    assert np.abs(p.rest_face() - rest).max() < 2.5  # the output's pose is the mean shape's
+    t = np.arange(rate) / rate  # the open state's tone from the first sample, then a rest
+    a = p.animate(prepare(np.concatenate([0.3 * np.sin(2 * np.pi * 1100 * t[: rate // 2]), 0 * t]), rate))
+    anim = a.animation
+    assert np.abs(anim.points[0] - rest).max() > 10 and np.abs(anim.points[3] - opened).max() < 8
+    np.testing.assert_array_equal(anim.neutral, p.rest_face())
+    np.testing.assert_array_equal(anim.rest, anim.neutral)
+    assert np.abs(anim.points[-10] - anim.neutral).max() < 0.5  # the rest at the end is the rest face
+    save_animation(anim, tmp_path / "a.npz")
+    np.testing.assert_array_equal(load_animation(tmp_path / "a.npz").neutral, anim.neutral)
+    np.testing.assert_array_equal(load(p.save(tmp_path / "p.vpp")).rest_face(), p.rest_face())
+    # trained on given features, a puppet does not know its silence: the first frame is the rest
+    fp = trained[0]
+    assert fp.rest_face() is None
+    b = fp.animate(features=trained[2][1][:40]).animation
+    assert b.neutral is None and np.array_equal(b.rest, b.points[0])
+
+
 def test_the_speech_level_makes_a_room_and_a_quiet_recording_sound_like_the_training():
     """Trained where the rest state is digitally silent, a puppet hears a rest with a -60 dBFS
     noise floor (46 dB under the tones), and the recording 20 dB quieter, as in training when

@@ -416,6 +416,50 @@ def test_a_video_gives_the_face_of_its_first_frame_with_one(tmp_path):
         R.load_face(blank)
 
 
+def test_a_video_gives_its_face_at_rest_when_the_animation_has_one(tmp_path):
+    """--face VIDEO for an animation with a rest face (a puppet's silence): the video's frame
+    nearest it, not the first (which may be mid-word), among dlib's probes or the frames of
+    --face-points landmarks; the distance behind the choice is similarity-invariant."""
+    import cv2
+
+    dlib = pytest.importorskip("dlib")
+    skdata = pytest.importorskip("skimage.data")
+    from voicepuppet.tracking import DLIB_MODEL_PATHS, auto_init
+
+    if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
+        pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
+    del dlib
+    photo = np.ascontiguousarray(skdata.astronaut()[:256, 128:384])
+    rest = auto_init(cv2.cvtColor(photo, cv2.COLOR_RGB2GRAY))
+    opened = rest + 0.8 * R.action_unit_basis(rest)[R.ACTION_UNITS.index("jaw_open"), :, :2]
+    points = np.stack([opened] * 8 + [rest] * 4)  # 0.8 s mid-word, then at rest (10 fps)
+    mesh = R.build_face_mesh(photo, rest)
+    path = tmp_path / "talk.avi"
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (256, 256), True)
+    for img in R.render_frames(Animation(points, 10.0), face=mesh, neutral=rest):
+        w.write(np.ascontiguousarray(img[:, :, ::-1]))
+    w.release()
+    cap = cv2.VideoCapture(str(path))
+    decoded = [cv2.cvtColor(cap.read()[1], cv2.COLOR_BGR2RGB) for _ in range(12)]
+    gap = lambda q: np.linalg.norm(q[66] - q[62])  # noqa: E731
+    first = R.load_face(path)
+    np.testing.assert_array_equal(first.image, decoded[0])
+    assert gap(first.landmarks) > gap(rest) + 8
+    at_rest = R.load_face(path, rest=rest)  # probes at frames 5 (open) and 10 (at rest)
+    np.testing.assert_array_equal(at_rest.image, decoded[10])
+    assert abs(gap(at_rest.landmarks) - gap(rest)) < 3
+    save_animation(Animation(points, 10.0), tmp_path / "tracked.npz")
+    given = R.load_face(path, tmp_path / "tracked.npz", rest=rest)
+    np.testing.assert_array_equal(given.image, decoded[8])
+    np.testing.assert_allclose(given.landmarks, rest)
+    np.testing.assert_array_equal(R.load_face(path, tmp_path / "tracked.npz").image, decoded[0])
+    # the distance: 0 for a similar copy, the opening's for the open face
+    th = 0.3
+    moved = 1.7 * rest @ np.array([[np.cos(th), np.sin(th)], [-np.sin(th), np.cos(th)]]) + [40.0, -7.0]
+    d = R.shape_distance(np.stack([moved, opened]), rest)
+    assert d[0] < 1e-12 and d[1] > 0.05
+
+
 def test_face_palette_by_name(tmp_path):
     import json
 

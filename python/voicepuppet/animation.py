@@ -1,9 +1,11 @@
 """Landmark animations: the file format users exchange, validation, atomic writes.
 
 An animation is ``points`` float64 [T, P, 2] (pixel coordinates x, y), ``fps`` and optional
-``names`` [P] and ``confidence`` [T, P]. On disk (DESIGN.md, "Files users exchange") it is an
-``.npz`` with those arrays, or a ``.csv`` twin with one row per frame:
-``frame,time,x0,y0,x1,y1,...``.
+``names`` [P], ``confidence`` [T, P] and ``neutral`` [P, 2] (the face at rest, which rendering
+and export retarget from; a puppet's animation carries the face it makes in silence). On disk
+(DESIGN.md, "Files users exchange") it is an ``.npz`` with those arrays, or a ``.csv`` twin with
+one row per frame: ``frame,time,x0,y0,x1,y1,...`` (frames only: read back, its rest is its first
+frame).
 
 Also here: :func:`atomic_path`, the temp-file-then-rename helper every writer of the package
 can use, and :func:`neutral_landmarks` / :func:`procedural_animation`, a parametric 68-point
@@ -72,12 +74,16 @@ class Animation:
         frames per second; frame ``t`` is shown at time ``t / fps``.
     names : list of str or None, length P
     confidence : ndarray, shape (T, P), or None
+    neutral : ndarray, shape (P, 2), or None
+        the face at rest that rendering and export retarget displacements from (:attr:`rest`);
+        None: the first frame.
     """
 
     points: np.ndarray
     fps: float
     names: Optional[list] = None
     confidence: Optional[np.ndarray] = None
+    neutral: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.points = check_points(self.points)
@@ -92,6 +98,16 @@ class Animation:
             if conf.shape != (T, P):
                 raise ValueError(f"confidence must have shape ({T}, {P}), got {conf.shape}")
             self.confidence = conf
+        if self.neutral is not None:
+            if np.shape(self.neutral) != (P, 2):
+                raise ValueError(f"neutral must have shape ({P}, 2), the face at rest in the animation's layout; "
+                                 f"got {np.shape(self.neutral)}")
+            self.neutral = check_points(np.asarray(self.neutral)[None], "neutral")[0]
+
+    @property
+    def rest(self) -> np.ndarray:
+        """The face at rest, (P, 2): :attr:`neutral`, else the first frame."""
+        return self.points[0] if self.neutral is None else self.neutral
 
     @property
     def n_frames(self) -> int:
@@ -189,7 +205,8 @@ def _csv_header(P: int) -> str:
 
 
 def save_animation(anim: Animation, path) -> Path:
-    """Writes ``anim`` as ``.npz`` or ``.csv`` (chosen by the suffix), atomically."""
+    """Writes ``anim`` as ``.npz`` or ``.csv`` (chosen by the suffix), atomically. A ``.csv``
+    holds the frames only (no names, confidence or neutral)."""
     with atomic_path(path, (".npz", ".csv"), "animation file") as tmp:
         if tmp.suffix == ".npz":
             arrays = {"points": anim.points, "fps": np.float64(anim.fps)}
@@ -197,6 +214,8 @@ def save_animation(anim: Animation, path) -> Path:
                 arrays["names"] = np.asarray(anim.names, dtype=str)
             if anim.confidence is not None:
                 arrays["confidence"] = anim.confidence
+            if anim.neutral is not None:
+                arrays["neutral"] = anim.neutral
             with open(tmp, "wb") as fh:
                 write_npz(fh, arrays)
         else:
@@ -209,7 +228,7 @@ def save_animation(anim: Animation, path) -> Path:
 
 def load_animation(path, fps: Optional[float] = None) -> Animation:
     """Reads an animation from ``.npz`` (``points``, ``fps``, optional ``names``,
-    ``confidence``) or ``.csv`` (``frame,time,x0,y0,...``; fps from the time column unless
+    ``confidence``, ``neutral``) or ``.csv`` (``frame,time,x0,y0,...``; fps from the time column unless
     given).
     """
     p = Path(path)
@@ -230,8 +249,11 @@ def load_animation(path, fps: Optional[float] = None) -> Animation:
                 raise ValueError(f"animation file {str(p)!r} has no 'fps'; pass the frame rate")
             fps = float(np.asarray(data["fps"]).reshape(-1)[0])
         names = [str(n) for n in data["names"]] if "names" in data else None
-        return Animation(check_points(data["points"], f"points in {str(p)!r}"), fps, names,
-                         data.get("confidence"))
+        points = check_points(data["points"], f"points in {str(p)!r}")
+        try:
+            return Animation(points, fps, names, data.get("confidence"), data.get("neutral"))
+        except ValueError as exc:
+            raise ValueError(f"animation file {str(p)!r}: {exc}") from None
     if suffix == ".csv":
         try:
             table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
@@ -262,7 +284,7 @@ def exaggerate(anim: Animation, factor: float, mean=None) -> Animation:
         raise ValueError(f"exaggeration factor must be a finite number >= 0, got {factor!r}")
     mu = anim.points.mean(axis=0) if mean is None else check_points(np.asarray(mean)[None], "mean",
                                                                      anim.n_points)[0]
-    return Animation(mu + f * (anim.points - mu), anim.fps, anim.names, anim.confidence)
+    return Animation(mu + f * (anim.points - mu), anim.fps, anim.names, anim.confidence, anim.neutral)
 
 
 def add_offset(anim: Animation, offset, start: float = 0.0, end: Optional[float] = None,
@@ -289,7 +311,7 @@ def add_offset(anim: Animation, offset, start: float = 0.0, end: Optional[float]
     w = ((t >= start - 1e-9) & (t <= end + 1e-9)).astype(np.float64)
     if fade > 0:
         w *= np.clip(np.minimum(t - start, end - t) / fade, 0.0, 1.0)
-    return Animation(anim.points + w[:, None, None] * off, anim.fps, anim.names, anim.confidence)
+    return Animation(anim.points + w[:, None, None] * off, anim.fps, anim.names, anim.confidence, anim.neutral)
 
 
 # ------------------------------------------------------------------ a parametric 68-point face

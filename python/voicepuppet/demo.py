@@ -19,6 +19,7 @@ Everything lands in ``--out`` (default ``voicepuppet-demo/``): ``puppet.vpp``, `
 
 from __future__ import annotations
 
+import itertools
 import json
 import time
 from pathlib import Path
@@ -120,7 +121,11 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
         true.append(clip.points[:T])
         sound.append(np.pad(clip.samples, (0, max(0, int(round(T / clip.fps * clip.rate)) - len(clip.samples))))
                      [: int(round(T / clip.fps * clip.rate))])
-    anim = Animation(np.concatenate(pred), puppet.fps)
+    # The face is the training video's frame nearest the puppet's silent face: the performer at
+    # rest, whose landmarks (the video's coordinates, as the prediction's) both sides move from.
+    Y = puppet.face_space.encode(train.points)[0]
+    rest = int(np.argmin(((Y - puppet.face_space.encode(puppet.rest_face()[None])[0]) ** 2).sum(axis=1)))
+    anim = Animation(np.concatenate(pred), puppet.fps, neutral=train.points[rest])
     save_animation(anim, out / "animation.npz")
     with atomic_path(out / "heldout.wav", (".wav",), "audio file") as tmp:
         soundfile.write(tmp, np.concatenate(sound), tests[0].rate, format="WAV")
@@ -129,10 +134,12 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
         log(f"[5/5] rendering {out / 'demo.mp4'} (prediction | ground truth) with the sound")
         from voicepuppet import render, video
 
-        first = next(iter(video.iter_frames(train.video, grey=False)))[..., ::-1]
-        mesh = render.build_face_mesh(np.ascontiguousarray(first), train.points[0])
+        frames = video.iter_frames(train.video, grey=False)
+        photo = next(itertools.islice(frames, rest, None))[..., ::-1]
+        frames.close()
+        mesh = render.build_face_mesh(np.ascontiguousarray(photo), train.points[rest])
         render.render(anim, out / "demo.mp4", audio=str(out / "heldout.wav"), face=mesh,
-                      truth=Animation(np.concatenate(true), puppet.fps), progress=progress)
+                      truth=Animation(np.concatenate(true), puppet.fps), neutral=anim.neutral, progress=progress)
         timings["render_s"] = time.perf_counter() - t
     timings["total_s"] = time.perf_counter() - t0
 

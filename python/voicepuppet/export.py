@@ -59,7 +59,7 @@ _AU_TO_ARKIT = {
 
 def _rest(anim: Animation, neutral) -> np.ndarray:
     if neutral is None:
-        return anim.points[0]
+        return anim.rest
     ref = np.asarray(neutral, dtype=np.float64)
     if ref.shape != (anim.n_points, 2):
         raise ValueError(f"neutral must have shape ({anim.n_points}, 2), got {ref.shape}")
@@ -441,8 +441,8 @@ def _cli(args) -> int:
             raise ValueError("give --format or -o with a suffix")
         out = str(Path(args.animation).with_suffix("")) + ("_arkit" if fmt.startswith("arkit") else "") + \
             ("_cues" if fmt.startswith("rhubarb") else "") + FORMATS[fmt]
-    face = resolve_face(args.face, args.face_points, args.palette) if args.face else None
-    export(anim, out, fmt, face=face, mode=args.mode, neutral=original.points[0], sound_file=args.sound_file or "",
+    face = resolve_face(args.face, args.face_points, args.palette, original.rest) if args.face else None
+    export(anim, out, fmt, face=face, mode=args.mode, neutral=original.rest, sound_file=args.sound_file or "",
            report=_print_summary)
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {out}")
     return 0

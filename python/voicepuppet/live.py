@@ -447,24 +447,25 @@ class _WebSocketOut:
 class _FaceDriver:
     """The viewer's textured face (``live --face``): the face mesh of a photo or video
     (:func:`voicepuppet.render.load_face`) and, per frame, its vertices as ``render`` drives
-    them (:func:`voicepuppet.render.mesh_animation`, mode "vertex"), the stream's first frame as
-    the rest shape it retargets from (``render`` takes the animation's first frame)."""
+    them (:func:`voicepuppet.render.mesh_animation`, mode "vertex"), retargeted from ``rest``,
+    the face the puppet makes in silence (``Puppet.rest_face``, which ``render`` takes from the
+    animation), or without it from the stream's first frame."""
 
-    def __init__(self, face: str, points: str | None, n_points: int):
+    def __init__(self, face: str, points: str | None, n_points: int, rest: np.ndarray | None = None):
         from voicepuppet import render
 
         self._render = render
-        self.mesh = render.load_face(face, points)
+        self.mesh = render.load_face(face, points, rest)
         if self.mesh.n_landmarks != n_points:
             raise ValueError(f"the face {face!r} has {self.mesh.n_landmarks} points and the puppet's "
                              f"landmarks {n_points}; give --face-points in the puppet's layout")
         self._M = self.mesh.interpolation_matrix()  # the thin-plate spline, before the stream starts
-        self.reference = None
-        self._sR = None
+        self.reference = None if rest is None else np.array(rest, dtype=np.float64)
+        self._sR = None if rest is None else render.similarity(self.reference, self.mesh.landmarks)
 
     def vertices(self, points: np.ndarray) -> np.ndarray:
         """(V, 2) image positions of the mesh's vertices for one frame's landmarks (P, 2), as
-        ``render.mesh_animation`` gives them (its retargeting found once, at the first frame)."""
+        ``render.mesh_animation`` gives them (its retargeting found once)."""
         if self.reference is None:
             self.reference = np.array(points, dtype=np.float64)
             self._sR = self._render.similarity(self.reference, self.mesh.landmarks)
@@ -562,7 +563,7 @@ def run_live(args, out=None) -> int:
     if getattr(args, "face", None):
         if not args.websocket:
             raise ValueError("--face draws the face in the viewer page of --websocket: give --websocket HOST:PORT")
-        face = _FaceDriver(args.face, args.face_points, live.n_points)
+        face = _FaceDriver(args.face, args.face_points, live.n_points, live.puppet.rest_face())
     elif getattr(args, "face_points", None):
         raise ValueError("--face-points are the points of --face: give --face too")
     ws = _WebSocketOut(*_host_port(args.websocket, "websocket"), files=face.files() if face else None) \
@@ -714,9 +715,9 @@ def add_parser(sub) -> None:
     p.add_argument("--websocket", metavar="HOST:PORT",
                    help="serve the frames over WebSocket (and a viewer page) on a local address")
     p.add_argument("--face", metavar="IMAGE|VIDEO",
-                   help="with --websocket: the viewer page draws this face (a photo, or a video's first "
-                        "frame with a face, e.g. the puppet's training video) moved by the frames, as "
-                        "render does (default: the landmarks as lines)")
+                   help="with --websocket: the viewer page draws this face (a photo at rest, or a video's "
+                        "frame nearest the puppet's rest face, e.g. the puppet's training video) moved by "
+                        "the frames, as render does (default: the landmarks as lines)")
     p.add_argument("--face-points", metavar="POINTS",
                    help="the points of --face: JSON, CSV or a landmarks .npz (default: detect 68 with dlib)")
     p.add_argument("--osc", metavar="HOST:PORT",

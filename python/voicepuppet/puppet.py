@@ -127,6 +127,7 @@ class Puppet:
         self.arrays = {k: np.asarray(v) for k, v in arrays.items()}
         self._core = _core.Puppet(json.dumps(self.metadata), self.arrays)
         self.face_space = FaceSpace.from_arrays(self.arrays, self.metadata["parts"])
+        self._rest: np.ndarray | bool | None = None  # rest_face(), found once
 
     # ------------------------------------------------------------------------- properties
     @property
@@ -160,6 +161,32 @@ class Puppet:
 
     def n_states(self, part: int = 0) -> int:
         return int(self._core.n_states(part))
+
+    #: Seconds of digital silence :meth:`rest_face` animates; it takes the middle frame.
+    REST_SECONDS = 1.0
+
+    def rest_face(self) -> np.ndarray | None:
+        """The landmarks (P, 2) of the face the puppet makes in silence: its animation of
+        :attr:`REST_SECONDS` of digital silence at the middle frame (a pause of its training
+        video, decoded as any audio is). Rendering and export retarget an animation's motion
+        from it (``Animation.neutral``, which :meth:`animate` sets to it), so audio that begins
+        mid-word does not make its first, open-mouthed frame the photo's closed mouth. None for
+        a puppet trained on given features (``features_list``): its silence is unknown."""
+        if self._rest is None:
+            from voicepuppet import audio as vaudio
+            from voicepuppet.audio.loading import DEFAULT_RATE
+
+            n = int(round(self.REST_SECONDS * DEFAULT_RATE))
+            silence = vaudio.Audio(np.zeros(n), DEFAULT_RATE, DEFAULT_RATE, 1, "silence")
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", vaudio.AudioWarning)  # "the recording is silent"
+                feats = vaudio.extract(silence, fps=self.fps, features=self.feature_set)
+            self._rest = False
+            if list(feats.names) == list(self.metadata.get("feature_names", ())):
+                r = self._core.animate(np.ascontiguousarray(feats.values), self.fps, False, "none", 1.0, 1, -1.0)
+                pts = r["points"].reshape(len(r["points"]), -1, 2)
+                self._rest = pts[len(pts) // 2].copy()
+        return None if self._rest is False else self._rest.copy()
 
     def part_arrays(self, part: int = 0) -> dict:
         """The HMM arrays of one part: startprob, transmat, face_means, face_covars, vocal_means,
@@ -463,8 +490,8 @@ class Puppet:
                                    adapt or "none", float(adapt_tau), _count(adapt_iter, "adapt_iter"), lam)
             sf = self.fps
         pts = r["points"].reshape(len(r["points"]), -1, 2)
-        return Animated(Animation(pts, out_fps), r["face"], r["states"], sf, float(r["log_likelihood"]),
-                        list(r.get("transforms", [])))
+        return Animated(Animation(pts, out_fps, neutral=self.rest_face()), r["face"], r["states"], sf,
+                        float(r["log_likelihood"]), list(r.get("transforms", [])))
 
     # ---------------------------------------------------------------------------- storage
     def save(self, path) -> Path:

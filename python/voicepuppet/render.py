@@ -16,9 +16,10 @@ Driving, two ways:
   activations; the landmark motion outside the basis span is dropped (reported by
   :func:`fit_activations`).
 
-The animation is retargeted first: its displacements from its own neutral frame are mapped
-onto the photo's landmarks through the similarity transform (scale, rotation) between the two
-neutral shapes.
+The animation is retargeted first: its displacements from its rest face
+(:attr:`voicepuppet.animation.Animation.rest`: the face its puppet makes in silence, else its
+first frame) are mapped onto the photo's landmarks through the similarity transform (scale,
+rotation) between the two neutral shapes.
 
 Rendering uses pyvista off screen (headless EGL with Mesa: ``VTK_DEFAULT_OPENGL_WINDOW=
 vtkEGLRenderWindow``, set here unless already set) with a parallel camera over the image, so
@@ -30,6 +31,7 @@ drawing instead of the mesh (``renderer="2d"``).
 
 from __future__ import annotations
 
+import itertools
 import os
 import shutil
 import tempfile
@@ -421,7 +423,7 @@ def mesh_animation(anim: Animation, mesh: FaceMesh, *, mode: str = "vertex",
     mesh : FaceMesh
     mode : "vertex" or "au"
     neutral : ndarray, shape (P, 2), optional
-        the animation's rest shape (default: its first frame).
+        the animation's rest shape (default: :attr:`Animation.rest`, its neutral or first frame).
 
     Returns
     -------
@@ -432,8 +434,7 @@ def mesh_animation(anim: Animation, mesh: FaceMesh, *, mode: str = "vertex",
     if anim.n_points != mesh.n_landmarks:
         raise ValueError(f"the animation has {anim.n_points} points per frame but the face mesh has "
                          f"{mesh.n_landmarks} landmarks; give the face's points in the animation's layout")
-    ref = anim.points[0] if neutral is None else check_points(np.asarray(neutral)[None], "neutral",
-                                                              anim.n_points)[0]
+    ref = anim.rest if neutral is None else check_points(np.asarray(neutral)[None], "neutral", anim.n_points)[0]
     disp = retarget(anim.points, ref, mesh.landmarks)
     M = mesh.interpolation_matrix()
     base = mesh.vertices
@@ -593,8 +594,9 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
     """Yields the frames (H, W, 3) uint8 of ``anim``; with ``truth``, side by side
     (prediction left, ground truth right, same face and frame count).
 
-    ``face`` defaults to a drawn portrait (:func:`portrait_image`) on the animation's first frame
-    (68-point layout). ``renderer="2d"`` draws the landmarks instead of the mesh.
+    ``face`` defaults to a drawn portrait (:func:`portrait_image`) on the animation's rest face
+    (``neutral``, else :attr:`Animation.rest`; 68-point layout). ``renderer="2d"`` draws the
+    landmarks instead of the mesh.
     """
     if truth is not None:
         if truth.n_points != anim.n_points:
@@ -634,7 +636,7 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
             raise ValueError(f"without a face photo the animation must use the 68-point layout "
                              f"(a drawn portrait is used), got {anim.n_points} points; "
                              "pass a face image and its points")
-        first = anim.points[0] if neutral is None else np.asarray(neutral, dtype=np.float64)
+        first = anim.rest if neutral is None else np.asarray(neutral, dtype=np.float64)
         lo, hi = first.min(axis=0), first.max(axis=0)
         margin = 0.45 * (hi - lo).max()
         shift = lo - margin
@@ -643,8 +645,8 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
     ref = None if neutral is None else np.asarray(neutral, dtype=np.float64)
     # vertices in chunks of frames: memory stays bounded for hour-long animations
     chunk = _FRAME_CHUNK
-    pred_ref = anim.points[0] if ref is None else ref
-    truth_ref = None if truth is None else (truth.points[0] if ref is None else ref)
+    pred_ref = anim.rest if ref is None else ref
+    truth_ref = None if truth is None else (truth.rest if ref is None else ref)
     pred = gt = None
     with FaceRenderer(face, size=size, shading=shading) as r:
         for t in frames:
@@ -761,49 +763,84 @@ def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None
 
 # ------------------------------------------------------------------------------ CLI
 
-def load_face(image_path, points_path=None) -> FaceMesh:
-    """A face mesh from a photo file, or a video (the puppet's own, say), and its points: JSON
-    ``{"points": [[x, y], ...]}``, CSV ``x,y`` rows, or an animation or landmarks ``.npz`` /
-    ``.csv`` (its first frame). Without points, the 68 landmarks are detected (dlib, see
-    :func:`voicepuppet.tracking.auto_init`): on the photo, or on the video's first frame with a
-    face (:func:`voicepuppet.tracking.first_face`); with points, a video's first frame is used."""
-    import cv2
-    from PIL import Image, UnidentifiedImageError
+#: ``--face VIDEO`` with the animation's rest face: the video's frames looked at for the face
+#: at rest, one every REST_STRIDE_S seconds over its first REST_SCAN_S (dlib on each: ~10 ms a
+#: 320x320 frame).
+REST_STRIDE_S = 0.5
+REST_SCAN_S = 30.0
 
-    from voicepuppet.tracking import NoFaceError, auto_init
+
+def shape_distance(shapes, rest) -> np.ndarray:
+    """How far each shape of ``shapes`` (N, P, 2) is from ``rest`` (P, 2) once the best
+    similarity (translation, scale, rotation) maps it onto ``rest``: the residual's RMS over the
+    points relative to ``rest``'s RMS radius, (N,). Closed form in complex numbers: the best
+    map of the centred shape ``z`` is ``c z`` with ``c = <z, w> / <z, z>``."""
+    S = np.asarray(shapes, dtype=np.float64)
+    r = np.asarray(rest, dtype=np.float64)
+    z = S[..., 0] + 1j * S[..., 1]
+    z = z - z.mean(axis=1, keepdims=True)
+    w = r[:, 0] + 1j * r[:, 1]
+    w = w - w.mean()
+    c = (np.conj(z) @ w) / np.maximum((np.abs(z) ** 2).sum(axis=1), 1e-300)
+    return np.sqrt((np.abs(c[:, None] * z - w) ** 2).sum(axis=1) / max(float((np.abs(w) ** 2).sum()), 1e-300))
+
+
+def load_face(image_path, points_path=None, rest=None, progress: bool = False) -> FaceMesh:
+    """A face mesh from a photo file, or a video (the puppet's own, say), and its points: JSON
+    ``{"points": [[x, y], ...]}``, CSV ``x,y`` rows, or an animation or landmarks ``.npz`` (its
+    first frame; for a video, its frames). Without points, the 68 landmarks are detected (dlib,
+    see :func:`voicepuppet.tracking.auto_init`) on the photo.
+
+    A video gives one of its frames. With ``rest`` (P, 2), the rest face the animation moves
+    from (:attr:`voicepuppet.animation.Animation.rest`), it is the frame whose face is nearest
+    it (:func:`shape_distance`), so the photo is the face at rest whatever the video begins
+    with: among the frames of a landmarks ``.npz``, or without points among those dlib finds a
+    face on, one every :data:`REST_STRIDE_S` s over the first :data:`REST_SCAN_S` s. Without
+    ``rest``: the first frame with a face (:func:`voicepuppet.tracking.first_face`), or with
+    points the first frame."""
+    from PIL import Image, UnidentifiedImageError
 
     ip = Path(image_path)
     if not ip.is_file():
         raise ValueError(f"face image {str(ip)!r} does not exist")
-    pts = None
+    given = None if points_path is None else _face_points(points_path)
     try:
         with Image.open(ip) as im:
             img = np.asarray(im.convert("RGB"))
     except (UnidentifiedImageError, OSError) as exc:
-        img, pts = _video_face(ip, detect=points_path is None, why=exc)
-    if points_path is None and pts is None:
+        img, pts = _video_face(ip, given, rest, why=exc, progress=progress)
+        return build_face_mesh(img, pts)
+    if given is None:
+        import cv2
+
+        from voicepuppet.tracking import NoFaceError, auto_init
+
         try:
-            pts = auto_init(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY), instead="--face-points points.json")
+            return build_face_mesh(img, auto_init(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY),
+                                                  instead="--face-points points.json"))
         except NoFaceError:
             raise ValueError(f"no face found in the photo {str(ip)!r} (dlib's detector: a frontal, upright, "
                              "lit face); pass its 68 landmarks with --face-points points.json") from None
-    elif points_path is not None:
-        pp = Path(points_path)
-        if pp.suffix.lower() == ".npz":
-            from voicepuppet.animation import load_animation
-
-            pts = load_animation(pp).points[0]
-        else:
-            from voicepuppet.tracking import load_init_points
-
-            pts, _ = load_init_points(pp)
-    return build_face_mesh(img, pts)
+    return build_face_mesh(img, given[0])
 
 
-def _video_face(path: Path, detect: bool, why: Exception) -> tuple[np.ndarray, np.ndarray | None]:
-    """(RGB frame, its 68 points) of the video ``path`` for :func:`load_face`: with ``detect``
-    its first frame with a face, else its first frame (points None). ``why`` is the picture
-    reader's refusal, reported when ``path`` is no video either."""
+def _face_points(path) -> np.ndarray:
+    """The points of ``--face-points``: (N, P, 2), the frames of an ``.npz``, else one frame."""
+    pp = Path(path)
+    if pp.suffix.lower() == ".npz":
+        from voicepuppet.animation import load_animation
+
+        return load_animation(pp).points
+    from voicepuppet.tracking import load_init_points
+
+    return load_init_points(pp)[0][None]
+
+
+def _video_face(path: Path, given: np.ndarray | None, rest, why: Exception,
+                progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(RGB frame, its points) of the video ``path`` for :func:`load_face`: ``given`` points
+    (N, P, 2) or dlib's, the frame nearest ``rest`` or the first (with a face). ``why`` is the
+    picture reader's refusal, reported when ``path`` is no video either."""
     import cv2
 
     from voicepuppet import video
@@ -819,14 +856,64 @@ def _video_face(path: Path, detect: bool, why: Exception) -> tuple[np.ndarray, n
                          "OpenCV can open; give a .png / .jpg photo or an .mp4 video of the face") from None
     if first is None:
         raise ValueError(f"face video {str(path)!r} holds no decodable frames; give a photo or another video")
-    if not detect:
-        return cv2.cvtColor(first, cv2.COLOR_BGR2RGB), None
+    fps = info.fps or 29.97
+    if given is not None:
+        k = 0
+        if rest is not None and len(given) > 1:
+            k = int(np.argmin(shape_distance(given, rest)))
+        frame = first if k == 0 else _frame_at(path, k)
+        if frame is None:
+            raise ValueError(f"face video {str(path)!r} has fewer frames than its --face-points ({k + 1} needed); "
+                             "give the video's own landmarks")
+        return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), given[k]
     try:
-        _, frame, pts = first_face(path, first, info.fps or 29.97, grey=False)
+        t, frame, pts = first_face(path, first, fps, grey=False)
     except NoFaceError as exc:
         raise ValueError(f"face video: {exc}; pass a photo with --face, or the first frame's 68 landmarks "
                          "with --face-points") from None
+    if rest is not None and len(rest) == len(pts):
+        frame, pts = _rest_frame(path, fps, rest, (frame, pts), start=t, progress=progress)
     return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), pts
+
+
+def _frame_at(path: Path, k: int) -> np.ndarray | None:
+    from voicepuppet import video
+
+    frames = video.iter_frames(path, grey=False)
+    try:
+        return next(itertools.islice(frames, k, None), None)
+    finally:
+        frames.close()
+
+
+def _rest_frame(path: Path, fps: float, rest, found, start: int, progress: bool = False):
+    """The (BGR frame, dlib points) nearest ``rest`` among ``found`` (the first face, at frame
+    ``start``) and the probes after it, one every :data:`REST_STRIDE_S` s up to
+    :data:`REST_SCAN_S` s."""
+    import cv2
+    from tqdm.auto import tqdm
+
+    from voicepuppet import video
+    from voicepuppet.tracking import PROBE_MAX_PIXELS, NoFaceError, auto_init
+
+    stride = max(1, int(round(REST_STRIDE_S * fps)))
+    last = int(REST_SCAN_S * fps)
+    best, best_d = found, float(shape_distance(found[1][None], rest)[0])
+    frames = video.iter_frames(path, grey=False)
+    try:
+        probes = itertools.islice(frames, start + stride, last + 1, stride)
+        for frame in tqdm(probes, total=max(0, (last - start) // stride), desc="looking for the face at rest",
+                          unit="frame", disable=not progress, leave=False):
+            try:
+                pts = auto_init(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY), max_pixels=PROBE_MAX_PIXELS)
+            except NoFaceError:
+                continue
+            d = float(shape_distance(pts[None], rest)[0])
+            if d < best_d:
+                best, best_d = (frame, pts), d
+    finally:
+        frames.close()
+    return best
 
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
@@ -853,17 +940,18 @@ def face_palette(folder) -> dict:
     return faces
 
 
-def resolve_face(face: str, points=None, palette=None) -> FaceMesh:
-    """A face mesh from ``face``: a picture file (with ``points`` or detected landmarks) or, with a
-    ``palette`` folder, a face name in it."""
+def resolve_face(face: str, points=None, palette=None, rest=None, progress: bool = False) -> FaceMesh:
+    """A face mesh from ``face``: a picture or video file (with ``points`` or detected landmarks;
+    a video's frame nearest ``rest``, see :func:`load_face`) or, with a ``palette`` folder, a
+    face name in it."""
     if palette is not None and not Path(face).is_file():
         faces = face_palette(palette)
         if face not in faces:
             raise ValueError(f"face {face!r} is not in the palette {str(palette)!r}; choose one of "
                              f"{', '.join(faces)}")
         image, pts = faces[face]
-        return load_face(image, points if points is not None else pts)
-    return load_face(face, points)
+        return load_face(image, points if points is not None else pts, rest, progress)
+    return load_face(face, points, rest, progress)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -893,7 +981,7 @@ def apply_controls(anim: Animation, args) -> Animation:
             except ValueError:
                 raise ValueError(f"--expression-time must be START:END in seconds, "
                                  f"got {args.expression_time!r}") from None
-        anim = add_offset(anim, expression_offset(anim.points[0], args.expression), start, end, args.fade)
+        anim = add_offset(anim, expression_offset(anim.rest, args.expression), start, end, args.fade)
     return anim
 
 
@@ -914,7 +1002,8 @@ def _cli(args) -> int:
     original = load_animation(args.animation)
     anim = apply_controls(original, args)
     truth = load_animation(args.truth) if args.truth else None
-    face = resolve_face(args.face, args.face_points, args.palette) if args.face else None
+    face = resolve_face(args.face, args.face_points, args.palette, original.rest, not args.quiet) \
+        if args.face else None
     suffix = Path(args.output).suffix.lower()
     t0 = time.perf_counter()
     if suffix in (".pvd", ".glb"):
@@ -922,7 +1011,7 @@ def _cli(args) -> int:
 
         from voicepuppet.export import _print_summary
 
-        export(anim, args.output, face=face, mode=args.mode, neutral=original.points[0], report=_print_summary)
+        export(anim, args.output, face=face, mode=args.mode, neutral=original.rest, report=_print_summary)
     else:
         if face is not None and args.size is None and args.renderer == "mesh":
             (W, H), (w, h) = face.size, default_size(*face.size)
@@ -930,7 +1019,7 @@ def _cli(args) -> int:
                 print(f"rendering the {W}x{H} face image at {w}x{h} (--size WxH for another size)")
         render(anim, args.output, audio=args.audio, face=face, mode=args.mode or "vertex", truth=truth,
                renderer=args.renderer, size=_size(args.size) if args.size else None, shading=args.shading,
-               neutral=original.points[0], progress=not args.quiet)
+               neutral=original.rest, progress=not args.quiet)
     dt = time.perf_counter() - t0
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {args.output} "
           f"({dt:.1f} s, {anim.n_frames / max(dt, 1e-9):.1f} frames/s)")
@@ -945,12 +1034,12 @@ def add_parser(sub) -> None:
     p.add_argument("animation", help="landmark animation (.npz or .csv)")
     p.add_argument("-o", "--output", required=True, help="out.mp4, out.gif, a new folder, out.pvd or out.glb")
     p.add_argument("--audio", help="sound to mux into the .mp4 (wav, flac, mp3, or a video's audio)")
-    p.add_argument("--face", help="face photo, a video (e.g. the puppet's training video: its first frame "
-                                  "with a face), or a face name with --palette (default: a drawn portrait "
-                                  "on the first frame)")
+    p.add_argument("--face", help="face photo at rest (mouth closed), a video (e.g. the puppet's training "
+                                  "video: its frame nearest the animation's rest face), or a face name with "
+                                  "--palette (default: a drawn portrait on the animation's rest face)")
     p.add_argument("--palette", help="folder of faces (NAME.png + NAME.json points) to pick --face from")
     p.add_argument("--face-points", help="the photo's points: JSON {\"points\": [[x, y], ...]}, CSV, or .npz "
-                                         "(a video's: its first frame's, e.g. track's landmarks; default: "
+                                         "(a video's: its frames', e.g. track's landmarks; default: "
                                          "detect 68 landmarks with dlib)")
     p.add_argument("--truth", help="ground-truth animation: render side by side (prediction | truth)")
     p.add_argument("--mode", choices=["vertex", "au"], default=None,
