@@ -99,6 +99,7 @@ def test_train_and_animate(workdir, capsys):
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(d / "c.csv"), "--fps", "50",
                  "--posterior", "--quiet"]) == 0
     assert np.loadtxt(d / "c.csv", delimiter=",", skiprows=1).shape == (400, 22)
+    assert "a .csv holds the frames only" in capsys.readouterr().out  # the rest face is not in it
 
 
 def test_train_switches_for_voices_never_heard(workdir, capsys):

@@ -262,6 +262,9 @@ def _animate(args) -> int:
         written.append(save_states(args.states_out, result.states, result.states_fps))
     print(f"animated {anim.duration:.2f} s ({anim.n_frames} frame{'s' * (anim.n_frames != 1)} at "
           f"{anim.fps:g} fps); wrote {', '.join(str(w) for w in written)}")
+    if anim.neutral is not None and Path(out).suffix.lower() == ".csv":
+        print("note: a .csv holds the frames only, so render and export move the face from its first frame; "
+              "write .npz to keep the puppet's face in silence as the rest (docs/rendering.md, \"Retargeting\")")
     return 0
 
 
