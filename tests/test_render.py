@@ -134,6 +134,15 @@ def test_side_by_side_and_2d_fallback(face, jaw_anim):
     # same animation on both sides: halves agree apart from the labels
     assert np.mean(np.abs(pair[2][40:, :240].astype(int) - single[2][40:].astype(int))) < 1.0
     np.testing.assert_array_equal(pair[2][40:, :240], pair[2][40:, 240:])
+    # a prediction resting on its neutral beside a truth of frames only that begins open: the
+    # truth rests on its frame nearest that neutral (the last: closed), not on its first
+    opening = procedural_animation(4, 24.0, width=240, height=240, jaw=[0.7, 0.4, 0.1, 0.0], smile=0.0)
+    rest = opening.points[-1]
+    pred = Animation(opening.points, opening.fps, neutral=rest)
+    beside = list(R.render_frames(pred, face=face, truth=opening))
+    np.testing.assert_array_equal(beside[0][40:, :240], beside[0][40:, 240:])
+    first = list(R.render_frames(pred, face=face, truth=opening, neutral=opening.points[0]))
+    assert np.abs(first[0][40:, 240:].astype(int) - beside[0][40:, 240:]).max() > 40
     flat = list(R.render_frames(short, renderer="2d"))
     assert len(flat) == 3 and flat[0].ndim == 3
     assert not np.array_equal(flat[0], flat[2]) or np.allclose(short.points[0], short.points[2])

@@ -595,7 +595,9 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
     (prediction left, ground truth right, same face and frame count).
 
     ``face`` defaults to a drawn portrait (:func:`portrait_image`) on the animation's rest face
-    (``neutral``, else :attr:`Animation.rest`; 68-point layout). ``renderer="2d"`` draws the
+    (``neutral``, else :attr:`Animation.rest`; 68-point layout). Both sides move from
+    ``neutral`` when it is given, else each from its own rest, a truth without a ``neutral``
+    from its frame nearest the animation's (:func:`shape_distance`). ``renderer="2d"`` draws the
     landmarks instead of the mesh.
     """
     if truth is not None:
@@ -647,6 +649,10 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
     chunk = _FRAME_CHUNK
     pred_ref = anim.rest if ref is None else ref
     truth_ref = None if truth is None else (truth.rest if ref is None else ref)
+    if ref is None and truth is not None and truth.neutral is None and anim.neutral is not None:
+        # a truth of frames only (tracked, say) rests where it is nearest the prediction's rest,
+        # not on its first frame, which may be mid-word
+        truth_ref = truth.points[int(np.argmin(shape_distance(truth.points, anim.neutral)))]
     pred = gt = None
     with FaceRenderer(face, size=size, shading=shading) as r:
         for t in frames:
