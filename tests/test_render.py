@@ -469,6 +469,27 @@ def test_a_video_gives_its_face_at_rest_when_the_animation_has_one(tmp_path):
     assert d[0] < 1e-12 and d[1] > 0.05
 
 
+def test_a_photo_with_the_mouth_open_is_warned_about(tmp_path):
+    """A photo moved from a closed rest face shows its own opening on every frame: said once,
+    with what to give instead; a photo at rest is taken silently."""
+    import warnings
+
+    from PIL import Image
+
+    rest = neutral_landmarks(240, 240)
+    for name, jaw in (("open", 0.5), ("closed", 0.0)):
+        pts = procedural_animation(1, 30.0, width=240, height=240, jaw=jaw, smile=0.0).points[0]
+        Image.fromarray(R.portrait_image(pts, 240, 240)).save(tmp_path / f"{name}.png")
+        (tmp_path / f"{name}.json").write_text(json.dumps({"points": pts.tolist()}))
+    assert R.lip_gap_iod(rest) < 0.5 * R.OPEN_MOUTH_IOD
+    with pytest.warns(UserWarning, match=r"lips 0\.\d+ inter-ocular distances apart .* mouth closed at rest"):
+        R.resolve_face(str(tmp_path / "open.png"), tmp_path / "open.json", rest=rest)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        R.resolve_face(str(tmp_path / "closed.png"), tmp_path / "closed.json", rest=rest)
+        R.resolve_face(str(tmp_path / "open.png"), tmp_path / "open.json")  # no rest: nothing to say
+
+
 def test_face_palette_by_name(tmp_path):
     import json
 

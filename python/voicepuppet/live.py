@@ -455,7 +455,7 @@ class _FaceDriver:
         from voicepuppet import render
 
         self._render = render
-        self.mesh = render.load_face(face, points, rest)
+        self.mesh = render.resolve_face(face, points, rest=rest)
         if self.mesh.n_landmarks != n_points:
             raise ValueError(f"the face {face!r} has {self.mesh.n_landmarks} points and the puppet's "
                              f"landmarks {n_points}; give --face-points in the puppet's layout")

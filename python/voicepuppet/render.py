@@ -35,6 +35,7 @@ import itertools
 import os
 import shutil
 import tempfile
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator, Optional, Sequence
@@ -159,6 +160,19 @@ def _depth(xy: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     return z
 
 
+#: Inner-lip gap (inter-ocular distances) above which a face's mouth counts as open: a photo's
+#: own cavity then textures the mouth, and a photo that open is not at rest (:func:`resolve_face`).
+OPEN_MOUTH_IOD = 0.04
+
+
+def lip_gap_iod(landmarks) -> float:
+    """The inner lips' mean gap (pairs 61-67, 62-66, 63-65) of a 68-point face, in inter-ocular
+    distances (outer eye corners 36, 45)."""
+    lm = np.asarray(landmarks, dtype=np.float64)
+    gap = np.mean(np.linalg.norm(lm[[61, 62, 63]] - lm[[67, 66, 65]], axis=1))
+    return float(gap / max(np.linalg.norm(lm[36] - lm[45]), 1e-12))
+
+
 def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float, int]] = ((1.2, 12), (1.5, 16)),
                     frame_per_side: int = 4) -> FaceMesh:
     """Builds the textured face mesh of a photo.
@@ -230,8 +244,7 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
         inner = set(range(60, 68))
         mouth = np.array([set(f.tolist()) <= inner for f in faces])
         # a photo with the mouth open shows its own teeth and tongue: texture the cavity with them
-        gap = np.mean(np.linalg.norm(lm[[61, 62, 63]] - lm[[67, 66, 65]], axis=1))
-        if gap > 0.04 * np.linalg.norm(lm[36] - lm[45]):
+        if lip_gap_iod(lm) > OPEN_MOUTH_IOD:
             mouth[:] = False
     z = _depth(pts, lm)
     z[fixed] = 0.0
@@ -949,15 +962,26 @@ def face_palette(folder) -> dict:
 def resolve_face(face: str, points=None, palette=None, rest=None, progress: bool = False) -> FaceMesh:
     """A face mesh from ``face``: a picture or video file (with ``points`` or detected landmarks;
     a video's frame nearest ``rest``, see :func:`load_face`) or, with a ``palette`` folder, a
-    face name in it."""
+    face name in it. With ``rest``, a 68-point face whose lips are more than
+    :data:`OPEN_MOUTH_IOD` further apart than the rest face's is warned about (it is not at rest:
+    every frame would show the mouth that much more open)."""
     if palette is not None and not Path(face).is_file():
         faces = face_palette(palette)
         if face not in faces:
             raise ValueError(f"face {face!r} is not in the palette {str(palette)!r}; choose one of "
                              f"{', '.join(faces)}")
         image, pts = faces[face]
-        return load_face(image, points if points is not None else pts, rest, progress)
-    return load_face(face, points, rest, progress)
+        mesh = load_face(image, points if points is not None else pts, rest, progress)
+    else:
+        mesh = load_face(face, points, rest, progress)
+    if rest is not None and mesh.n_landmarks == len(rest) == face_layout.N_POINTS:
+        photo, still = lip_gap_iod(mesh.landmarks), lip_gap_iod(rest)
+        if photo - still > OPEN_MOUTH_IOD:
+            warnings.warn(f"the face {str(face)!r} has its lips {photo:.2f} inter-ocular distances apart and the "
+                          f"animation's rest face {still:.2f}: every frame shows the mouth that much more open "
+                          "and closures do not close; give a photo with the mouth closed at rest (or a video: "
+                          "its frame nearest the rest face is taken)", stacklevel=2)
+    return mesh
 
 
 def _size(text: str) -> tuple[int, int]:
