@@ -78,6 +78,28 @@ def test_bad_landmarks():
         face.FaceSpace.fit(np.ones((4, 5, 2)))
 
 
+def test_shape_distance_ignores_pose_and_measures_shape(rng):
+    """0 for a scaled, turned, moved copy of the rest; for a shape with one point moved by d, the
+    least-squares residual over a similarity fit by lstsq (the closed form's peer)."""
+    rest = rng.normal(0, 30, (12, 2)) + 100
+    th = 0.3
+    R = np.array([[np.cos(th), np.sin(th)], [-np.sin(th), np.cos(th)]])
+    moved = 1.7 * rest @ R + [40.0, -7.0]
+    bent = rest.copy()
+    bent[3] += [0.0, 9.0]
+    bent = 0.8 * bent @ R.T - [5.0, 12.0]
+    d = face.shape_distance(np.stack([moved, bent]), rest)
+    assert d[0] < 1e-12
+    # peer: x' = a x - b y + tx, y' = b x + a y + ty fitted by least squares
+    A = np.zeros((24, 4))
+    A[0::2] = np.column_stack([bent[:, 0], -bent[:, 1], np.ones(12), np.zeros(12)])
+    A[1::2] = np.column_stack([bent[:, 1], bent[:, 0], np.zeros(12), np.ones(12)])
+    coef, *_ = np.linalg.lstsq(A, rest.reshape(-1), rcond=None)
+    resid = rest.reshape(-1) - A @ coef
+    radius = np.sqrt(((rest - rest.mean(axis=0)) ** 2).sum())
+    assert d[1] == pytest.approx(np.sqrt((resid ** 2).sum()) / radius, rel=1e-10)
+
+
 def test_observations():
     Y = np.arange(12, dtype=float).reshape(6, 2) ** 2
     O = face.observations(Y, lengths=[4, 2])

@@ -19,7 +19,6 @@ Everything lands in ``--out`` (default ``voicepuppet-demo/``): ``puppet.vpp``, `
 
 from __future__ import annotations
 
-import itertools
 import json
 import time
 from pathlib import Path
@@ -134,9 +133,7 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
         log(f"[5/5] rendering {out / 'demo.mp4'} (prediction | ground truth) with the sound")
         from voicepuppet import render, video
 
-        frames = video.iter_frames(train.video, grey=False)
-        photo = next(itertools.islice(frames, rest, None))[..., ::-1]
-        frames.close()
+        photo = video.frame_at(train.video, rest, grey=False)[..., ::-1]
         mesh = render.build_face_mesh(np.ascontiguousarray(photo), train.points[rest])
         render.render(anim, out / "demo.mp4", audio=str(out / "heldout.wav"), face=mesh,
                       truth=Animation(np.concatenate(true), puppet.fps), neutral=anim.neutral, progress=progress)

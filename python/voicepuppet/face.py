@@ -74,6 +74,18 @@ def _align(z: np.ndarray, ref: np.ndarray, w: np.ndarray):
     return a[:, None] * zc, a, c[:, 0]
 
 
+def shape_distance(shapes, rest) -> np.ndarray:
+    """How far each shape of ``shapes`` (N, P, 2) is from ``rest`` (P, 2) once the best
+    similarity (translation, scale, rotation; every point weighed alike) maps it onto ``rest``:
+    the residual's RMS over the points relative to ``rest``'s RMS radius, (N,)."""
+    S = check_landmarks(shapes, "shapes")
+    r = np.asarray(rest, dtype=np.float64)
+    w = r[:, 0] + 1j * r[:, 1]
+    w = w - w.mean()
+    aligned, _, _ = _align(S[..., 0] + 1j * S[..., 1], w, np.ones(S.shape[1]))
+    return np.sqrt((np.abs(aligned - w) ** 2).sum(axis=1) / max(float((np.abs(w) ** 2).sum()), 1e-300))
+
+
 @dataclass
 class FaceSpace:
     """Head-pose normalisation and a per-part principal-component basis of face shapes.

@@ -43,6 +43,7 @@ from typing import Iterable, Iterator, Optional, Sequence
 import numpy as np
 
 from voicepuppet import face_layout
+from voicepuppet.face import shape_distance
 from voicepuppet.animation import Animation, atomic_path, check_output_path, check_points, publish
 
 __all__ = ["FaceMesh", "build_face_mesh", "portrait_image", "ACTION_UNITS", "action_unit_basis",
@@ -610,8 +611,8 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
     ``face`` defaults to a drawn portrait (:func:`portrait_image`) on the animation's rest face
     (``neutral``, else :attr:`Animation.rest`; 68-point layout). Both sides move from
     ``neutral`` when it is given, else each from its own rest, a truth without a ``neutral``
-    from its frame nearest the animation's (:func:`shape_distance`). ``renderer="2d"`` draws the
-    landmarks instead of the mesh.
+    from its frame nearest the animation's (:func:`voicepuppet.face.shape_distance`).
+    ``renderer="2d"`` draws the landmarks instead of the mesh.
     """
     if truth is not None:
         if truth.n_points != anim.n_points:
@@ -789,21 +790,6 @@ REST_STRIDE_S = 0.5
 REST_SCAN_S = 30.0
 
 
-def shape_distance(shapes, rest) -> np.ndarray:
-    """How far each shape of ``shapes`` (N, P, 2) is from ``rest`` (P, 2) once the best
-    similarity (translation, scale, rotation) maps it onto ``rest``: the residual's RMS over the
-    points relative to ``rest``'s RMS radius, (N,). Closed form in complex numbers: the best
-    map of the centred shape ``z`` is ``c z`` with ``c = <z, w> / <z, z>``."""
-    S = np.asarray(shapes, dtype=np.float64)
-    r = np.asarray(rest, dtype=np.float64)
-    z = S[..., 0] + 1j * S[..., 1]
-    z = z - z.mean(axis=1, keepdims=True)
-    w = r[:, 0] + 1j * r[:, 1]
-    w = w - w.mean()
-    c = (np.conj(z) @ w) / np.maximum((np.abs(z) ** 2).sum(axis=1), 1e-300)
-    return np.sqrt((np.abs(c[:, None] * z - w) ** 2).sum(axis=1) / max(float((np.abs(w) ** 2).sum()), 1e-300))
-
-
 def load_face(image_path, points_path=None, rest=None, progress: bool = False) -> FaceMesh:
     """A face mesh from a photo file, or a video (the puppet's own, say), and its points: JSON
     ``{"points": [[x, y], ...]}``, CSV ``x,y`` rows, or an animation or landmarks ``.npz`` (its
@@ -812,9 +798,9 @@ def load_face(image_path, points_path=None, rest=None, progress: bool = False) -
 
     A video gives one of its frames. With ``rest`` (P, 2), the rest face the animation moves
     from (:attr:`voicepuppet.animation.Animation.rest`), it is the frame whose face is nearest
-    it (:func:`shape_distance`), so the photo is the face at rest whatever the video begins
-    with: among the frames of a landmarks ``.npz``, or without points among those dlib finds a
-    face on, one every :data:`REST_STRIDE_S` s over the first :data:`REST_SCAN_S` s. Without
+    it (:func:`voicepuppet.face.shape_distance`), so the photo is the face at rest whatever the
+    video begins with: among the frames of a landmarks ``.npz``, or without points among those
+    dlib finds a face on, one every :data:`REST_STRIDE_S` s over the first :data:`REST_SCAN_S` s. Without
     ``rest``: the first frame with a face (:func:`voicepuppet.tracking.first_face`), or with
     points the first frame."""
     from PIL import Image, UnidentifiedImageError
@@ -880,7 +866,7 @@ def _video_face(path: Path, given: np.ndarray | None, rest, why: Exception,
         k = 0
         if rest is not None and len(given) > 1:
             k = int(np.argmin(shape_distance(given, rest)))
-        frame = first if k == 0 else _frame_at(path, k)
+        frame = first if k == 0 else video.frame_at(path, k, grey=False)
         if frame is None:
             raise ValueError(f"face video {str(path)!r} has fewer frames than its --face-points ({k + 1} needed); "
                              "give the video's own landmarks")
@@ -893,16 +879,6 @@ def _video_face(path: Path, given: np.ndarray | None, rest, why: Exception,
     if rest is not None and len(rest) == len(pts):
         frame, pts = _rest_frame(path, fps, rest, (frame, pts), start=t, progress=progress)
     return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), pts
-
-
-def _frame_at(path: Path, k: int) -> np.ndarray | None:
-    from voicepuppet import video
-
-    frames = video.iter_frames(path, grey=False)
-    try:
-        return next(itertools.islice(frames, k, None), None)
-    finally:
-        frames.close()
 
 
 def _rest_frame(path: Path, fps: float, rest, found, start: int, progress: bool = False):

@@ -6,6 +6,7 @@ without it; a missing install raises an ``ImportError`` that says what to instal
 
 from __future__ import annotations
 
+import itertools
 import os
 from pathlib import Path
 from typing import Iterator
@@ -13,7 +14,7 @@ from typing import Iterator
 import numpy as np
 
 __all__ = ["VideoInfo", "probe_video", "frame_times", "grid_slip", "nominal_rate", "MAX_GRID_SLIP", "iter_frames",
-           "read_grey_frames", "downscale", "write_overlay"]
+           "frame_at", "read_grey_frames", "downscale", "write_overlay"]
 
 
 def _cv2():
@@ -173,6 +174,16 @@ def iter_frames(path: str | os.PathLike, grey: bool = True, scale: float = 1.0) 
             yield np.ascontiguousarray(downscale(frame, scale))
     finally:
         cap.release()
+
+
+def frame_at(path: str | os.PathLike, index: int, grey: bool = True) -> np.ndarray | None:
+    """Frame ``index`` of a video as :func:`iter_frames` yields it (decoded in order up to it),
+    or None if the video has no such frame."""
+    frames = iter_frames(path, grey=grey)
+    try:
+        return next(itertools.islice(frames, int(index), None), None)
+    finally:
+        frames.close()
 
 
 def read_grey_frames(path: str | os.PathLike) -> tuple[np.ndarray, float]:
