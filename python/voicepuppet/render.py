@@ -164,16 +164,6 @@ def _topology_shape(landmarks: np.ndarray) -> np.ndarray:
     return topo
 
 
-def _inside(polygon: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Even-odd test of the points ``xy`` (N, 2) against a simple ``polygon`` (M, 2)."""
-    a, b = polygon, np.roll(polygon, -1, axis=0)
-    x, y = xy[:, None, 0], xy[:, None, 1]
-    crosses = (a[None, :, 1] > y) != (b[None, :, 1] > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xc = a[None, :, 0] + (y - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (b[None, :, 1] - a[None, :, 1])
-    return (crosses & (x < xc)).sum(axis=1) % 2 == 1
-
-
 def _triangulate(topo: np.ndarray, P: int) -> np.ndarray:
     """Triangles of the mesh on the topology shape: Delaunay, and with the 68-point layout the
     lips by hand (:data:`_LIP_RING`, :data:`_CAVITY`) in the hole the outer lip contour cuts
@@ -181,6 +171,7 @@ def _triangulate(topo: np.ndarray, P: int) -> np.ndarray:
     contour's six triangles (Delaunay alone skipped a corner of it on most real faces: 240 of
     274 of the performer's). Falls back to Delaunay of all points should that hole not be the
     outer contour's."""
+    import cv2
     from scipy.spatial import Delaunay
 
     if P != face_layout.N_POINTS:
@@ -188,7 +179,9 @@ def _triangulate(topo: np.ndarray, P: int) -> np.ndarray:
     keep = np.array([i for i in range(len(topo)) if not 60 <= i < 68])
     faces = keep[Delaunay(topo[keep]).simplices].astype(np.int64)
     outer = np.arange(48, 60)
-    hole = _inside(topo[outer], topo[faces].mean(axis=1))
+    contour = topo[outer].astype(np.float32).reshape(-1, 1, 2)
+    hole = np.array([cv2.pointPolygonTest(contour, (float(x), float(y)), False) > 0
+                     for x, y in topo[faces].mean(axis=1)])
     edges = {frozenset(e) for f in faces.tolist() for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))}
     if np.isin(faces[hole], outer).all() and all(frozenset((int(outer[i]), int(outer[(i + 1) % 12]))) in edges
                                                  for i in range(12)):
