@@ -494,6 +494,9 @@ def test_a_video_gives_its_face_at_rest_when_the_animation_has_one(tmp_path):
     np.testing.assert_array_equal(given.image, decoded[8])
     np.testing.assert_allclose(given.landmarks, rest)
     np.testing.assert_array_equal(R.load_face(path, tmp_path / "tracked.npz").image, decoded[0])
+    # points of another layout than the rest face's: nothing to compare, the first frame
+    save_animation(Animation(points[:, ::6], 10.0), tmp_path / "other.npz")
+    assert R.load_face(path, tmp_path / "other.npz", rest=rest).n_landmarks == 12
 
 
 def test_a_photo_with_the_mouth_open_is_warned_about(tmp_path):

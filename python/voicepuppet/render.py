@@ -839,9 +839,9 @@ def load_face(image_path, points_path=None, rest=None, progress: bool = False) -
     from (:attr:`voicepuppet.animation.Animation.rest`), it is the frame whose face is nearest
     it (:func:`voicepuppet.face.shape_distance`), so the photo is the face at rest whatever the
     video begins with: among the frames of a landmarks ``.npz``, or without points among those
-    dlib finds a face on, one every :data:`REST_STRIDE_S` s over the first :data:`REST_SCAN_S` s. Without
-    ``rest``: the first frame with a face (:func:`voicepuppet.tracking.first_face`), or with
-    points the first frame."""
+    dlib finds a face on, one every :data:`REST_STRIDE_S` s over the first :data:`REST_SCAN_S`
+    s. Without ``rest``: the first frame with a face (:func:`voicepuppet.tracking.first_face`),
+    or with points the first frame."""
     from PIL import Image, UnidentifiedImageError
 
     ip = Path(image_path)
@@ -903,7 +903,7 @@ def _video_face(path: Path, given: np.ndarray | None, rest, why: Exception,
     fps = info.fps or 29.97
     if given is not None:
         k = 0
-        if rest is not None and len(given) > 1:
+        if rest is not None and len(given) > 1 and given.shape[1] == len(rest):
             k = int(np.argmin(shape_distance(given, rest)))
         frame = first if k == 0 else video.frame_at(path, k, grey=False)
         if frame is None:
