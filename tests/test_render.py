@@ -363,6 +363,18 @@ def test_animator_controls_exaggerate_and_expression_offset(tmp_path):
     table = np.loadtxt(out, delimiter=",", skiprows=1)
     smile = table[:, 2 + E.ARKIT_NAMES.index("mouthSmileLeft")]
     np.testing.assert_allclose(smile, inside.astype(float), atol=1e-6)
+    # exaggerated, a frame at rest stays at rest (the neutral is scaled too) and the motion from
+    # it doubles: jawOpen 0, 1, 0 for rest, half open, rest (the rest kept, 0.83 at the opening)
+    talk = procedural_animation(3, 10.0, jaw=[0.0, 0.5, 0.0], smile=0.0)
+    talk = Animation(talk.points, talk.fps, neutral=talk.points[0])
+    loud = exaggerate(talk, 2.0)
+    np.testing.assert_allclose(loud.neutral, loud.points[0], atol=1e-9)
+    save_animation(talk, tmp_path / "t.npz")
+    for path in (tmp_path / "t.npz", tmp_path / "t.csv"):  # with a neutral, and frames only
+        save_animation(talk, path)
+        assert main(["export", str(path), "--format", "arkit", "-o", str(out), "--exaggerate", "2"]) == 0
+        jaw = np.loadtxt(out, delimiter=",", skiprows=1)[:, 2 + E.ARKIT_NAMES.index("jawOpen")]
+        np.testing.assert_allclose(jaw, [0.0, 1.0, 0.0], atol=1e-6)
 
 
 def test_a_photo_without_a_face_names_the_option_that_gives_its_points(tmp_path, monkeypatch):

@@ -277,14 +277,16 @@ def exaggerate(anim: Animation, factor: float, mean=None) -> Animation:
     """Scales every frame's deviation from the mean shape: ``mean + factor (x_t - mean)``.
 
     ``mean`` (P, 2) defaults to the time average of the animation; ``factor`` 1 is the identity,
-    above 1 exaggerates, between 0 and 1 calms the performance.
+    above 1 exaggerates, between 0 and 1 calms the performance. The ``neutral`` (the rest face)
+    is scaled alike, so a frame at rest stays at rest and the motion from it is scaled.
     """
     f = float(factor)
     if not np.isfinite(f) or f < 0:
         raise ValueError(f"exaggeration factor must be a finite number >= 0, got {factor!r}")
     mu = anim.points.mean(axis=0) if mean is None else check_points(np.asarray(mean)[None], "mean",
                                                                      anim.n_points)[0]
-    return Animation(mu + f * (anim.points - mu), anim.fps, anim.names, anim.confidence, anim.neutral)
+    neutral = None if anim.neutral is None else mu + f * (anim.neutral - mu)
+    return Animation(mu + f * (anim.points - mu), anim.fps, anim.names, anim.confidence, neutral)
 
 
 def add_offset(anim: Animation, offset, start: float = 0.0, end: Optional[float] = None,

@@ -442,8 +442,7 @@ def _cli(args) -> int:
         out = str(Path(args.animation).with_suffix("")) + ("_arkit" if fmt.startswith("arkit") else "") + \
             ("_cues" if fmt.startswith("rhubarb") else "") + FORMATS[fmt]
     face = resolve_face(args.face, args.face_points, args.palette, original.rest) if args.face else None
-    export(anim, out, fmt, face=face, mode=args.mode, neutral=original.rest, sound_file=args.sound_file or "",
-           report=_print_summary)
+    export(anim, out, fmt, face=face, mode=args.mode, sound_file=args.sound_file or "", report=_print_summary)
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {out}")
     return 0
 

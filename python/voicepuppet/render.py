@@ -1011,8 +1011,13 @@ def _size(text: str) -> tuple[int, int]:
 
 def apply_controls(anim: Animation, args) -> Animation:
     """The animator controls of the command line: ``--exaggerate`` then ``--expression`` over
-    ``--expression-time START:END`` (seconds) with ``--fade``."""
+    ``--expression-time START:END`` (seconds) with ``--fade``. The result carries the rest face
+    its outputs move from (:attr:`Animation.rest` before the controls, scaled by the
+    exaggeration, not moved by the expression, which so shows in every output)."""
     from voicepuppet.animation import add_offset, exaggerate
+
+    if anim.neutral is None:
+        anim = Animation(anim.points, anim.fps, anim.names, anim.confidence, anim.rest)
 
     if getattr(args, "exaggerate", None) is not None:
         anim = exaggerate(anim, args.exaggerate)
@@ -1056,7 +1061,7 @@ def _cli(args) -> int:
 
         from voicepuppet.export import _print_summary
 
-        export(anim, args.output, face=face, mode=args.mode, neutral=original.rest, report=_print_summary)
+        export(anim, args.output, face=face, mode=args.mode, report=_print_summary)
     else:
         if face is not None and args.size is None and args.renderer == "mesh":
             (W, H), (w, h) = face.size, default_size(*face.size)
@@ -1064,7 +1069,7 @@ def _cli(args) -> int:
                 print(f"rendering the {W}x{H} face image at {w}x{h} (--size WxH for another size)")
         render(anim, args.output, audio=args.audio, face=face, mode=args.mode or "vertex", truth=truth,
                renderer=args.renderer, size=_size(args.size) if args.size else None, shading=args.shading,
-               neutral=original.rest, progress=not args.quiet)
+               progress=not args.quiet)
     dt = time.perf_counter() - t0
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {args.output} "
           f"({dt:.1f} s, {anim.n_frames / max(dt, 1e-9):.1f} frames/s)")
