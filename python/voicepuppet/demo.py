@@ -45,6 +45,7 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
         raise ValueError(f"speech must be 'espeak' or 'real', got {speech!r}")
     from voicepuppet import evaluation, metrics, synth, tracking
     from voicepuppet.animation import Animation, atomic_path, save_animation
+    from voicepuppet.face import shape_distance
     from voicepuppet.puppet import Puppet
 
     out = Path(out_dir)
@@ -122,8 +123,7 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
                      [: int(round(T / clip.fps * clip.rate))])
     # The face is the training video's frame nearest the puppet's silent face: the performer at
     # rest, whose landmarks (the video's coordinates, as the prediction's) both sides move from.
-    Y = puppet.face_space.encode(train.points)[0]
-    rest = int(np.argmin(((Y - puppet.face_space.encode(puppet.rest_face()[None])[0]) ** 2).sum(axis=1)))
+    rest = int(np.argmin(shape_distance(train.points, puppet.rest_face())))
     anim = Animation(np.concatenate(pred), puppet.fps, neutral=train.points[rest])
     save_animation(anim, out / "animation.npz")
     with atomic_path(out / "heldout.wav", (".wav",), "audio file") as tmp:

@@ -686,26 +686,25 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
         return
     if renderer != "mesh":
         raise ValueError(f"renderer must be 'mesh' or '2d', got {renderer!r}")
-    if face is None:
-        if anim.n_points != face_layout.N_POINTS:
-            raise ValueError(f"without a face photo the animation must use the 68-point layout "
-                             f"(a drawn portrait is used), got {anim.n_points} points; "
-                             "pass a face image and its points")
-        first = anim.rest if neutral is None else np.asarray(neutral, dtype=np.float64)
-        lo, hi = first.min(axis=0), first.max(axis=0)
-        margin = 0.45 * (hi - lo).max()
-        shift = lo - margin
-        W, H = _even(int(hi[0] - lo[0] + 2 * margin)), _even(int(hi[1] - lo[1] + 2 * margin))
-        face = build_face_mesh(portrait_image(first - shift, W, H), first - shift)
     ref = None if neutral is None else np.asarray(neutral, dtype=np.float64)
-    # vertices in chunks of frames: memory stays bounded for hour-long animations
-    chunk = _FRAME_CHUNK
     pred_ref = anim.rest if ref is None else ref
     truth_ref = None if truth is None else (truth.rest if ref is None else ref)
     if ref is None and truth is not None and truth.neutral is None and anim.neutral is not None:
         # a truth of frames only (tracked, say) rests where it is nearest the prediction's rest,
         # not on its first frame, which may be mid-word
         truth_ref = truth.points[int(np.argmin(shape_distance(truth.points, anim.neutral)))]
+    if face is None:
+        if anim.n_points != face_layout.N_POINTS:
+            raise ValueError(f"without a face photo the animation must use the 68-point layout "
+                             f"(a drawn portrait is used), got {anim.n_points} points; "
+                             "pass a face image and its points")
+        lo, hi = pred_ref.min(axis=0), pred_ref.max(axis=0)
+        margin = 0.45 * (hi - lo).max()
+        shift = lo - margin
+        W, H = _even(int(hi[0] - lo[0] + 2 * margin)), _even(int(hi[1] - lo[1] + 2 * margin))
+        face = build_face_mesh(portrait_image(pred_ref - shift, W, H), pred_ref - shift)
+    # vertices in chunks of frames: memory stays bounded for hour-long animations
+    chunk = _FRAME_CHUNK
     pred = gt = None
     with FaceRenderer(face, size=size, shading=shading) as r:
         for t in frames:
@@ -892,9 +891,7 @@ def _video_face(path: Path, given: np.ndarray | None, rest, why: Exception,
 
     try:
         info = video.probe_video(path)
-        frames = video.iter_frames(path, grey=False)
-        first = next(frames, None)
-        frames.close()
+        first = video.frame_at(path, 0, grey=False)
     except ValueError:
         raise ValueError(f"face image {str(path)!r} is neither a readable picture ({why}) nor a video "
                          "OpenCV can open; give a .png / .jpg photo or an .mp4 video of the face") from None
