@@ -42,8 +42,15 @@ def test_glb_round_trips_and_morph_weights_reproduce_the_mesh(tmp_path, mode):
     V = len(face.vertices)
     assert gltf.accessors[prim.attributes.POSITION].count == V
     assert gltf.accessors[prim.attributes.TEXCOORD_0].count == V
-    assert gltf.accessors[prim.indices].count == 3 * int((~face.mouth).sum())
-    assert gltf.accessors[gltf.meshes[0].primitives[1].indices].count == 3 * int(face.mouth.sum())
+    assert gltf.accessors[prim.indices].count == 3 * int((~face.flat).sum())
+    # the cavity and the teeth: the second primitive, in their colours, behind the skin
+    inside = gltf.meshes[0].primitives[1]
+    idx = _accessor(gltf, blob, inside.indices).reshape(-1, 3)
+    np.testing.assert_array_equal(idx, face.faces[face.flat])
+    colours = _accessor(gltf, blob, inside.attributes.COLOR_0)
+    np.testing.assert_allclose(colours[idx[:, 0]] * 255, face.colours[face.flat], atol=1e-3)
+    z = _accessor(gltf, blob, prim.attributes.POSITION)[:, 2]
+    assert z[idx].max() < 0 <= z[np.unique(face.faces[~face.flat])].min()
     sampler = gltf.animations[0].samplers[0]
     times = _accessor(gltf, blob, sampler.input)
     assert len(times) == anim.n_frames and np.all(np.diff(times) > 0)
@@ -88,6 +95,8 @@ def test_vtk_series_loads_back_in_pyvista(tmp_path):
         mesh = reader.read()[0]
         np.testing.assert_allclose(mesh.points, verts[t], atol=1e-4)
         assert mesh.n_cells == len(face.faces)
+        np.testing.assert_array_equal(mesh.cell_data["teeth"], face.teeth)
+        np.testing.assert_array_equal(mesh.cell_data["colour"][face.flat], face.colours[face.flat])
     with pytest.raises(ValueError, match="already exists"):
         E.write_pvd(anim, tmp_path / "s.pvd", face=face)
 

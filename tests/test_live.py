@@ -517,6 +517,11 @@ def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path)
     assert (doc["width"], doc["height"]) == (320, 300)
     np.testing.assert_array_equal(doc["triangles"], mesh.faces)
     np.testing.assert_array_equal(doc["mouth"], mesh.mouth)
+    # the cavity and the teeth in their colours, the skin textured; back to front
+    assert mesh.teeth.sum() == 64
+    assert [c is None for c in doc["colours"]] == (~mesh.flat).tolist()
+    np.testing.assert_array_equal([c for c in doc["colours"] if c is not None], mesh.colours[mesh.flat])
+    np.testing.assert_array_equal(doc["order"], mesh.draw_order())
     np.testing.assert_allclose(doc["uv"], mesh.uv, atol=1e-7)
     with urllib.request.urlopen(f"http://127.0.0.1:{port}/face.png", timeout=5) as r:
         assert r.headers["Content-Type"] == "image/png"

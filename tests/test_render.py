@@ -36,16 +36,29 @@ def jaw_anim():
     return procedural_animation(24, 24.0, width=240, height=240, jaw=jaw, smile=0.0), jaw
 
 
+def _cavity_is_the_inner_lips(face):
+    """The cavity's 6 triangles (an 8-point polygon's) lie on its own copies of the inner lip
+    points (60-67), which move with those points alone."""
+    assert face.mouth.sum() == 6
+    idx = np.unique(face.faces[face.mouth])
+    assert len(idx) == 8 and idx.min() >= len(face.vertices) - 104
+    M = face.interpolation_matrix()
+    np.testing.assert_array_equal(M[idx], np.eye(68)[60:68])
+    np.testing.assert_array_equal(face.vertices[idx, :2], face.landmarks[60:68])
+    inner = set(range(60, 68))
+    assert not any(set(f) <= inner for f in face.faces[~face.flat].tolist())  # the skin's hole is it
+
+
 def test_mesh_has_about_200_triangles_landmarks_first_and_no_folds(face, jaw_anim):
     anim, _ = jaw_anim
-    assert 150 <= len(face.faces) <= 250
+    assert 150 <= (~face.flat).sum() <= 250
     np.testing.assert_array_equal(face.vertices[:68, :2], neutral_landmarks(240, 240))
-    assert face.mouth.sum() == 6  # an 8-point inner lip polygon triangulates into 6 triangles
-    assert set(face.faces[face.mouth].ravel()) <= set(range(60, 68))
+    _cavity_is_the_inner_lips(face)
+    assert face.teeth.sum() == 64 and not (face.teeth & face.mouth).any()
     # every vertex used; skin triangles keep their orientation when the jaw opens fully
     assert set(np.unique(face.faces)) == set(range(len(face.vertices)))
     verts = R.mesh_animation(anim, face)["vertices"]
-    skin = face.faces[~face.mouth]
+    skin = face.faces[~face.flat]
     for t in range(anim.n_frames):
         assert np.all(_signed_area(verts[t, :, :2], skin) < 0), f"fold at frame {t}"
     # depth: the nose tip is the highest point of the face, the frame is flat
@@ -72,8 +85,12 @@ def test_the_cavity_is_the_inner_lip_polygon_on_a_real_face():
     inner, corners = set(range(60, 68)), {48, 54, 60, 64}  # the outer and inner mouth corners
     for lm in (photo.points, art.points[int(np.argmin(gap))]):
         face = R.build_face_mesh(photo.image, lm)
-        cavity = np.array([set(f.tolist()) <= inner for f in face.faces])
-        assert cavity.sum() == 6
+        if face.mouth.any():  # the photo's mouth is closed: the interior's cavity
+            _cavity_is_the_inner_lips(face)
+            cavity = face.flat
+        else:  # open: its own, textured
+            cavity = np.array([set(f.tolist()) <= inner for f in face.faces])
+        assert cavity.sum() in (6, 70)
         edges = {frozenset(e) for f in face.faces.tolist() for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))}
         for r in (list(range(48, 60)), list(range(60, 68))):
             assert all(frozenset((r[i], r[(i + 1) % len(r)])) in edges for i in range(len(r)))
@@ -83,6 +100,86 @@ def test_the_cavity_is_the_inner_lip_polygon_on_a_real_face():
             folded = skin[_signed_area(verts[t, :, :2], skin) > 1e-9]
             lips = [f for f in folded.tolist() if set(f) & set(range(48, 68))]
             assert all(set(f) & corners for f in lips), f"frame {t}: {lips}"
+
+
+def _closed_lips(lm):
+    lm = lm.copy()
+    mid = 0.5 * (lm[[61, 62, 63]] + lm[[67, 66, 65]])
+    lm[[61, 62, 63]] = lm[[67, 66, 65]] = mid
+    return lm
+
+
+def test_the_teeth_move_with_the_skull_and_the_jaw():
+    """A closed-mouth photo gets teeth behind its lips: a motion of the whole face (rotation,
+    scale, shift) carries them exactly; opening the jaw leaves the upper arch with the skull and
+    takes the lower one down, less than the lower lip; rendered, the closed mouth shows neither
+    teeth nor cavity, the opened one both arches, the upper above the lower, and only inside the
+    inner lips."""
+    import cv2
+
+    lm = _closed_lips(neutral_landmarks(240, 240))
+    face = R.build_face_mesh(R.portrait_image(lm, 240, 240), lm)
+    assert face.teeth.sum() == 64 and face.mouth.sum() == 6
+    M = face.interpolation_matrix()
+    interior = np.unique(face.faces[face.flat])
+    # behind the skin, the cavity deepest; drawn back to front
+    z = face.vertices[:, 2]
+    assert z[interior].max() < 0 <= z[np.unique(face.faces[~face.flat])].min()
+    order = face.draw_order()
+    assert set(order[:6]) == set(np.flatnonzero(face.mouth)) and set(order[70:]) == set(np.flatnonzero(~face.flat))
+    # the whole face rotated, scaled and shifted: the interior moves with it exactly
+    a, s, t = 0.2, 1.3, np.array([5.0, -3.0])
+    Rm = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    moved = lambda p: s * (p - 120.0) @ Rm.T + 120.0 + t  # noqa: E731
+    np.testing.assert_allclose(face.vertices[interior, :2] + M[interior] @ (moved(lm) - lm),
+                               moved(face.vertices[interior, :2]), atol=1e-9)
+    # the jaw opened: upper teeth stay, lower ones go down with the jaw and part of the lip's way
+    anim = procedural_animation(2, 25.0, width=240, height=240, jaw=np.array([0.0, 1.0]), smile=0.0)
+    anim = Animation(np.stack([_closed_lips(p) if k == 0 else p for k, p in enumerate(anim.points)]), 25.0)
+    verts = R.mesh_animation(anim, face)["vertices"]
+    dv = verts[1, :, :2] - verts[0, :, :2]
+    upper = np.unique(face.faces[face.teeth & (np.arange(len(face.faces)) < len(face.faces) - 32)])
+    lower = np.unique(face.faces[face.teeth & (np.arange(len(face.faces)) >= len(face.faces) - 32)])
+    lip = dv[66, 1]
+    assert lip > 20 and np.abs(dv[upper]).max() < 1e-9
+    assert np.all(dv[lower, 1] > 0.6 * lip) and np.all(dv[lower, 1] < lip)
+    # rendered: pixels in the exact flat colours (no lighting), by kind
+    with R.FaceRenderer(face, size=(240, 240)) as r:
+        frames = [r.frame(v) for v in verts]
+
+    def kind(img, mask):
+        key = img.reshape(-1, 3).astype(int) @ [1, 256, 65536]
+        return np.isin(key, face.colours[mask].astype(int) @ [1, 256, 65536]).reshape(img.shape[:2])
+
+    up_mask = face.teeth & (np.arange(len(face.faces)) < len(face.faces) - 32)
+    low_mask = face.teeth & ~up_mask
+    for k in (face.mouth, up_mask, low_mask):
+        assert kind(frames[0], k).sum() == 0
+    ys_up, ys_low = np.nonzero(kind(frames[1], up_mask))[0], np.nonzero(kind(frames[1], low_mask))[0]
+    assert len(ys_up) > 30 and len(ys_low) > 30 and kind(frames[1], face.mouth).sum() > 100
+    assert ys_up.mean() < ys_low.mean()
+    inner = np.zeros((240, 240), np.uint8)
+    cv2.fillPoly(inner, [np.round(verts[1, 60:68, :2]).astype(np.int32)], 1)
+    seen = kind(frames[1], face.flat)
+    assert (cv2.dilate(inner, np.ones((3, 3), np.uint8))[seen] == 1).all()
+
+
+def test_the_teeth_take_the_photos_tones():
+    """The interior's colours follow the photo: a grey photo's teeth and cavity are grey, a photo
+    half as bright has teeth half as bright (below the cap, 235); a photo with its mouth open keeps
+    its own."""
+    lm = _closed_lips(neutral_landmarks(240, 240))
+    img = R.portrait_image(lm, 240, 240)
+    colour = R.build_face_mesh((img * (2 / 3)).astype(np.uint8), lm)
+    grey = R.build_face_mesh(np.repeat(img.mean(axis=2, keepdims=True).astype(np.uint8), 3, axis=2), lm)
+    dim = R.build_face_mesh((img * (1 / 3)).astype(np.uint8), lm)
+    c = colour.colours[colour.teeth].astype(float)
+    assert np.ptp(c, axis=1).min() > 5  # tinted
+    assert np.ptp(grey.colours[grey.flat].astype(int), axis=1).max() == 0
+    np.testing.assert_allclose(dim.colours[dim.teeth] / c, 0.5, atol=0.03)
+    open_face = R.build_face_mesh(img, neutral_landmarks(240, 240) + np.where(
+        np.isin(np.arange(68), [65, 66, 67]), 1, 0)[:, None] * [0.0, 12.0])
+    assert not open_face.flat.any() and len(open_face.vertices) == len(colour.vertices) - 104
 
 
 def test_interpolation_is_identity_on_landmarks_zero_on_frame(face):

@@ -201,7 +201,8 @@ def default_face(anim: Animation, neutral=None) -> FaceMesh:
 
 def write_pvd(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str = "vertex", neutral=None) -> Path:
     """A VTK time series for ParaView: ``NAME.pvd`` listing ``NAME_frames/frame_000000.vtp``
-    (the mesh per frame, with texture coordinates and a ``mouth`` cell flag; times in seconds)
+    (the mesh per frame, with texture coordinates, ``mouth`` and ``teeth`` cell flags and the
+    flat ``colour`` of those cells, RGB; times in seconds)
     and the photo as ``NAME_frames/texture.png``. Both the folder and the collection are
     written to temporary names and renamed into place."""
     import pyvista as pv
@@ -226,6 +227,8 @@ def write_pvd(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
             mesh = pv.PolyData(verts[t], cells)
             mesh.active_texture_coordinates = face.uv.astype(np.float32)
             mesh.cell_data["mouth"] = face.mouth.astype(np.uint8)
+            mesh.cell_data["teeth"] = face.teeth.astype(np.uint8)
+            mesh.cell_data["colour"] = face.colours
             name = f"frame_{t:06d}.vtp"
             mesh.save(tmpdir / name)
             entries.append(f'    <DataSet timestep="{t / anim.fps:.9g}" group="" part="0" '
@@ -267,7 +270,8 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     ``mode="vertex"``: the targets are the principal components of the per-frame vertex
     displacements (at most ``max_targets``), so the vertex motion is reproduced up to that rank.
     Units are metres, scaled so the inter-ocular distance is ``face_width_m``; the photo is
-    embedded as the (unlit) base colour texture; the mouth cavity is a second primitive.
+    embedded as the (unlit) base colour texture; the mouth cavity and the teeth, behind the lips,
+    are a second primitive in vertex colours.
 
     Returns a summary dict (``targets``, ``frames``, ``duration``, ``max_error_m``: the largest
     difference between the morph-target reconstruction and the driven mesh, in metres; with
@@ -332,7 +336,7 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     uv[:, 1] = 1.0 - uv[:, 1]  # glTF texture v runs down the image
     tex = add(uv.astype(np.float32), g.FLOAT, g.VEC2, g.ARRAY_BUFFER)
     target_acc = [add(t, g.FLOAT, g.VEC3, g.ARRAY_BUFFER, minmax=True) for t in tg]
-    skin_idx = add(face.faces[~face.mouth].astype(np.uint32).reshape(-1), g.UNSIGNED_INT, g.SCALAR,
+    skin_idx = add(face.faces[~face.flat].astype(np.uint32).reshape(-1), g.UNSIGNED_INT, g.SCALAR,
                    g.ELEMENT_ARRAY_BUFFER, minmax=True)
     times = add((np.arange(anim.n_frames) / anim.fps).astype(np.float32), g.FLOAT, g.SCALAR, minmax=True)
     wts = add(weights.astype(np.float32).reshape(-1), g.FLOAT, g.SCALAR)
@@ -349,13 +353,16 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     materials = [g.Material(name="face", pbrMetallicRoughness=g.PbrMetallicRoughness(
         baseColorTexture=g.TextureInfo(index=0), metallicFactor=0.0, roughnessFactor=1.0),
         extensions={"KHR_materials_unlit": {}}, doubleSided=True)]
-    if face.mouth.any():
-        mouth_idx = add(face.faces[face.mouth].astype(np.uint32).reshape(-1), g.UNSIGNED_INT, g.SCALAR,
-                        g.ELEMENT_ARRAY_BUFFER, minmax=True)
-        primitives.append(g.Primitive(attributes=g.Attributes(POSITION=pos), indices=mouth_idx, material=1,
-                                      targets=attrs_targets))
+    if face.flat.any():  # the cavity and the teeth, in their colours (each vertex in one of them)
+        vc = np.zeros((len(face.vertices), 3), np.float32)
+        vc[face.faces[face.flat]] = face.colours[face.flat][:, None] / 255.0
+        colour = add(vc, g.FLOAT, g.VEC3, g.ARRAY_BUFFER)
+        flat_idx = add(face.faces[face.flat].astype(np.uint32).reshape(-1), g.UNSIGNED_INT, g.SCALAR,
+                       g.ELEMENT_ARRAY_BUFFER, minmax=True)
+        primitives.append(g.Primitive(attributes=g.Attributes(POSITION=pos, COLOR_0=colour), indices=flat_idx,
+                                      material=1, targets=attrs_targets))
         materials.append(g.Material(name="mouth", pbrMetallicRoughness=g.PbrMetallicRoughness(
-            baseColorFactor=[70 / 255, 18 / 255, 24 / 255, 1.0], metallicFactor=0.0, roughnessFactor=1.0),
+            baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=0.0, roughnessFactor=1.0),
             extensions={"KHR_materials_unlit": {}}, doubleSided=True))
     gltf = g.GLTF2(
         asset=g.Asset(version="2.0", generator="voicepuppet"),

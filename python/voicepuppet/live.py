@@ -472,8 +472,10 @@ class _FaceDriver:
         return self.mesh.vertices[:, :2] + self._M @ ((points - self.reference) @ self._sR)
 
     def files(self) -> dict:
-        """``/mesh.json`` (the photo's size, the triangles, which of them are the mouth cavity and
-        its colour, texture coordinates as ``FaceMesh.uv``) and ``/face.png`` for the viewer."""
+        """``/mesh.json`` (the photo's size, the triangles, which of them are the mouth cavity, the
+        flat colour of the cavity's and the teeth's (null for the textured skin), the order to draw
+        them in (``FaceMesh.draw_order``), texture coordinates as ``FaceMesh.uv``) and
+        ``/face.png`` for the viewer."""
         import cv2
 
         m = self.mesh
@@ -481,8 +483,9 @@ class _FaceDriver:
         if not ok:
             raise ValueError("cannot encode the face image as PNG")
         doc = {"width": m.size[0], "height": m.size[1], "triangles": m.faces.tolist(),
-               "mouth": m.mouth.tolist(), "mouth_colour": list(self._render._MOUTH_COLOUR),
-               "uv": np.round(m.uv, 7).tolist()}
+               "mouth": m.mouth.tolist(),
+               "colours": [c if flat else None for c, flat in zip(m.colours.tolist(), m.flat.tolist())],
+               "order": m.draw_order().tolist(), "uv": np.round(m.uv, 7).tolist()}
         return {"/mesh.json": (json.dumps(doc, separators=(",", ":")).encode(), "application/json"),
                 "/face.png": (png.tobytes(), "image/png")}
 

@@ -3,8 +3,10 @@
 The face mesh comes from a photo and its landmarks: the landmarks, two rings of border points
 around them and a frame on the image edge are triangulated (scipy's Delaunay, about 200
 triangles), lifted to 3-D with a smooth depth profile (an ellipsoidal cap plus a nose bump)
-and texture-mapped with the photo. Any face whose points correspond to the animation's
-(a cartoon, an animal) works the same way (§6, figure 7).
+and texture-mapped with the photo; with the 68-point layout and the photo's mouth closed, the
+mouth's interior (the cavity and two arches of teeth, flat-coloured) lies behind the lips. Any
+face whose points correspond to the animation's (a cartoon, an animal) works the same way (§6,
+figure 7).
 
 Driving, two ways:
 
@@ -82,6 +84,17 @@ class FaceMesh:
     n_landmarks : int
     fixed : ndarray, shape (V,), bool
         vertices that never move (the image frame).
+    teeth : ndarray, shape (F,), bool
+        the teeth's faces (:func:`_interior`), seen through the cavity.
+    colours : ndarray, shape (F, 3), uint8
+        the flat colour of the cavity's and the teeth's faces (unused for the textured skin).
+    carried : ndarray, shape (V, P)
+        for the vertices that move rigidly with part of the face (the cavity's copies of the
+        inner lips, the teeth) their rows of :meth:`interpolation_matrix`; zero rows elsewhere.
+
+    The cavity and the teeth lie behind the skin (negative depth; the skin is at z >= 0), the
+    cavity deepest, so a renderer with a depth buffer shows them through the lips' opening only,
+    and one without draws them first in :meth:`draw_order`.
     """
 
     vertices: np.ndarray
@@ -91,7 +104,32 @@ class FaceMesh:
     image: np.ndarray
     n_landmarks: int
     fixed: np.ndarray
+    teeth: Optional[np.ndarray] = None
+    colours: Optional[np.ndarray] = None
+    carried: Optional[np.ndarray] = field(default=None, repr=False)
     _interp: Optional[np.ndarray] = field(default=None, repr=False)
+
+    def __post_init__(self):
+        F, V = len(self.faces), len(self.vertices)
+        if self.teeth is None:
+            self.teeth = np.zeros(F, bool)
+        if self.colours is None:
+            self.colours = np.zeros((F, 3), np.uint8)
+            self.colours[self.mouth] = _MOUTH_COLOUR
+        if self.carried is None:
+            self.carried = np.zeros((V, self.n_landmarks))
+
+    @property
+    def flat(self) -> np.ndarray:
+        """(F,) bool: the faces drawn in their flat colour (the cavity and the teeth), not textured."""
+        return self.mouth | self.teeth
+
+    def draw_order(self) -> np.ndarray:
+        """Face indices from back to front for a painter's renderer: the flat faces by their
+        depth (the cavity, the lower teeth, the upper teeth), then the skin."""
+        depth = self.vertices[self.faces, 2].mean(axis=1)
+        flat = np.flatnonzero(self.flat)
+        return np.concatenate([flat[np.argsort(depth[flat], kind="stable")], np.flatnonzero(~self.flat)])
 
     @property
     def landmarks(self) -> np.ndarray:
@@ -113,10 +151,18 @@ class FaceMesh:
             ctrl = np.vstack([self.landmarks, self.vertices[self.fixed, :2]])
             values = np.zeros((len(ctrl), P))
             values[:P] = np.eye(P)
+            # points at one place (closed lips' inner points, say) are one control point, their mean
+            ctrl, where = np.unique(np.round(ctrl, 9), axis=0, return_inverse=True)
+            where = where.ravel()
+            merged = np.zeros((len(ctrl), P))
+            np.add.at(merged, where, values)
+            values = merged / np.bincount(where, minlength=len(ctrl))[:, None]
             rbf = RBFInterpolator(ctrl, values, kernel="thin_plate_spline")
             M = rbf(self.vertices[:, :2])
             M[:P] = np.eye(P)
             M[self.fixed] = 0.0
+            rigid = np.any(self.carried != 0, axis=1)
+            M[rigid] = self.carried[rigid]
             self._interp = M
         return self._interp
 
@@ -215,6 +261,121 @@ def lip_gap_iod(landmarks) -> float:
     return float(gap / max(np.linalg.norm(lm[36] - lm[45]), 1e-12))
 
 
+# ------------------------------------------------------------------------------ the mouth's interior
+
+#: The teeth seen through an opened mouth, per arch: the visible teeth's relative widths from one
+#: mouth corner to the other, their span (a share of the mouth's width at rest), and in
+#: inter-ocular distances below the lip line (the inner lips' mean at rest) the biting edge in the
+#: middle, its curve (the edge at the span's ends is this much further below) and the root; the
+#: shade of each tooth (the arch turns back into the mouth's shadow; neighbours differ, so they
+#: part without a gap, which a renderer without anti-aliasing drew as a broken dark line). The
+#: upper edge sits just below the lip line, so the first opening shows it, and over the lower
+#: arch's edge (an overbite); both roots lie under the lips at rest.
+_TEETH = {
+    "upper": {"widths": (0.55, 0.7, 0.8, 1.0, 1.0, 0.8, 0.7, 0.55), "span": 0.8, "edge": 0.012,
+              "curve": -0.035, "root": -0.16, "shade": (0.6, 0.78, 0.9, 1.0, 0.95, 0.88, 0.76, 0.58)},
+    "lower": {"widths": (0.6, 0.75, 0.8, 0.85, 0.85, 0.8, 0.75, 0.6), "span": 0.68, "edge": 0.0,
+              "curve": 0.03, "root": 0.16, "shade": (0.48, 0.6, 0.7, 0.78, 0.74, 0.68, 0.58, 0.46)},
+}
+_TOOTH_COLOUR = (232, 226, 208)  # enamel, scaled to the photo's lighting
+#: Landmarks the arches move with (68-point layout): the upper teeth with the skull (the nose and
+#: the eye corners), the lower with the jaw (its contour from cheek to cheek round the chin) and
+#: this share of the lower lip's inner edge's motion beyond the jaw's, as the lip rests on them:
+#: the tracked chin moves less than the opening at the lips, and with the jaw alone an opened mouth
+#: bared the whole height of the lower teeth. A motion of the whole face moves both arches with it.
+_SKULL = (27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
+_JAW = (4, 5, 6, 7, 8, 9, 10, 11, 12)
+_LOWER_LIP = (65, 66, 67)
+_LOWER_LIP_SHARE = 0.6
+#: Depths behind the image plane, inter-ocular distances: the upper teeth, the lower, the cavity.
+_INTERIOR_DEPTH = {"upper": -0.02, "lower": -0.03, "cavity": -0.04}
+
+
+def _affine_weights(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(len(targets), len(points)) weights, each row the smallest (in norm) that sums to one and
+    reproduces its target from the points (w @ points = target): the row moves its target exactly
+    as any affine motion (shift, rotation, scale, shear) of the points moves it, the same weights
+    for x and y, and spreads other motions over all the points."""
+    A = np.vstack([np.ones(len(points)), points.T])  # (3, n)
+    B = np.vstack([np.ones(len(targets)), targets.T])
+    return np.linalg.lstsq(A, B, rcond=None)[0].T
+
+
+def _photo_tones(image: np.ndarray, landmarks: np.ndarray) -> tuple[float, bool]:
+    """The median luma of the face's pixels (inside the landmarks' convex hull) and whether the
+    photo is grey (its channels equal there)."""
+    import cv2
+
+    mask = np.zeros(image.shape[:2], np.uint8)
+    cv2.fillConvexPoly(mask, cv2.convexHull(np.round(landmarks).astype(np.int32)), 1)
+    px = image[mask.astype(bool)].astype(np.float64)
+    luma = px @ [0.299, 0.587, 0.114]
+    return float(np.median(luma)), bool(np.median(np.ptp(px, axis=1)) < 3.0)
+
+
+def _tone(colour, luma: Optional[float], grey: bool) -> np.ndarray:
+    """``colour`` scaled to the luma ``luma`` (None: kept), grey for a grey photo, as uint8."""
+    c = np.asarray(colour, np.float64)
+    if luma is not None:
+        c = c * luma / max(float(c @ [0.299, 0.587, 0.114]), 1e-9)
+    if grey:
+        c = np.full(3, c @ [0.299, 0.587, 0.114])
+    return np.clip(np.round(c), 0, 255).astype(np.uint8)
+
+
+def _interior(lm: np.ndarray, image: np.ndarray):
+    """The mouth's interior of a 68-point face at rest (its lips closed): the cavity, on its own
+    copies of the inner lip points (carried by them, deepest), and two arches of teeth
+    (:data:`_TEETH`: hexagons with the biting corners cut, fanned into 4 triangles each), laid out
+    in the face's frame (x along the eye corners, y below) about the lip line and carried by the
+    skull's and the jaw's landmarks (:func:`_affine_weights`), coloured to the photo's lighting.
+
+    Returns vertices (N, 3) with their depth, faces (F, 3) into them, the teeth's faces (F,) bool
+    (the rest are the cavity's), colours (F, 3) uint8 and the carry rows (N, 68)."""
+    iod = float(np.linalg.norm(lm[45] - lm[36]))
+    ex = (lm[45] - lm[36]) / iod
+    ey = np.array([-ex[1], ex[0]])  # below, in image coordinates
+    centre = lm[60:68].mean(axis=0)
+    half_mouth = 0.5 * abs(float((lm[54] - lm[48]) @ ex)) / iod
+    skin, grey = _photo_tones(image, lm)
+    enamel = min(235.0, 1.6 * skin)
+
+    inner = list(range(60, 68))
+    verts = [np.column_stack([lm[inner], np.full(8, _INTERIOR_DEPTH["cavity"] * iod)])]
+    carry = [np.eye(len(lm))[inner]]
+    faces = [np.searchsorted(inner, _CAVITY)]
+    colours = [np.repeat(_tone(_MOUTH_COLOUR, None, grey)[None], len(_CAVITY), axis=0)]
+    n = 8
+    for arch, spec in _TEETH.items():
+        group = list(_SKULL if arch == "upper" else _JAW)  # the landmarks the arch moves with
+        w = np.asarray(spec["widths"], np.float64)
+        half = spec["span"] * half_mouth
+        bounds = np.concatenate([[0.0], np.cumsum(w)]) / w.sum() * 2 * half - half
+        edge = lambda u: spec["edge"] + spec["curve"] * (u / half) ** 2  # noqa: E731
+        back = np.sign(spec["root"] - spec["edge"])  # from the biting edge towards the root
+        for j in range(len(w)):
+            a, b = bounds[j], bounds[j + 1]
+            cut = 0.2 * (b - a)
+            u = np.array([a, b, b, b - cut, a + cut, a])
+            v = np.array([spec["root"], spec["root"], edge(b) + back * cut, edge(b - cut), edge(a + cut),
+                          edge(a) + back * cut])
+            xy = centre + iod * (np.outer(u, ex) + np.outer(v, ey))
+            verts.append(np.column_stack([xy, np.full(6, _INTERIOR_DEPTH[arch] * iod)]))
+            rows = np.zeros((6, len(lm)))
+            rows[:, group] = _affine_weights(lm[group], xy)
+            if arch == "lower":  # and a share of the lip's motion beyond the jaw's there
+                lip = list(_LOWER_LIP)
+                rows[:, group] -= _LOWER_LIP_SHARE * _affine_weights(lm[group], lm[lip].mean(axis=0)[None])
+                rows[:, lip] += _LOWER_LIP_SHARE / len(lip)
+            carry.append(rows)
+            faces.append(n + np.array([[0, k, k + 1] for k in range(1, 5)]))
+            colours.append(np.repeat(_tone(_TOOTH_COLOUR, enamel * spec["shade"][j], grey)[None], 4, axis=0))
+            n += 6
+    faces = np.vstack(faces).astype(np.int64)
+    teeth = np.arange(len(faces)) >= len(_CAVITY)
+    return np.vstack(verts), faces, teeth, np.vstack(colours), np.vstack(carry)
+
+
 def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float, int]] = ((1.2, 12), (1.5, 16)),
                     frame_per_side: int = 4) -> FaceMesh:
     """Builds the textured face mesh of a photo.
@@ -230,7 +391,9 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
     frame_per_side : int
         fixed points per image edge.
 
-    With 68 landmarks the defaults give 112 vertices and 204-206 triangles.
+    With 68 landmarks the defaults give 112 vertices and 198-200 triangles of skin, and with the
+    mouth closed in the photo the interior's 104 vertices and 70 triangles (the cavity's 6, the
+    teeth's 64).
     """
 
     img = np.asarray(image)
@@ -274,23 +437,37 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
     topo = pts.copy()
     topo[:P] = _topology_shape(lm)
     faces = _triangulate(topo, P)
+    z = _depth(pts, lm)
+    z[fixed] = 0.0
+    vertices = np.column_stack([pts, z])
+    V = len(vertices)
+    mouth = teeth = np.zeros(len(faces), bool)
+    colours = np.zeros((len(faces), 3), np.uint8)
+    carried = np.zeros((V, P))
+    if P == face_layout.N_POINTS:
+        inner = set(range(60, 68))
+        cavity = np.array([set(f.tolist()) <= inner for f in faces])
+        # a photo with the mouth open shows its own teeth and tongue: its texture is the cavity;
+        # a closed one's cavity and teeth are the interior's, behind the lips
+        if lip_gap_iod(lm) <= OPEN_MOUTH_IOD:
+            iv, ifaces, iteeth, icolours, icarry = _interior(lm, img)
+            faces = np.vstack([faces[~cavity], V + ifaces])
+            teeth = np.r_[np.zeros((~cavity).sum(), bool), iteeth]
+            mouth = np.r_[np.zeros((~cavity).sum(), bool), ~iteeth]
+            colours = np.vstack([np.zeros(((~cavity).sum(), 3), np.uint8), icolours])
+            itopo = iv[:, :2].copy()
+            itopo[:8] = topo[60:68]  # the cavity's copies of the inner lips, pulled apart as theirs
+            topo = np.vstack([topo, itopo])
+            vertices = np.vstack([vertices, iv])
+            carried = np.vstack([carried, icarry])
+            fixed = np.r_[fixed, np.zeros(len(iv), bool)]
     # counter-clockwise on screen (y up): flip where the image-space (y down) area is positive
     ta, tb, tc = (topo[faces[:, k]] for k in range(3))
     tarea = (tb[:, 0] - ta[:, 0]) * (tc[:, 1] - ta[:, 1]) - (tb[:, 1] - ta[:, 1]) * (tc[:, 0] - ta[:, 0])
     flip = tarea > 0
     faces[flip] = faces[flip][:, [0, 2, 1]]
-    mouth = np.zeros(len(faces), bool)
-    if P == face_layout.N_POINTS:
-        inner = set(range(60, 68))
-        mouth = np.array([set(f.tolist()) <= inner for f in faces])
-        # a photo with the mouth open shows its own teeth and tongue: texture the cavity with them
-        if lip_gap_iod(lm) > OPEN_MOUTH_IOD:
-            mouth[:] = False
-    z = _depth(pts, lm)
-    z[fixed] = 0.0
-    vertices = np.column_stack([pts, z])
-    uv = np.column_stack([pts[:, 0] / (W - 1), 1.0 - pts[:, 1] / (H - 1)])
-    return FaceMesh(vertices, faces, mouth, uv, img, P, fixed)
+    uv = np.column_stack([vertices[:, 0] / (W - 1), 1.0 - vertices[:, 1] / (H - 1)])
+    return FaceMesh(vertices, faces, mouth, uv, img, P, fixed, teeth=teeth, colours=colours, carried=carried)
 
 
 def portrait_image(landmarks, width: int, height: int) -> np.ndarray:
@@ -563,18 +740,19 @@ class FaceRenderer:
         theme.anti_aliasing = None
         self._plotter = pv.Plotter(off_screen=True, window_size=list(self.size), theme=theme)
         self._plotter.set_background((0.0, 0.0, 0.0))
-        skin_faces = mesh.faces[~mesh.mouth]
+        skin_faces = mesh.faces[~mesh.flat]
         self._skin = pv.PolyData(self._world(mesh.vertices), np.hstack([np.full((len(skin_faces), 1), 3), skin_faces]))
         self._skin.active_texture_coordinates = mesh.uv.astype(np.float32)
         texture = pv.Texture(mesh.image)
         kw = {} if shading else {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0}
         self._plotter.add_mesh(self._skin, texture=texture, lighting=shading, **kw)
-        self._mouth = None
-        if mesh.mouth.any():
-            mouth_faces = mesh.faces[mesh.mouth]
-            verts = self._world(mesh.vertices) - [0.0, 0.0, 0.5]
-            self._mouth = pv.PolyData(verts, np.hstack([np.full((len(mouth_faces), 1), 3), mouth_faces]))
-            self._plotter.add_mesh(self._mouth, color=np.array(_MOUTH_COLOUR) / 255.0, lighting=False)
+        self._interior = None
+        if mesh.flat.any():  # the cavity and the teeth, behind the skin: the depth buffer shows them
+            flat_faces = mesh.faces[mesh.flat]
+            self._interior = pv.PolyData(self._world(mesh.vertices),
+                                         np.hstack([np.full((len(flat_faces), 1), 3), flat_faces]))
+            self._interior.cell_data["colour"] = mesh.colours[mesh.flat]
+            self._plotter.add_mesh(self._interior, scalars="colour", rgb=True, lighting=False)
         cam = self._plotter.camera
         cam.parallel_projection = True
         cx, cy = (W - 1) / 2.0, (H - 1) / 2.0
@@ -596,8 +774,8 @@ class FaceRenderer:
         """Renders one frame of vertex positions (V, 3); returns (height, width, 3) uint8."""
         world = self._world(vertices)
         self._skin.points = world
-        if self._mouth is not None:
-            self._mouth.points = world - [0.0, 0.0, 0.5]
+        if self._interior is not None:
+            self._interior.points = world
         self._plotter.render()
         return np.asarray(self._plotter.screenshot(return_img=True))[:, :, :3]
 
