@@ -180,6 +180,9 @@ def test_the_teeth_take_the_photos_tones():
     open_face = R.build_face_mesh(img, neutral_landmarks(240, 240) + np.where(
         np.isin(np.arange(68), [65, 66, 67]), 1, 0)[:, None] * [0.0, 12.0])
     assert not open_face.flat.any() and len(open_face.vertices) == len(colour.vertices) - 104
+    blind = lm.copy()
+    blind[45] = blind[36]  # no inter-ocular distance to lay the teeth out in: none, and no NaN
+    assert not R.build_face_mesh(img, blind).flat.any()
 
 
 def test_interpolation_is_identity_on_landmarks_zero_on_frame(face):

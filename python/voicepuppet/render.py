@@ -448,8 +448,9 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
         inner = set(range(60, 68))
         cavity = np.array([set(f.tolist()) <= inner for f in faces])
         # a photo with the mouth open shows its own teeth and tongue: its texture is the cavity;
-        # a closed one's cavity and teeth are the interior's, behind the lips
-        if lip_gap_iod(lm) <= OPEN_MOUTH_IOD:
+        # a closed one's cavity and teeth are the interior's, behind the lips (laid out in
+        # inter-ocular distances: none for eyes closer than 2 px)
+        if lip_gap_iod(lm) <= OPEN_MOUTH_IOD and np.linalg.norm(lm[45] - lm[36]) >= 2.0:
             iv, ifaces, iteeth, icolours, icarry = _interior(lm, img)
             faces = np.vstack([faces[~cavity], V + ifaces])
             teeth = np.r_[np.zeros((~cavity).sum(), bool), iteeth]
