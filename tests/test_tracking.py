@@ -235,6 +235,20 @@ def test_auto_init_without_a_face_says_what_to_do():
         tracking.auto_init(np.full((120, 160), 128, np.uint8))
 
 
+def test_auto_init_takes_the_face_not_the_larger_clutter():
+    """The astronaut: dlib detects her face (score 1.5) and, larger, her badge (score 0.05); the
+    landmarks are her face's (nose tip and mouth inside the surest detection), not the badge's."""
+    _dlib_or_skip()
+    skdata = pytest.importorskip("skimage.data")
+    img = skdata.astronaut()
+    rects, scores, _ = tracking._dlib_detector().run(tracking._grey(img, 0, None), 0, 0.0)
+    assert len(rects) >= 2 and max(r.width() for r in rects) > rects[int(np.argmax(scores))].width()
+    best = rects[int(np.argmax(scores))]
+    pts = tracking.auto_init(img)
+    for i in (30, 48, 54, 57):
+        assert best.left() <= pts[i, 0] <= best.right() and best.top() <= pts[i, 1] <= best.bottom()
+
+
 def test_auto_init_waits_for_a_face_that_appears_later(tmp_path, write_avi):
     """A video that opens on a blank card: tracking starts on the earliest frame with a face (the
     probes, one frame every AUTO_INIT_STRIDE_S, then the frames since the last faceless one), the

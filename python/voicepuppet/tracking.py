@@ -1008,7 +1008,9 @@ def auto_init(frame: np.ndarray, instead: str = "--init points.json",
 
     dlib's detector looks at the frame, then (no face found) at it upsampled once and twice, each
     time twice the size on a side for faces half as small; with ``max_pixels`` only the sizes of
-    at most that many pixels after the first (see :data:`PROBE_MAX_PIXELS`).
+    at most that many pixels after the first (see :data:`PROBE_MAX_PIXELS`). Of several faces
+    the largest of those the detector is sure of (:data:`SURE_FACE_SCORE`) is taken, else its
+    surest: the largest alone took the astronaut's badge (score 0.05) over her face (1.50).
 
     Needs the ``dlib-bin`` (or ``dlib``) wheel and the model file from Debian's ``libdlib-data``
     (``/usr/share/dlib/shape_predictor_68_face_landmarks.dat``) or the path in the environment
@@ -1034,16 +1036,21 @@ def auto_init(frame: np.ndarray, instead: str = "--init points.json",
         for upsample in (0, 1, 2):
             if upsample and max_pixels is not None and g.size * 4 ** upsample > max_pixels:
                 break
-            faces = list(_dlib_detector()(g, upsample))
-            if faces:
+            faces, scores, _ = _dlib_detector().run(g, upsample, 0.0)
+            if len(faces):
                 break
-        if not faces:
+        if not len(faces):
             raise NoFaceError(f"dlib's detector found no face on the frame; pass the points with {instead}")
-        face = max(faces, key=lambda r: r.width() * r.height())
+        sure = [f for f, s in zip(faces, scores) if s >= SURE_FACE_SCORE]
+        face = max(sure, key=lambda r: r.width() * r.height()) if sure else faces[int(np.argmax(scores))]
         shape = _dlib_predictor(model)(g, face)
     points = np.array([[shape.part(i).x, shape.part(i).y] for i in range(shape.num_parts)], dtype=np.float64)
     return _separate_coincident(points)
 
+
+#: dlib detection score (its SVM margin; 0 is its default threshold) above which a detection is
+#: taken for a face: of those the largest is the subject; below, clutter scores (a badge: 0.05).
+SURE_FACE_SCORE = 0.5
 
 # dlib's detector takes 0.26 s to build and its 68-point model 0.5 s to load, more than a look
 # at a frame: built once per process (a face search looks at up to 120 frames), used one thread
