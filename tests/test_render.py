@@ -37,11 +37,11 @@ def jaw_anim():
 
 
 def _cavity_is_the_inner_lips(face):
-    """The cavity's 6 triangles (an 8-point polygon's) lie on its own copies of the inner lip
-    points (60-67), which move with those points alone."""
-    assert face.mouth.sum() == 6
-    idx = np.unique(face.faces[face.mouth])
-    assert len(idx) == 8 and idx.min() >= len(face.vertices) - 104
+    """The cavity's 6 triangles (an 8-point polygon's; with the tongue's 8, the mouth's) lie on
+    its own copies of the inner lip points (60-67), which move with those points alone."""
+    assert face.mouth.sum() == 6 + 8
+    idx = np.unique(face.faces[np.flatnonzero(face.mouth)[:6]])
+    assert len(idx) == 8 and idx.min() == len(face.vertices) - 114
     M = face.interpolation_matrix()
     np.testing.assert_array_equal(M[idx], np.eye(68)[60:68])
     np.testing.assert_array_equal(face.vertices[idx, :2], face.landmarks[60:68])
@@ -90,7 +90,7 @@ def test_the_cavity_is_the_inner_lip_polygon_on_a_real_face():
             cavity = face.flat
         else:  # open: its own, textured
             cavity = np.array([set(f.tolist()) <= inner for f in face.faces])
-        assert cavity.sum() in (6, 70)
+        assert cavity.sum() in (6, 78)
         edges = {frozenset(e) for f in face.faces.tolist() for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))}
         for r in (list(range(48, 60)), list(range(60, 68))):
             assert all(frozenset((r[i], r[(i + 1) % len(r)])) in edges for i in range(len(r)))
@@ -110,23 +110,25 @@ def _closed_lips(lm):
 
 
 def test_the_teeth_move_with_the_skull_and_the_jaw():
-    """A closed-mouth photo gets teeth behind its lips: a motion of the whole face (rotation,
-    scale, shift) carries them exactly; opening the jaw leaves the upper arch with the skull and
-    takes the lower one down, less than the lower lip; rendered, the closed mouth shows neither
-    teeth nor cavity, the opened one both arches, the upper above the lower, and only inside the
-    inner lips."""
+    """A closed-mouth photo gets teeth and a tongue behind its lips: a motion of the whole face
+    (rotation, scale, shift) carries them exactly; opening the jaw leaves the upper arch with the
+    skull and takes the lower one and the tongue down, less than the lower lip; rendered, the
+    closed mouth shows none of it, the opened one both arches, the upper above the lower, and only
+    inside the inner lips."""
     import cv2
 
     lm = _closed_lips(neutral_landmarks(240, 240))
     face = R.build_face_mesh(R.portrait_image(lm, 240, 240), lm)
-    assert face.teeth.sum() == 64 and face.mouth.sum() == 6
+    assert face.teeth.sum() == 64 and face.mouth.sum() == 6 + 8
     M = face.interpolation_matrix()
     interior = np.unique(face.faces[face.flat])
     # behind the skin, the cavity deepest; drawn back to front
     z = face.vertices[:, 2]
     assert z[interior].max() < 0 <= z[np.unique(face.faces[~face.flat])].min()
     order = face.draw_order()
-    assert set(order[:6]) == set(np.flatnonzero(face.mouth)) and set(order[70:]) == set(np.flatnonzero(~face.flat))
+    first = np.flatnonzero(face.flat)[0]  # the cavity's 6, the tongue's 8, the lower teeth's, the upper's
+    np.testing.assert_array_equal(order[:78], first + np.r_[0:14, 46:78, 14:46])
+    assert set(order[78:]) == set(np.flatnonzero(~face.flat))
     # the whole face rotated, scaled and shifted: the interior moves with it exactly
     a, s, t = 0.2, 1.3, np.array([5.0, -3.0])
     Rm = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
@@ -143,6 +145,8 @@ def test_the_teeth_move_with_the_skull_and_the_jaw():
     lip = dv[66, 1]
     assert lip > 20 and np.abs(dv[upper]).max() < 1e-9
     assert np.all(dv[lower, 1] > 0.6 * lip) and np.all(dv[lower, 1] < lip)
+    tongue = np.unique(face.faces[np.flatnonzero(face.mouth)[6:]])
+    assert np.all(dv[tongue, 1] > 0.6 * lip) and np.all(dv[tongue, 1] < lip)
     # rendered: pixels in the exact flat colours (no lighting), by kind
     with R.FaceRenderer(face, size=(240, 240)) as r:
         frames = [r.frame(v) for v in verts]
@@ -179,7 +183,7 @@ def test_the_teeth_take_the_photos_tones():
     np.testing.assert_allclose(dim.colours[dim.teeth] / c, 0.5, atol=0.03)
     open_face = R.build_face_mesh(img, neutral_landmarks(240, 240) + np.where(
         np.isin(np.arange(68), [65, 66, 67]), 1, 0)[:, None] * [0.0, 12.0])
-    assert not open_face.flat.any() and len(open_face.vertices) == len(colour.vertices) - 104
+    assert not open_face.flat.any() and len(open_face.vertices) == len(colour.vertices) - 114
     blind = lm.copy()
     blind[45] = blind[36]  # no inter-ocular distance to lay the teeth out in: none, and no NaN
     assert not R.build_face_mesh(img, blind).flat.any()

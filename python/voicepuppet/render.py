@@ -4,7 +4,8 @@ The face mesh comes from a photo and its landmarks: the landmarks, two rings of 
 around them and a frame on the image edge are triangulated (scipy's Delaunay, about 200
 triangles), lifted to 3-D with a smooth depth profile (an ellipsoidal cap plus a nose bump)
 and texture-mapped with the photo; with the 68-point layout and the photo's mouth closed, the
-mouth's interior (the cavity and two arches of teeth, flat-coloured) lies behind the lips. Any
+mouth's interior (the cavity, the tongue and two arches of teeth, flat-coloured) lies behind the
+lips. Any
 face whose points correspond to the animation's (a cartoon, an animal) works the same way (§6,
 figure 7).
 
@@ -76,8 +77,8 @@ class FaceMesh:
     faces : ndarray, shape (F, 3), int64
         triangles (counter-clockwise on screen).
     mouth : ndarray, shape (F,), bool
-        faces inside the inner lip contour, drawn as the dark mouth cavity, not textured
-        (none when the photo's mouth is open: its own interior is the texture there).
+        the mouth cavity's faces (the inner lip polygon, drawn dark, not textured) and the
+        tongue's (none when the photo's mouth is open: its own interior is the texture there).
     uv : ndarray, shape (V, 2)
         texture coordinates (u right, v up) into ``image``.
     image : ndarray, shape (H, W, 3), uint8
@@ -126,7 +127,7 @@ class FaceMesh:
 
     def draw_order(self) -> np.ndarray:
         """Face indices from back to front for a painter's renderer: the flat faces by their
-        depth (the cavity, the lower teeth, the upper teeth), then the skin."""
+        depth (the cavity, the tongue, the lower teeth, the upper teeth), then the skin."""
         depth = self.vertices[self.faces, 2].mean(axis=1)
         flat = np.flatnonzero(self.flat)
         return np.concatenate([flat[np.argsort(depth[flat], kind="stable")], np.flatnonzero(~self.flat)])
@@ -287,8 +288,13 @@ _SKULL = (27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
 _JAW = (4, 5, 6, 7, 8, 9, 10, 11, 12)
 _LOWER_LIP = (65, 66, 67)
 _LOWER_LIP_SHARE = 0.6
-#: Depths behind the image plane, inter-ocular distances: the upper teeth, the lower, the cavity.
-_INTERIOR_DEPTH = {"upper": -0.02, "lower": -0.03, "cavity": -0.04}
+#: The tongue, a dome behind the lower teeth moving with them: its base and crown below the lip
+#: line and its half width (a share of the mouth's), in inter-ocular distances; its colour, scaled
+#: to ``luma`` for a photo whose face has luma 150, and the points of its arch.
+_TONGUE = {"base": 0.16, "crown": -0.03, "span": 0.62, "colour": (175, 62, 70), "luma": 62.0, "points": 9}
+#: Depths behind the image plane, inter-ocular distances: the upper teeth, the lower, the tongue,
+#: the cavity.
+_INTERIOR_DEPTH = {"upper": -0.02, "lower": -0.03, "tongue": -0.035, "cavity": -0.04}
 
 
 def _affine_weights(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
@@ -325,29 +331,59 @@ def _tone(colour, luma: Optional[float], grey: bool) -> np.ndarray:
 
 def _interior(lm: np.ndarray, image: np.ndarray):
     """The mouth's interior of a 68-point face at rest (its lips closed): the cavity, on its own
-    copies of the inner lip points (carried by them, deepest), and two arches of teeth
-    (:data:`_TEETH`: hexagons with the biting corners cut, fanned into 4 triangles each), laid out
-    in the face's frame (x along the eye corners, y below) about the lip line and carried by the
-    skull's and the jaw's landmarks (:func:`_affine_weights`), coloured to the photo's lighting.
+    copies of the inner lip points (carried by them, deepest), the tongue (:data:`_TONGUE`) and
+    two arches of teeth (:data:`_TEETH`: hexagons with the biting corners cut, fanned into 4
+    triangles each), laid out in the face's frame (x along the eye corners, y below) about the lip
+    line and carried by the skull's and the jaw's landmarks (:func:`_affine_weights`), coloured to
+    the photo's lighting.
 
     Returns vertices (N, 3) with their depth, faces (F, 3) into them, the teeth's faces (F,) bool
-    (the rest are the cavity's), colours (F, 3) uint8 and the carry rows (N, 68)."""
+    (the rest are the cavity's and the tongue's), colours (F, 3) uint8 and the carry rows (N, 68)."""
     iod = float(np.linalg.norm(lm[45] - lm[36]))
     ex = (lm[45] - lm[36]) / iod
     ey = np.array([-ex[1], ex[0]])  # below, in image coordinates
     centre = lm[60:68].mean(axis=0)
     half_mouth = 0.5 * abs(float((lm[54] - lm[48]) @ ex)) / iod
     skin, grey = _photo_tones(image, lm)
-    enamel = min(235.0, 1.6 * skin)
+    to_image = lambda u, v: centre + iod * (np.outer(u, ex) + np.outer(v, ey))  # noqa: E731
+
+    def carried_by(part: str, xy: np.ndarray) -> np.ndarray:
+        """Rows moving ``xy`` with the skull ("upper") or the jaw and the lower lip ("lower")."""
+        group = list(_SKULL if part == "upper" else _JAW)
+        rows = np.zeros((len(xy), len(lm)))
+        rows[:, group] = _affine_weights(lm[group], xy)
+        if part == "lower":  # and a share of the lip's motion beyond the jaw's there
+            lip = list(_LOWER_LIP)
+            rows[:, group] -= _LOWER_LIP_SHARE * _affine_weights(lm[group], lm[lip].mean(axis=0)[None])
+            rows[:, lip] += _LOWER_LIP_SHARE / len(lip)
+        return rows
 
     inner = list(range(60, 68))
     verts = [np.column_stack([lm[inner], np.full(8, _INTERIOR_DEPTH["cavity"] * iod)])]
     carry = [np.eye(len(lm))[inner]]
     faces = [np.searchsorted(inner, _CAVITY)]
     colours = [np.repeat(_tone(_MOUTH_COLOUR, None, grey)[None], len(_CAVITY), axis=0)]
+    teeth = [np.zeros(len(_CAVITY), bool)]
     n = 8
+
+    def add(xy, depth, fan, colour, part, is_teeth):
+        nonlocal n
+        verts.append(np.column_stack([xy, np.full(len(xy), depth * iod)]))
+        carry.append(carried_by(part, xy))
+        faces.append(n + np.array([[0, k, k + 1] for k in range(1, fan - 1)]))
+        colours.append(np.repeat(colour[None], fan - 2, axis=0))
+        teeth.append(np.full(fan - 2, is_teeth))
+        n += len(xy)
+
+    # the tongue: a dome behind the lower teeth, its crown just above their edge
+    t = _TONGUE
+    a = np.linspace(0.0, np.pi, t["points"])
+    u = np.r_[0.0, t["span"] * half_mouth * np.cos(a)]
+    v = np.r_[t["base"], t["base"] + (t["crown"] - t["base"]) * np.sin(a)]
+    add(to_image(u, v), _INTERIOR_DEPTH["tongue"], len(u), _tone(t["colour"], t["luma"] * skin / 150.0, grey),
+        "lower", False)
+    enamel = min(235.0, 1.6 * skin)
     for arch, spec in _TEETH.items():
-        group = list(_SKULL if arch == "upper" else _JAW)  # the landmarks the arch moves with
         w = np.asarray(spec["widths"], np.float64)
         half = spec["span"] * half_mouth
         bounds = np.concatenate([[0.0], np.cumsum(w)]) / w.sum() * 2 * half - half
@@ -359,21 +395,10 @@ def _interior(lm: np.ndarray, image: np.ndarray):
             u = np.array([a, b, b, b - cut, a + cut, a])
             v = np.array([spec["root"], spec["root"], edge(b) + back * cut, edge(b - cut), edge(a + cut),
                           edge(a) + back * cut])
-            xy = centre + iod * (np.outer(u, ex) + np.outer(v, ey))
-            verts.append(np.column_stack([xy, np.full(6, _INTERIOR_DEPTH[arch] * iod)]))
-            rows = np.zeros((6, len(lm)))
-            rows[:, group] = _affine_weights(lm[group], xy)
-            if arch == "lower":  # and a share of the lip's motion beyond the jaw's there
-                lip = list(_LOWER_LIP)
-                rows[:, group] -= _LOWER_LIP_SHARE * _affine_weights(lm[group], lm[lip].mean(axis=0)[None])
-                rows[:, lip] += _LOWER_LIP_SHARE / len(lip)
-            carry.append(rows)
-            faces.append(n + np.array([[0, k, k + 1] for k in range(1, 5)]))
-            colours.append(np.repeat(_tone(_TOOTH_COLOUR, enamel * spec["shade"][j], grey)[None], 4, axis=0))
-            n += 6
-    faces = np.vstack(faces).astype(np.int64)
-    teeth = np.arange(len(faces)) >= len(_CAVITY)
-    return np.vstack(verts), faces, teeth, np.vstack(colours), np.vstack(carry)
+            add(to_image(u, v), _INTERIOR_DEPTH[arch], 6, _tone(_TOOTH_COLOUR, enamel * spec["shade"][j], grey),
+                arch, True)
+    return (np.vstack(verts), np.vstack(faces).astype(np.int64), np.concatenate(teeth), np.vstack(colours),
+            np.vstack(carry))
 
 
 def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float, int]] = ((1.2, 12), (1.5, 16)),
@@ -392,8 +417,8 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
         fixed points per image edge.
 
     With 68 landmarks the defaults give 112 vertices and 198-200 triangles of skin, and with the
-    mouth closed in the photo the interior's 104 vertices and 70 triangles (the cavity's 6, the
-    teeth's 64).
+    mouth closed in the photo the interior's 114 vertices and 78 triangles (the cavity's 6, the
+    tongue's 8, the teeth's 64).
     """
 
     img = np.asarray(image)
