@@ -196,6 +196,31 @@ def test_rhubarb_shapes_of_planted_mouths(opening, ratio, shape):
     assert cues == [{"start": 0.0, "end": 0.4, "value": shape}]
 
 
+def test_rhubarb_G_is_the_lower_lip_drawn_in_under_the_upper_teeth():
+    """G (F, V): a slightly open mouth whose lower lip shows 0.045 IOD less of itself (its inner
+    edge drawn up and in); the same opening without that is B. On the synthetic performer's
+    articulation (its labiodental gesture tucks the lower lip), /f/ and /v/ give G and the vowels
+    and the other consonants do not."""
+    from voicepuppet import synth
+
+    pts, base = _mouth(0.06, 1.0)
+    iod = np.linalg.norm(base[36] - base[45])
+    tucked = pts.copy()
+    tucked[:, [56, 57, 58], 1] -= 0.045 * iod  # the lip's outer edge comes up to its inner one
+    assert [c["value"] for c in E.mouth_cues(Animation(pts, 25.0), neutral=base)] == ["B"]
+    assert [c["value"] for c in E.mouth_cues(Animation(tucked, 25.0), neutral=base)] == ["G"]
+    photo = synth.face_photo((320, 320))
+    phones = [("_", 0.0, 0.2), ("a", 0.2, 0.45), ("f", 0.45, 0.6), ("o", 0.6, 0.85), ("v", 0.85, 1.0),
+              ("i", 1.0, 1.25), ("t", 1.25, 1.35), ("a", 1.35, 1.6), ("_", 1.6, 1.9)]
+    rate, fps = 16000, 29.97
+    hum = 0.1 * np.sin(2 * np.pi * 140 * np.arange(int(1.9 * rate)) / rate)
+    art = synth.articulate(phones, hum, rate, photo.points, fps=fps, seed=3, blinks=False)
+    cues = E.mouth_cues(Animation(art.points, fps), neutral=photo.points)
+    at = lambda t: next(c["value"] for c in cues if c["start"] <= t < c["end"])  # noqa: E731
+    for name, a, b in phones[1:-1]:
+        assert (at(0.5 * (a + b)) == "G") == (name in "fv"), (name, cues)
+
+
 def test_rhubarb_short_closure_is_A_and_files(tmp_path):
     opening = np.r_[np.zeros(3), np.full(5, 0.4), np.zeros(2), np.full(5, 0.4), np.zeros(20)]
     pts, base = _mouth(opening, 1.0, n=len(opening))

@@ -122,7 +122,8 @@ def write_arkit(anim: Animation, path, neutral=None) -> Path:
 
 def mouth_measures(anim: Animation, neutral=None) -> dict:
     """Per-frame mouth opening (inner lip gap), width (inner corners) and their ratio to the
-    neutral width, in inter-ocular distances of the neutral face. Returns a dict of (T,) arrays."""
+    neutral width, and the change of the lower lip's height (its middle, 66 to 57) from the
+    neutral's, in inter-ocular distances of the neutral face. Returns a dict of (T,) arrays."""
     _require_68(anim, "mouth measures")
     ref = _rest(anim, neutral)
     iod = float(face_layout.inter_ocular_distance(ref))
@@ -130,28 +131,32 @@ def mouth_measures(anim: Animation, neutral=None) -> dict:
     gap = np.mean(np.linalg.norm(p[:, [61, 62, 63]] - p[:, [67, 66, 65]], axis=2), axis=1) / iod
     width = np.linalg.norm(p[:, 64] - p[:, 60], axis=1) / iod
     width0 = np.linalg.norm(ref[64] - ref[60]) / iod
-    return {"opening": gap, "width": width, "width_ratio": width / width0}
+    lower = (np.linalg.norm(p[:, 57] - p[:, 66], axis=1) - np.linalg.norm(ref[57] - ref[66])) / iod
+    return {"opening": gap, "width": width, "width_ratio": width / width0, "lower_lip": lower}
 
 
 def mouth_cues(anim: Animation, neutral=None, *, closed: float = 0.04, slight: float = 0.12, open_: float = 0.28,
-               rounded: float = 0.85, rest_seconds: float = 0.4) -> list[dict]:
+               rounded: float = 0.85, tucked: float = -0.03, rest_seconds: float = 0.4) -> list[dict]:
     """Rhubarb Lip Sync mouth shapes from lip geometry.
 
     Shapes (Rhubarb's): A closed (M, B, P); B slightly open, teeth together; C open; D wide
-    open; E slightly rounded; F puckered; X rest. Per frame, with opening ``o`` and width ratio
-    ``r`` of :func:`mouth_measures`: ``o < closed`` → A (X when the closure lasts at least
-    ``rest_seconds`` or touches the start or end); ``r < rounded`` → F if ``o < slight`` else E;
-    otherwise B, C or D by ``o`` against ``slight`` and ``open_``. G (teeth on the lower lip) and
-    H (tongue) are not visible in lip landmarks and are never emitted (Rhubarb's extended
-    shapes are optional).
+    open; E slightly rounded; F puckered; G upper teeth on the lower lip (F, V); X rest. Per
+    frame, with opening ``o``, width ratio ``r`` and lower-lip height change ``h`` of
+    :func:`mouth_measures`: ``o < closed`` → A (X when the closure lasts at least
+    ``rest_seconds`` or touches the start or end); ``h < tucked`` (the lower lip drawn in under
+    the upper teeth shows less of itself) and ``o < slight`` → G; ``r < rounded`` → F if
+    ``o < slight`` else E; otherwise B, C or D by ``o`` against ``slight`` and ``open_``. H (the
+    tongue) is not visible in lip landmarks and is never emitted (Rhubarb's extended shapes are
+    optional).
 
     Returns a list of ``{"start", "end", "value"}`` in seconds, consecutive, covering the
     animation.
     """
     m = mouth_measures(anim, neutral)
-    o, r = m["opening"], m["width_ratio"]
-    shape = np.where(o < closed, "A", np.where(r < rounded, np.where(o < slight, "F", "E"),
-                                                np.where(o < slight, "B", np.where(o < open_, "C", "D"))))
+    o, r, h = m["opening"], m["width_ratio"], m["lower_lip"]
+    shape = np.where(r < rounded, np.where(o < slight, "F", "E"),
+                     np.where(o < slight, "B", np.where(o < open_, "C", "D")))
+    shape = np.where(o < closed, "A", np.where((h < tucked) & (o < slight), "G", shape))
     T = anim.n_frames
     runs = []
     start = 0

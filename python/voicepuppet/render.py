@@ -379,9 +379,9 @@ def _interior(lm: np.ndarray, image: np.ndarray):
 
     # the tongue: a dome behind the lower teeth, its crown just above their edge
     t = _TONGUE
-    a = np.linspace(0.0, np.pi, t["points"])
-    u = np.r_[0.0, t["span"] * half_mouth * np.cos(a)]
-    v = np.r_[t["base"], t["base"] + (t["crown"] - t["base"]) * np.sin(a)]
+    arc = np.linspace(0.0, np.pi, t["points"])
+    u = np.r_[0.0, t["span"] * half_mouth * np.cos(arc)]
+    v = np.r_[t["base"], t["base"] + (t["crown"] - t["base"]) * np.sin(arc)]
     add(to_image(u, v), _INTERIOR_DEPTH["tongue"], len(u), _tone(t["colour"], t["luma"] * skin / 150.0, grey),
         "lower", False)
     enamel = min(235.0, 1.6 * skin)
