@@ -200,7 +200,7 @@ def test_rhubarb_G_is_the_lower_lip_drawn_in_under_the_upper_teeth():
     """G (F, V): a slightly open mouth whose lower lip shows 0.045 IOD less of itself (its inner
     edge drawn up and in); the same opening without that is B. On the synthetic performer's
     articulation (its labiodental gesture tucks the lower lip), /f/ and /v/ give G and the vowels
-    and the other consonants do not."""
+    and the other consonants do not; ARKit's mouthRollLower is that share of the lip drawn in."""
     from voicepuppet import synth
 
     pts, base = _mouth(0.06, 1.0)
@@ -209,6 +209,11 @@ def test_rhubarb_G_is_the_lower_lip_drawn_in_under_the_upper_teeth():
     tucked[:, [56, 57, 58], 1] -= 0.045 * iod  # the lip's outer edge comes up to its inner one
     assert [c["value"] for c in E.mouth_cues(Animation(pts, 25.0), neutral=base)] == ["B"]
     assert [c["value"] for c in E.mouth_cues(Animation(tucked, 25.0), neutral=base)] == ["G"]
+    roll = E.ARKIT_NAMES.index("mouthRollLower")
+    height = np.linalg.norm(base[57] - base[66])
+    np.testing.assert_allclose(E.arkit_weights(Animation(tucked, 25.0), neutral=base)[0][:, roll],
+                               0.045 * iod / height, atol=1e-9)
+    assert E.arkit_weights(Animation(pts, 25.0), neutral=base)[0][:, roll].max() < 1e-9
     photo = synth.face_photo((320, 320))
     phones = [("_", 0.0, 0.2), ("a", 0.2, 0.45), ("f", 0.45, 0.6), ("o", 0.6, 0.85), ("v", 0.85, 1.0),
               ("i", 1.0, 1.25), ("t", 1.25, 1.35), ("a", 1.35, 1.6), ("_", 1.6, 1.9)]
@@ -217,8 +222,11 @@ def test_rhubarb_G_is_the_lower_lip_drawn_in_under_the_upper_teeth():
     art = synth.articulate(phones, hum, rate, photo.points, fps=fps, seed=3, blinks=False)
     cues = E.mouth_cues(Animation(art.points, fps), neutral=photo.points)
     at = lambda t: next(c["value"] for c in cues if c["start"] <= t < c["end"])  # noqa: E731
+    W = E.arkit_weights(Animation(art.points, fps), neutral=photo.points)[0][:, roll]
     for name, a, b in phones[1:-1]:
         assert (at(0.5 * (a + b)) == "G") == (name in "fv"), (name, cues)
+        w = W[int(0.5 * (a + b) * fps)]
+        assert w > 0.5 if name in "fv" else w < 0.15, (name, w)
 
 
 def test_rhubarb_short_closure_is_A_and_files(tmp_path):

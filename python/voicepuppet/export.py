@@ -78,7 +78,9 @@ def arkit_weights(anim: Animation, neutral=None) -> tuple[np.ndarray, np.ndarray
     """Blendshape weights in ARKit's 52 names from the action-unit activations.
 
     Activations are fitted per frame by bounded least squares (``[0, 1]``; brows ``[-1, 1]``,
-    negative lowering them) on the animation's own neutral face; shapes the basis cannot
+    negative lowering them) on the animation's own neutral face. ``mouthRollLower`` is the share
+    of the lower lip's height (66 to 57) drawn in beyond what the fitted units explain (the
+    labiodental tuck of /f v/, :func:`mouth_measures`); the other shapes the basis cannot
     express stay zero.
 
     Returns ``(weights (T, 52) in [0, 1], rms_error (T,))``, the error in inter-ocular distances.
@@ -97,6 +99,9 @@ def arkit_weights(anim: Animation, neutral=None) -> tuple[np.ndarray, np.ndarray
             W[:, col[n]] = np.clip(act[:, k], 0.0, 1.0)
         for n in neg:
             W[:, col[n]] = np.clip(-act[:, k], 0.0, 1.0)
+    fitted = ref + np.einsum("tk,kpc->tpc", act, B[..., :2])
+    lower_lip = lambda p: np.linalg.norm(p[..., 57, :] - p[..., 66, :], axis=-1)  # noqa: E731
+    W[:, col["mouthRollLower"]] = np.clip((lower_lip(fitted) - lower_lip(anim.points)) / lower_lip(ref), 0.0, 1.0)
     return W, err / float(face_layout.inter_ocular_distance(ref))
 
 
