@@ -280,8 +280,8 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     ``mode="vertex"``: the targets are the principal components of the per-frame vertex
     displacements (at most ``max_targets``), so the vertex motion is reproduced up to that rank.
     Units are metres, scaled so the inter-ocular distance is ``face_width_m``; the photo is
-    embedded as the (unlit) base colour texture; the mouth cavity and the teeth, behind the lips,
-    are a second primitive in vertex colours.
+    embedded as the (unlit) base colour texture; the mouth's interior behind the lips (cavity,
+    tongue, teeth) is a second primitive in vertex colours.
 
     Returns a summary dict (``targets``, ``frames``, ``duration``, ``max_error_m``: the largest
     difference between the morph-target reconstruction and the driven mesh, in metres; with
@@ -363,7 +363,7 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     materials = [g.Material(name="face", pbrMetallicRoughness=g.PbrMetallicRoughness(
         baseColorTexture=g.TextureInfo(index=0), metallicFactor=0.0, roughnessFactor=1.0),
         extensions={"KHR_materials_unlit": {}}, doubleSided=True)]
-    if face.flat.any():  # the cavity and the teeth, in their colours (each vertex in one of them)
+    if face.flat.any():  # the mouth's interior, in its colours (each vertex in one of its faces' colour)
         vc = np.zeros((len(face.vertices), 3), np.float32)
         vc[face.faces[face.flat]] = face.colours[face.flat][:, None] / 255.0
         colour = add(vc, g.FLOAT, g.VEC3, g.ARRAY_BUFFER)

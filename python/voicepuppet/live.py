@@ -473,7 +473,7 @@ class _FaceDriver:
 
     def files(self) -> dict:
         """``/mesh.json`` (the photo's size, the triangles, which of them are the mouth cavity, the
-        flat colour of the cavity's and the teeth's (null for the textured skin), the order to draw
+        flat colour of the mouth's interior (cavity, tongue, teeth; null for the textured skin), the order to draw
         them in (``FaceMesh.draw_order``), texture coordinates as ``FaceMesh.uv``) and
         ``/face.png`` for the viewer."""
         import cv2

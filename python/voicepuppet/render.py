@@ -88,12 +88,12 @@ class FaceMesh:
     teeth : ndarray, shape (F,), bool
         the teeth's faces (:func:`_interior`), seen through the cavity.
     colours : ndarray, shape (F, 3), uint8
-        the flat colour of the cavity's and the teeth's faces (unused for the textured skin).
+        the flat colour of the mouth's interior's faces (unused for the textured skin).
     carried : ndarray, shape (V, P)
         for the vertices that move rigidly with part of the face (the cavity's copies of the
-        inner lips, the teeth) their rows of :meth:`interpolation_matrix`; zero rows elsewhere.
+        inner lips, the tongue, the teeth) their rows of :meth:`interpolation_matrix`; zero rows elsewhere.
 
-    The cavity and the teeth lie behind the skin (negative depth; the skin is at z >= 0), the
+    The mouth's interior lies behind the skin (negative depth; the skin is at z >= 0), the
     cavity deepest, so a renderer with a depth buffer shows them through the lips' opening only,
     and one without draws them first in :meth:`draw_order`.
     """
@@ -122,7 +122,7 @@ class FaceMesh:
 
     @property
     def flat(self) -> np.ndarray:
-        """(F,) bool: the faces drawn in their flat colour (the cavity and the teeth), not textured."""
+        """(F,) bool: the faces drawn in their flat colour (the cavity, the tongue, the teeth), not textured."""
         return self.mouth | self.teeth
 
     def draw_order(self) -> np.ndarray:
@@ -775,7 +775,7 @@ class FaceRenderer:
         kw = {} if shading else {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0}
         self._plotter.add_mesh(self._skin, texture=texture, lighting=shading, **kw)
         self._interior = None
-        if mesh.flat.any():  # the cavity and the teeth, behind the skin: the depth buffer shows them
+        if mesh.flat.any():  # the mouth's interior, behind the skin: the depth buffer shows it
             flat_faces = mesh.faces[mesh.flat]
             self._interior = pv.PolyData(self._world(mesh.vertices),
                                          np.hstack([np.full((len(flat_faces), 1), 3), flat_faces]))
