@@ -37,9 +37,12 @@ def jaw_anim():
 
 
 def _cavity_is_the_inner_lips(face):
-    """The cavity's 6 triangles (an 8-point polygon's; with the tongue's 8, the mouth's) lie on
-    its own copies of the inner lip points (60-67), which move with those points alone."""
-    assert face.mouth.sum() == 6 + 8
+    """The cavity's 6 triangles (an 8-point polygon's; with the tongue's 8 and the wall's 16, the
+    mouth's) lie on its own copies of the inner lip points (60-67), which move with those points
+    alone; its wall joins the inner lips to them."""
+    assert face.mouth.sum() == 6 + 8 + 16
+    wall = face.faces[np.flatnonzero(face.mouth)[-16:]]
+    assert set(wall.ravel()) == set(range(60, 68)) | set(np.unique(face.faces[np.flatnonzero(face.mouth)[:6]]))
     idx = np.unique(face.faces[np.flatnonzero(face.mouth)[:6]])
     assert len(idx) == 8 and idx.min() == len(face.vertices) - 114
     M = face.interpolation_matrix()
@@ -71,7 +74,8 @@ def test_the_cavity_is_the_inner_lip_polygon_on_a_real_face():
     of its inner lip contour (4 cavity triangles; 240 of 274 of the demo's tracked faces), so lip
     texture stretched across the opened mouth. The lips are triangulated by hand: the inner contour
     is the cavity's 6 triangles and both contours are edges, on the photo and on a frame at rest;
-    articulated speech (wide vowels, closures) folds no lip triangle away from the mouth corners."""
+    articulated speech (wide vowels, closures) folds no lip triangle away from the mouth corners,
+    and on the frame at rest's mesh the mouth's interior shows through the lips' opening only."""
     from voicepuppet import synth
 
     photo = synth.face_photo((320, 320))
@@ -90,7 +94,7 @@ def test_the_cavity_is_the_inner_lip_polygon_on_a_real_face():
             cavity = face.flat
         else:  # open: its own, textured
             cavity = np.array([set(f.tolist()) <= inner for f in face.faces])
-        assert cavity.sum() in (6, 78)
+        assert cavity.sum() in (6, 94)
         edges = {frozenset(e) for f in face.faces.tolist() for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))}
         for r in (list(range(48, 60)), list(range(60, 68))):
             assert all(frozenset((r[i], r[(i + 1) % len(r)])) in edges for i in range(len(r)))
@@ -100,6 +104,22 @@ def test_the_cavity_is_the_inner_lip_polygon_on_a_real_face():
             folded = skin[_signed_area(verts[t, :, :2], skin) > 1e-9]
             lips = [f for f in folded.tolist() if set(f) & set(range(48, 68))]
             assert all(set(f) & corners for f in lips), f"frame {t}: {lips}"
+    # the interior in white on a black face, rendered: inside the inner lips (1 px grown) only
+    import cv2
+    import dataclasses
+
+    ids = np.zeros_like(face.colours)
+    ids[face.flat] = 255
+    probe = dataclasses.replace(face, image=np.zeros_like(face.image), colours=ids)
+    seen = 0
+    with R.FaceRenderer(probe, size=face.size) as r:
+        for v in verts:
+            shown = r.frame(v)[..., 0] > 128
+            inner_px = np.zeros(shown.shape, np.uint8)
+            cv2.fillPoly(inner_px, [np.round(v[60:68, :2]).astype(np.int32)], 1)
+            assert not (shown & (cv2.dilate(inner_px, np.ones((3, 3), np.uint8)) == 0)).any()
+            seen += shown.sum()
+    assert seen > 1000
 
 
 def _closed_lips(lm):
@@ -119,16 +139,22 @@ def test_the_teeth_move_with_the_skull_and_the_jaw():
 
     lm = _closed_lips(neutral_landmarks(240, 240))
     face = R.build_face_mesh(R.portrait_image(lm, 240, 240), lm)
-    assert face.teeth.sum() == 64 and face.mouth.sum() == 6 + 8
+    assert face.teeth.sum() == 64 and face.mouth.sum() == 6 + 8 + 16
     M = face.interpolation_matrix()
     interior = np.unique(face.faces[face.flat])
-    # behind the skin, the cavity deepest; drawn back to front
-    z = face.vertices[:, 2]
-    assert z[interior].max() < 0 <= z[np.unique(face.faces[~face.flat])].min()
+    # behind the skin, in layers under its depth surface (upper teeth, lower, tongue, cavity);
+    # drawn back to front
+    iod = np.linalg.norm(lm[45] - lm[36])
+    below = R._depth(face.vertices[:, :2], lm) - face.vertices[:, 2]
+    skin = np.unique(face.faces[~face.flat])
+    np.testing.assert_allclose(below[skin[skin < 68 + 28]], 0.0, atol=1e-9)
+    own = np.setdiff1d(interior, skin)  # the interior's own vertices (its wall meets the inner lips)
+    np.testing.assert_allclose(np.unique(np.round(below[own] / iod, 9)), [0.06, 0.10, 0.14, 0.18])
     order = face.draw_order()
-    first = np.flatnonzero(face.flat)[0]  # the cavity's 6, the tongue's 8, the lower teeth's, the upper's
-    np.testing.assert_array_equal(order[:78], first + np.r_[0:14, 46:78, 14:46])
-    assert set(order[78:]) == set(np.flatnonzero(~face.flat))
+    first = np.flatnonzero(face.flat)[0]  # the cavity's 6, the tongue's 8, the upper teeth's, the lower's
+    drawn = order[np.isin(order, first + np.arange(78))]  # the wall is edge-on: anywhere among them
+    np.testing.assert_array_equal(drawn, first + np.r_[0:14, 46:78, 14:46])
+    assert set(order[94:]) == set(np.flatnonzero(~face.flat))
     # the whole face rotated, scaled and shifted: the interior moves with it exactly
     a, s, t = 0.2, 1.3, np.array([5.0, -3.0])
     Rm = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
@@ -140,12 +166,13 @@ def test_the_teeth_move_with_the_skull_and_the_jaw():
     anim = Animation(np.stack([_closed_lips(p) if k == 0 else p for k, p in enumerate(anim.points)]), 25.0)
     verts = R.mesh_animation(anim, face)["vertices"]
     dv = verts[1, :, :2] - verts[0, :, :2]
-    upper = np.unique(face.faces[face.teeth & (np.arange(len(face.faces)) < len(face.faces) - 32)])
-    lower = np.unique(face.faces[face.teeth & (np.arange(len(face.faces)) >= len(face.faces) - 32)])
+    up_mask, low_mask = np.zeros_like(face.teeth), np.zeros_like(face.teeth)
+    up_mask[np.flatnonzero(face.teeth)[:32]] = low_mask[np.flatnonzero(face.teeth)[32:]] = True
+    upper, lower = np.unique(face.faces[up_mask]), np.unique(face.faces[low_mask])
     lip = dv[66, 1]
     assert lip > 20 and np.abs(dv[upper]).max() < 1e-9
     assert np.all(dv[lower, 1] > 0.6 * lip) and np.all(dv[lower, 1] < lip)
-    tongue = np.unique(face.faces[np.flatnonzero(face.mouth)[6:]])
+    tongue = np.unique(face.faces[np.flatnonzero(face.mouth)[6:14]])
     assert np.all(dv[tongue, 1] > 0.6 * lip) and np.all(dv[tongue, 1] < lip)
     # rendered: pixels in the exact flat colours (no lighting), by kind
     with R.FaceRenderer(face, size=(240, 240)) as r:
@@ -155,8 +182,6 @@ def test_the_teeth_move_with_the_skull_and_the_jaw():
         key = img.reshape(-1, 3).astype(int) @ [1, 256, 65536]
         return np.isin(key, face.colours[mask].astype(int) @ [1, 256, 65536]).reshape(img.shape[:2])
 
-    up_mask = face.teeth & (np.arange(len(face.faces)) < len(face.faces) - 32)
-    low_mask = face.teeth & ~up_mask
     for k in (face.mouth, up_mask, low_mask):
         assert kind(frames[0], k).sum() == 0
     ys_up, ys_low = np.nonzero(kind(frames[1], up_mask))[0], np.nonzero(kind(frames[1], low_mask))[0]

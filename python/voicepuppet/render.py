@@ -77,8 +77,9 @@ class FaceMesh:
     faces : ndarray, shape (F, 3), int64
         triangles (counter-clockwise on screen).
     mouth : ndarray, shape (F,), bool
-        the mouth cavity's faces (the inner lip polygon, drawn dark, not textured) and the
-        tongue's (none when the photo's mouth is open: its own interior is the texture there).
+        the mouth cavity's faces (the inner lip polygon, drawn dark, not textured; its wall down
+        from the inner lips) and the tongue's (none when the photo's mouth is open: its own
+        interior is the texture there).
     uv : ndarray, shape (V, 2)
         texture coordinates (u right, v up) into ``image``.
     image : ndarray, shape (H, W, 3), uint8
@@ -93,9 +94,9 @@ class FaceMesh:
         for the vertices that move rigidly with part of the face (the cavity's copies of the
         inner lips, the tongue, the teeth) their rows of :meth:`interpolation_matrix`; zero rows elsewhere.
 
-    The mouth's interior lies behind the skin (negative depth; the skin is at z >= 0), the
-    cavity deepest, so a renderer with a depth buffer shows them through the lips' opening only,
-    and one without draws them first in :meth:`draw_order`.
+    The mouth's interior lies behind the skin, in layers below the skin's depth surface
+    (:data:`_INTERIOR_DEPTH`), the cavity deepest, so a renderer with a depth buffer shows it
+    through the lips' opening only, and one without draws it first in :meth:`draw_order`.
     """
 
     vertices: np.ndarray
@@ -127,10 +128,12 @@ class FaceMesh:
 
     def draw_order(self) -> np.ndarray:
         """Face indices from back to front for a painter's renderer: the flat faces by their
-        depth (the cavity, the tongue, the lower teeth, the upper teeth), then the skin."""
-        depth = self.vertices[self.faces, 2].mean(axis=1)
+        layer (their depth below the skin's surface: the cavity, the tongue, the lower teeth, the
+        upper teeth), then the skin."""
+        below = self.vertices[:, 2] - _depth(self.vertices[:, :2], self.landmarks)
+        layer = np.round(below[self.faces].mean(axis=1), 6)  # one value per layer, face order within it
         flat = np.flatnonzero(self.flat)
-        return np.concatenate([flat[np.argsort(depth[flat], kind="stable")], np.flatnonzero(~self.flat)])
+        return np.concatenate([flat[np.argsort(layer[flat], kind="stable")], np.flatnonzero(~self.flat)])
 
     @property
     def landmarks(self) -> np.ndarray:
@@ -294,9 +297,13 @@ _LOWER_LIP_SHARE = 0.6
 #: line and its half width (a share of the mouth's), in inter-ocular distances; its colour, scaled
 #: to ``luma`` for a photo whose face has luma 150, and the points of its arch.
 _TONGUE = {"base": 0.16, "crown": -0.03, "span": 0.62, "colour": (175, 62, 70), "luma": 62.0, "points": 9}
-#: Depths behind the image plane, inter-ocular distances: the upper teeth, the lower, the tongue,
-#: the cavity.
-_INTERIOR_DEPTH = {"upper": -0.02, "lower": -0.03, "tongue": -0.035, "cavity": -0.04}
+#: Depths below the skin's depth surface (:func:`_depth`) at each vertex, inter-ocular distances:
+#: the upper teeth, the lower, the tongue, the cavity. A 3-D viewer sees the teeth a few
+#: millimetres behind the lips (on the image plane, 0.5 IOD behind them, they slid away from the
+#: mouth at an angle). The first layer lies deeper than the skin's sag between its vertices and
+#: its slide over the interior as the lips move (~0.03); the layers apart by more than the depth
+#: change of one's slide over the next.
+_INTERIOR_DEPTH = {"upper": -0.06, "lower": -0.10, "tongue": -0.14, "cavity": -0.18}
 
 
 def _affine_weights(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
@@ -361,7 +368,7 @@ def _interior(lm: np.ndarray, image: np.ndarray):
         return rows
 
     inner = list(range(60, 68))
-    verts = [np.column_stack([lm[inner], np.full(8, _INTERIOR_DEPTH["cavity"] * iod)])]
+    verts = [np.column_stack([lm[inner], _depth(lm[inner], lm) + _INTERIOR_DEPTH["cavity"] * iod])]
     carry = [np.eye(len(lm))[inner]]
     faces = [np.searchsorted(inner, _CAVITY)]
     colours = [np.repeat(_tone(_MOUTH_COLOUR, None, grey)[None], len(_CAVITY), axis=0)]
@@ -370,7 +377,7 @@ def _interior(lm: np.ndarray, image: np.ndarray):
 
     def add(xy, depth, fan, colour, part, is_teeth):
         nonlocal n
-        verts.append(np.column_stack([xy, np.full(len(xy), depth * iod)]))
+        verts.append(np.column_stack([xy, _depth(xy, lm) + depth * iod]))
         carry.append(carried_by(part, xy))
         faces.append(n + np.array([[0, k, k + 1] for k in range(1, fan - 1)]))
         colours.append(np.repeat(colour[None], fan - 2, axis=0))
@@ -419,8 +426,8 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
         fixed points per image edge.
 
     With 68 landmarks the defaults give 112 vertices and 198-200 triangles of skin, and with the
-    mouth closed in the photo the interior's 114 vertices and 78 triangles (the cavity's 6, the
-    tongue's 8, the teeth's 64).
+    mouth closed in the photo the interior's 114 vertices and 94 triangles (the cavity's 6 and its
+    wall's 16, the tongue's 8, the teeth's 64).
     """
 
     img = np.asarray(image)
@@ -479,10 +486,16 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
         # inter-ocular distances: none for eyes closer than 2 px)
         if lip_gap_iod(lm) <= OPEN_MOUTH_IOD and np.linalg.norm(lm[45] - lm[36]) >= 2.0:
             iv, ifaces, iteeth, icolours, icarry = _interior(lm, img)
-            faces = np.vstack([faces[~cavity], V + ifaces])
-            teeth = np.r_[np.zeros((~cavity).sum(), bool), iteeth]
-            mouth = np.r_[np.zeros((~cavity).sum(), bool), ~iteeth]
-            colours = np.vstack([np.zeros(((~cavity).sum(), 3), np.uint8), icolours])
+            # the cavity's wall from the inner lips down to its copies: edge-on in a frontal view
+            # (the copies move with the lips), it closes the mouth's corners in a 3-D viewer
+            ring = np.arange(60, 68)
+            copy, nxt = V + ring - 60, np.roll(ring, -1)
+            wall = np.vstack([np.column_stack([ring, nxt, V + nxt - 60]), np.column_stack([ring, V + nxt - 60, copy])])
+            faces = np.vstack([faces[~cavity], V + ifaces, wall])
+            n_skin = int((~cavity).sum())
+            teeth = np.r_[np.zeros(n_skin, bool), iteeth, np.zeros(len(wall), bool)]
+            mouth = np.r_[np.zeros(n_skin, bool), ~iteeth, np.ones(len(wall), bool)]
+            colours = np.vstack([np.zeros((n_skin, 3), np.uint8), icolours, np.repeat(icolours[:1], len(wall), axis=0)])
             itopo = iv[:, :2].copy()
             itopo[:8] = topo[60:68]  # the cavity's copies of the inner lips, pulled apart as theirs
             topo = np.vstack([topo, itopo])
