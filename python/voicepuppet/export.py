@@ -100,8 +100,8 @@ def arkit_weights(anim: Animation, neutral=None) -> tuple[np.ndarray, np.ndarray
         for n in neg:
             W[:, col[n]] = np.clip(-act[:, k], 0.0, 1.0)
     fitted = ref + np.einsum("tk,kpc->tpc", act, B[..., :2])
-    lower_lip = lambda p: np.linalg.norm(p[..., 57, :] - p[..., 66, :], axis=-1)  # noqa: E731
-    W[:, col["mouthRollLower"]] = np.clip((lower_lip(fitted) - lower_lip(anim.points)) / lower_lip(ref), 0.0, 1.0)
+    roll = (_lower_lip_height(fitted) - _lower_lip_height(anim.points)) / _lower_lip_height(ref)
+    W[:, col["mouthRollLower"]] = np.clip(roll, 0.0, 1.0)
     return W, err / float(face_layout.inter_ocular_distance(ref))
 
 
@@ -125,6 +125,11 @@ def write_arkit(anim: Animation, path, neutral=None) -> Path:
 
 # --------------------------------------------------------------------------- Rhubarb cues
 
+def _lower_lip_height(points: np.ndarray) -> np.ndarray:
+    """The lower lip's height in its middle, inner (66) to outer (57) edge, of (..., 68, 2) points."""
+    return np.linalg.norm(points[..., 57, :] - points[..., 66, :], axis=-1)
+
+
 def mouth_measures(anim: Animation, neutral=None) -> dict:
     """Per-frame mouth opening (inner lip gap), width (inner corners) and their ratio to the
     neutral width, and the change of the lower lip's height (its middle, 66 to 57) from the
@@ -136,7 +141,7 @@ def mouth_measures(anim: Animation, neutral=None) -> dict:
     gap = np.mean(np.linalg.norm(p[:, [61, 62, 63]] - p[:, [67, 66, 65]], axis=2), axis=1) / iod
     width = np.linalg.norm(p[:, 64] - p[:, 60], axis=1) / iod
     width0 = np.linalg.norm(ref[64] - ref[60]) / iod
-    lower = (np.linalg.norm(p[:, 57] - p[:, 66], axis=1) - np.linalg.norm(ref[57] - ref[66])) / iod
+    lower = (_lower_lip_height(p) - _lower_lip_height(ref)) / iod
     return {"opening": gap, "width": width, "width_ratio": width / width0, "lower_lip": lower}
 
 

@@ -5,9 +5,8 @@ around them and a frame on the image edge are triangulated (scipy's Delaunay, ab
 triangles), lifted to 3-D with a smooth depth profile (an ellipsoidal cap plus a nose bump)
 and texture-mapped with the photo; with the 68-point layout and the photo's mouth closed, the
 mouth's interior (the cavity, the tongue and two arches of teeth, flat-coloured) lies behind the
-lips. Any
-face whose points correspond to the animation's (a cartoon, an animal) works the same way (§6,
-figure 7).
+lips. Any face whose points correspond to the animation's (a cartoon, an animal) works the same
+way (§6, figure 7).
 
 Driving, two ways:
 
@@ -92,7 +91,8 @@ class FaceMesh:
         the flat colour of the mouth's interior's faces (unused for the textured skin).
     carried : ndarray, shape (V, P)
         for the vertices that move rigidly with part of the face (the cavity's copies of the
-        inner lips, the tongue, the teeth) their rows of :meth:`interpolation_matrix`; zero rows elsewhere.
+        inner lips, the tongue, the teeth) their rows of :meth:`interpolation_matrix`; zero rows
+        elsewhere.
 
     The mouth's interior lies behind the skin, in layers below the skin's depth surface
     (:data:`_INTERIOR_DEPTH`), the cavity deepest, so a renderer with a depth buffer shows it
@@ -262,7 +262,7 @@ def lip_gap_iod(landmarks) -> float:
     distances (outer eye corners 36, 45)."""
     lm = np.asarray(landmarks, dtype=np.float64)
     gap = np.mean(np.linalg.norm(lm[[61, 62, 63]] - lm[[67, 66, 65]], axis=1))
-    return float(gap / max(np.linalg.norm(lm[36] - lm[45]), 1e-12))
+    return float(gap / max(float(face_layout.inter_ocular_distance(lm)), 1e-12))
 
 
 # ------------------------------------------------------------------------------ the mouth's interior
@@ -348,7 +348,7 @@ def _interior(lm: np.ndarray, image: np.ndarray):
 
     Returns vertices (N, 3) with their depth, faces (F, 3) into them, the teeth's faces (F,) bool
     (the rest are the cavity's and the tongue's), colours (F, 3) uint8 and the carry rows (N, 68)."""
-    iod = float(np.linalg.norm(lm[45] - lm[36]))
+    iod = float(face_layout.inter_ocular_distance(lm))
     ex = (lm[45] - lm[36]) / iod
     ey = np.array([-ex[1], ex[0]])  # below, in image coordinates
     centre = lm[60:68].mean(axis=0)
@@ -484,7 +484,7 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
         # a photo with the mouth open shows its own teeth and tongue: its texture is the cavity;
         # a closed one's cavity and teeth are the interior's, behind the lips (laid out in
         # inter-ocular distances: none for eyes closer than 2 px)
-        if lip_gap_iod(lm) <= OPEN_MOUTH_IOD and np.linalg.norm(lm[45] - lm[36]) >= 2.0:
+        if lip_gap_iod(lm) <= OPEN_MOUTH_IOD and face_layout.inter_ocular_distance(lm) >= 2.0:
             iv, ifaces, iteeth, icolours, icarry = _interior(lm, img)
             # the cavity's wall from the inner lips down to its copies: edge-on in a frontal view
             # (the copies move with the lips), it closes the mouth's corners in a 3-D viewer
