@@ -477,9 +477,10 @@ def add_parser(sub) -> None:
     p.add_argument("animation", help="landmark animation (.npz or .csv)")
     p.add_argument("--format", choices=sorted(FORMATS), help="output format (default: from the -o suffix)")
     p.add_argument("-o", "--output", help="output file (default: next to the animation)")
-    p.add_argument("--face", help="face photo (or a name with --palette) for pvd/gltf (default: a drawn portrait)")
+    p.add_argument("--face", help="face photo, a textured 3-D head (.obj) or a name with --palette, for pvd/gltf "
+                                  "(default: a drawn portrait)")
     p.add_argument("--palette", help="folder of faces (NAME.png + NAME.json points) to pick --face from")
-    p.add_argument("--face-points", help="the photo's points (JSON, CSV or .npz)")
+    p.add_argument("--face-points", help="the photo's points (JSON, CSV or .npz; an .obj head's in 3-D: JSON or .ljson)")
     p.add_argument("--mode", choices=["vertex", "au"], help="mesh driving: vertex (pvd default) or au (gltf default)")
     p.add_argument("--sound-file", help="sound file name recorded in Rhubarb json metadata")
     from voicepuppet.render import add_control_arguments

@@ -93,6 +93,9 @@ class FaceMesh:
         for the vertices that move rigidly with part of the face (the cavity's copies of the
         inner lips, the tongue, the teeth) their rows of :meth:`interpolation_matrix`; zero rows
         elsewhere.
+    canvas : (width, height), optional
+        the view's size when it is not the image's: a 3-D head (:mod:`voicepuppet.head`), whose
+        image is its texture.
 
     The mouth's interior lies behind the skin, in layers below the skin's depth surface
     (:data:`_INTERIOR_DEPTH`), the cavity deepest, so a renderer with a depth buffer shows it
@@ -109,6 +112,7 @@ class FaceMesh:
     teeth: Optional[np.ndarray] = None
     colours: Optional[np.ndarray] = None
     carried: Optional[np.ndarray] = field(default=None, repr=False)
+    canvas: Optional[tuple[int, int]] = None
     _interp: Optional[np.ndarray] = field(default=None, repr=False)
 
     def __post_init__(self):
@@ -129,7 +133,9 @@ class FaceMesh:
     def draw_order(self) -> np.ndarray:
         """Face indices from back to front for a painter's renderer: the flat faces by their
         layer (their depth below the skin's surface: the cavity, the tongue, the lower teeth, the
-        upper teeth), then the skin."""
+        upper teeth), then the skin; a 3-D head's faces from its back to its front."""
+        if self.canvas is not None:
+            return np.argsort(self.vertices[self.faces, 2].mean(axis=1), kind="stable")
         below = self.vertices[:, 2] - _depth(self.vertices[:, :2], self.landmarks)
         layer = np.round(below[self.faces].mean(axis=1), 6)  # one value per layer, face order within it
         flat = np.flatnonzero(self.flat)
@@ -142,7 +148,9 @@ class FaceMesh:
 
     @property
     def size(self) -> tuple[int, int]:
-        """(width, height) of the photo."""
+        """(width, height) of the view: the photo's, or a 3-D head's canvas."""
+        if self.canvas is not None:
+            return int(self.canvas[0]), int(self.canvas[1])
         return int(self.image.shape[1]), int(self.image.shape[0])
 
     def interpolation_matrix(self) -> np.ndarray:
@@ -323,9 +331,15 @@ def _photo_tones(image: np.ndarray, landmarks: np.ndarray) -> tuple[float, bool]
 
     mask = np.zeros(image.shape[:2], np.uint8)
     cv2.fillConvexPoly(mask, cv2.convexHull(np.round(landmarks).astype(np.int32)), 1)
-    px = image[mask.astype(bool)].astype(np.float64)
-    luma = px @ [0.299, 0.587, 0.114]
-    return float(np.median(luma)), bool(np.median(np.ptp(px, axis=1)) < 3.0)
+    return _pixel_tones(image[mask.astype(bool)])
+
+
+def _pixel_tones(px: np.ndarray) -> tuple[float, bool]:
+    """The median luma of the RGB pixels ``px`` (N, 3) and whether they are grey (channels equal)."""
+    px = np.asarray(px, np.float64).reshape(-1, 3)
+    if len(px) == 0:
+        raise ValueError("no face pixels to take the tones of")
+    return float(np.median(px @ [0.299, 0.587, 0.114])), bool(np.median(np.ptp(px, axis=1)) < 3.0)
 
 
 def _tone(colour, luma: Optional[float], grey: bool) -> np.ndarray:
@@ -338,13 +352,13 @@ def _tone(colour, luma: Optional[float], grey: bool) -> np.ndarray:
     return np.clip(np.round(c), 0, 255).astype(np.uint8)
 
 
-def _interior(lm: np.ndarray, image: np.ndarray):
+def _interior(lm: np.ndarray, tones: tuple[float, bool]):
     """The mouth's interior of a 68-point face at rest (its lips closed): the cavity, on its own
     copies of the inner lip points (carried by them, deepest), the tongue (:data:`_TONGUE`) and
     two arches of teeth (:data:`_TEETH`: hexagons with the biting corners cut, fanned into 4
     triangles each), laid out in the face's frame (x along the eye corners, y below) about the lip
     line and carried by the skull's and the jaw's landmarks (:func:`_affine_weights`), coloured to
-    the photo's lighting.
+    the photo's lighting (``tones``: :func:`_photo_tones`).
 
     Returns vertices (N, 3) with their depth, faces (F, 3) into them, the teeth's faces (F,) bool
     (the rest are the cavity's and the tongue's), colours (F, 3) uint8 and the carry rows (N, 68)."""
@@ -353,7 +367,7 @@ def _interior(lm: np.ndarray, image: np.ndarray):
     ey = np.array([-ex[1], ex[0]])  # below, in image coordinates
     centre = lm[60:68].mean(axis=0)
     half_mouth = 0.5 * abs(float((lm[54] - lm[48]) @ ex)) / iod
-    skin, grey = _photo_tones(image, lm)
+    skin, grey = tones
     to_image = lambda u, v: centre + iod * (np.outer(u, ex) + np.outer(v, ey))  # noqa: E731
 
     def carried_by(part: str, xy: np.ndarray) -> np.ndarray:
@@ -485,7 +499,7 @@ def build_face_mesh(image: np.ndarray, landmarks, *, rings: Sequence[tuple[float
         # a closed one's cavity and teeth are the interior's, behind the lips (laid out in
         # inter-ocular distances: none for eyes closer than 2 px)
         if lip_gap_iod(lm) <= OPEN_MOUTH_IOD and face_layout.inter_ocular_distance(lm) >= 2.0:
-            iv, ifaces, iteeth, icolours, icarry = _interior(lm, img)
+            iv, ifaces, iteeth, icolours, icarry = _interior(lm, _photo_tones(img, lm))
             # the cavity's wall from the inner lips down to its copies: edge-on in a frontal view
             # (the copies move with the lips), it closes the mouth's corners in a 3-D viewer
             ring = np.arange(60, 68)
@@ -1059,12 +1073,18 @@ def load_face(image_path, points_path=None, rest=None, progress: bool = False) -
     video begins with: among the frames of a landmarks ``.npz``, or without points among those
     dlib finds a face on, one every :data:`REST_STRIDE_S` s over the first :data:`REST_SCAN_S`
     s. Without ``rest``: the first frame with a face (:func:`voicepuppet.tracking.first_face`),
-    or with points the first frame."""
+    or with points the first frame.
+
+    A textured 3-D head (``.obj``) with its 68 points in 3-D gives :func:`voicepuppet.head.load_head`."""
     from PIL import Image, UnidentifiedImageError
+
+    from voicepuppet.head import HEAD_SUFFIXES, load_head
 
     ip = Path(image_path)
     if not ip.is_file():
         raise ValueError(f"face image {str(ip)!r} does not exist")
+    if ip.suffix.lower() in HEAD_SUFFIXES:
+        return load_head(ip, points_path)
     given = None if points_path is None else _face_points(points_path)
     try:
         with Image.open(ip) as im:
@@ -1301,12 +1321,14 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", required=True, help="out.mp4, out.gif, a new folder, out.pvd or out.glb")
     p.add_argument("--audio", help="sound to mux into the .mp4 (wav, flac, mp3, or a video's audio)")
     p.add_argument("--face", help="face photo at rest (mouth closed), a video (e.g. the puppet's training "
-                                  "video: its frame nearest the animation's rest face), or a face name with "
+                                  "video: its frame nearest the animation's rest face), a textured 3-D head (.obj, "
+                                  "with --face-points its 68 points in 3-D), or a face name with "
                                   "--palette (default: a drawn portrait on the animation's rest face)")
     p.add_argument("--palette", help="folder of faces (NAME.png + NAME.json points) to pick --face from")
     p.add_argument("--face-points", help="the photo's points: JSON {\"points\": [[x, y], ...]}, CSV, or .npz "
                                          "(a video's: its frames', e.g. track's landmarks; default: "
-                                         "detect 68 landmarks with dlib)")
+                                         "detect 68 landmarks with dlib); for an .obj head, JSON "
+                                         "{\"points\": [[x, y, z], ...]} or menpo .ljson")
     p.add_argument("--truth", help="ground-truth animation: render side by side (prediction | truth)")
     p.add_argument("--mode", choices=["vertex", "au"], default=None,
                    help="drive vertices directly (default) or through the action-unit basis")

