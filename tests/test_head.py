@@ -235,6 +235,10 @@ def test_cli_renders_and_exports_a_head(tmp_path):
     assert (tmp_path / "a.glb").stat().st_size > 0
     assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "b.mp4"), "--face", str(obj)]) == 2
     assert not (tmp_path / "b.mp4").exists()
+    from voicepuppet.live import _FaceDriver
+
+    with pytest.raises(ValueError, match="render and export take the head"):
+        _FaceDriver(str(obj), str(pts), 68)
 
 
 def test_the_real_head_scan_shows_its_mouth_through_the_opening_only():

@@ -3,7 +3,7 @@ head model").
 
 :func:`load_head` reads a textured mesh (Wavefront ``.obj`` with its texture image) and its 68
 landmarks in 3-D, in the model's own units, and returns a :class:`voicepuppet.render.FaceMesh`
-seen from the front, so ``render``, ``export`` and ``live`` drive it as they drive a photo's mesh:
+seen from the front, so ``render`` and ``export`` drive it as they drive a photo's mesh:
 
 * **The frontal view.** x runs from the subject's right outer eye corner to the left one, y from
   the chin up to the eyes (made orthogonal to x), z towards the viewer; the nose tip must lie in

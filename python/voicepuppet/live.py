@@ -453,7 +453,12 @@ class _FaceDriver:
 
     def __init__(self, face: str, points: str | None, n_points: int, rest: np.ndarray | None = None):
         from voicepuppet import render
+        from voicepuppet.head import HEAD_SUFFIXES
 
+        if os.path.splitext(face)[1].lower() in HEAD_SUFFIXES:
+            raise ValueError(f"live --face {face!r}: the viewer page paints a photo's mesh over the photo, not a 3-D "
+                             "head's thousands of textured triangles; give a photo or a video (render and export "
+                             "take the head)")
         self._render = render
         self.mesh = render.resolve_face(face, points, rest=rest)
         if self.mesh.n_landmarks != n_points:

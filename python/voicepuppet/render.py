@@ -133,9 +133,7 @@ class FaceMesh:
     def draw_order(self) -> np.ndarray:
         """Face indices from back to front for a painter's renderer: the flat faces by their
         layer (their depth below the skin's surface: the cavity, the tongue, the lower teeth, the
-        upper teeth), then the skin; a 3-D head's faces from its back to its front."""
-        if self.canvas is not None:
-            return np.argsort(self.vertices[self.faces, 2].mean(axis=1), kind="stable")
+        upper teeth), then the skin."""
         below = self.vertices[:, 2] - _depth(self.vertices[:, :2], self.landmarks)
         layer = np.round(below[self.faces].mean(axis=1), 6)  # one value per layer, face order within it
         flat = np.flatnonzero(self.flat)
