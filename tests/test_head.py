@@ -191,8 +191,8 @@ def test_menpo_ljson_groups_are_put_in_ibug_order(tmp_path):
 
 def test_bad_heads_get_clear_errors(tmp_path):
     obj, pts = _write_head(tmp_path / "ok")
-    with pytest.raises(ValueError, match="--face-points"):
-        Hd.load_head(obj, None)
+    with pytest.raises(ValueError, match="no face found on .*--face-points"):
+        Hd.load_head(obj, None)  # a checked texture: no face for the detector
     with pytest.raises(ValueError, match="does not exist"):
         Hd.load_head(tmp_path / "none.obj", pts)
     (tmp_path / "few.json").write_text(json.dumps({"points": _dome_points()[:67].tolist()}))
@@ -241,6 +241,13 @@ def test_cli_renders_and_exports_a_head(tmp_path):
         _FaceDriver(str(obj), str(pts), 68)
 
 
+def _marked(head):
+    """The head with its mouth's interior (cavity, tongue, teeth) in pure green."""
+    return R.FaceMesh(head.vertices, head.faces, head.mouth, head.uv, head.image, 68, head.fixed,
+                      teeth=head.teeth, colours=np.where(head.flat[:, None], [0, 255, 0], 0).astype(np.uint8),
+                      canvas=head.canvas, _interp=head.interpolation_matrix())
+
+
 def test_the_real_head_scan_shows_its_mouth_through_the_opening_only():
     """menpo3d's scan ``james``: its menpo points come in iBUG order (the outer eye corners at the
     ends of the eyes, the nose tip below the bridge); opening the parametric face's jaw on it
@@ -260,11 +267,8 @@ def test_the_real_head_scan_shows_its_mouth_through_the_opening_only():
     skin = head.faces[~head.flat]
     bare = R.FaceMesh(head.vertices, skin, np.zeros(len(skin), bool), head.uv, head.image, 68, head.fixed,
                       canvas=head.canvas, _interp=M)
-    marked = R.FaceMesh(head.vertices, head.faces, head.mouth, head.uv, head.image, 68, head.fixed,
-                        teeth=head.teeth, colours=np.where(head.flat[:, None], [0, 255, 0], 0).astype(np.uint8),
-                        canvas=head.canvas, _interp=M)
     shown = []
-    with R.FaceRenderer(marked) as r, R.FaceRenderer(bare) as rb:
+    with R.FaceRenderer(_marked(head)) as r, R.FaceRenderer(bare) as rb:
         for v in verts:
             img, skin_only = r.frame(v).astype(int), rb.frame(v).astype(int)
             interior = np.all(np.abs(img - [0, 255, 0]) < 30, axis=2)
@@ -276,3 +280,25 @@ def test_the_real_head_scan_shows_its_mouth_through_the_opening_only():
             assert not np.any((img.sum(axis=2) == 0) & lips.astype(bool))
             shown.append(int(interior.sum()))
     assert shown[0] == 0 < 1000 < shown[1] < shown[2]
+
+
+def test_a_heads_points_are_found_on_its_front_view():
+    """Without points, dlib's 68 on james's front view, lifted to the surface, lie near menpo's
+    hand-placed ones in the frontal plane (eyes and brows within 0.04 IOD, lips 0.08, nose bridge
+    0.1, as means), and the head they give opens its mouth with the interior showing."""
+    obj, pts = Hd.sample_head()
+    v, f, uv = Hd._read_mesh(obj)
+    found = Hd.detect_points_3d(v, f, uv, Hd._texture(obj))
+    truth = Hd.read_points_3d(pts)
+    iod = float(np.linalg.norm(truth[36] - truth[45]))
+    err = np.linalg.norm(((found - truth) @ Hd.frontal_frame(truth).T)[:, :2], axis=1) / iod
+    G = face_layout.GROUPS
+    for groups, limit in (((G["right_eye"], G["left_eye"], G["right_brow"], G["left_brow"]), 0.04),
+                          ((G["outer_lip"], G["inner_lip"]), 0.08), ((G["nose_bridge"],), 0.1)):
+        assert err[np.concatenate([list(g) for g in groups])].mean() < limit
+    head = Hd.load_head(obj, None)
+    anim = procedural_animation(2, 10.0, width=240, height=240, jaw=np.array([0.0, 1.0]))
+    verts = R.mesh_animation(anim, head)["vertices"]
+    with R.FaceRenderer(_marked(head)) as r:
+        shown = [int(np.all(np.abs(r.frame(x).astype(int) - [0, 255, 0]) < 30, axis=2).sum()) for x in verts]
+    assert shown[0] == 0 < 1000 < shown[1]

@@ -2,7 +2,8 @@
 head model").
 
 :func:`load_head` reads a textured mesh (Wavefront ``.obj`` with its texture image) and its 68
-landmarks in 3-D, in the model's own units, and returns a :class:`voicepuppet.render.FaceMesh`
+landmarks in 3-D, in the model's own units (given, or found by dlib on the head drawn from the
+front as its axes have it: :func:`detect_points_3d`), and returns a :class:`voicepuppet.render.FaceMesh`
 seen from the front, so ``render`` and ``export`` drive it as they drive a photo's mesh:
 
 * **The frontal view.** x runs from the subject's right outer eye corner to the left one, y from
@@ -39,7 +40,7 @@ import numpy as np
 
 from voicepuppet import face_layout
 
-__all__ = ["HEAD_SUFFIXES", "load_head", "read_points_3d", "frontal_frame", "sample_head"]
+__all__ = ["HEAD_SUFFIXES", "load_head", "read_points_3d", "detect_points_3d", "frontal_frame", "sample_head"]
 
 #: mesh files :func:`load_head` reads
 HEAD_SUFFIXES = (".obj",)
@@ -244,7 +245,8 @@ def load_head(mesh_path, points_path, *, height: int = 720):
     ----------
     mesh_path : path of a textured ``.obj`` (its texture from the material file's ``map_Kd``,
         else ``STEM.png`` / ``.jpg`` beside it)
-    points_path : the head's 68 landmarks in 3-D, in the mesh's units (:func:`read_points_3d`)
+    points_path : the head's 68 landmarks in 3-D, in the mesh's units (:func:`read_points_3d`);
+        None: found on the head's front view (:func:`detect_points_3d`)
     height : the canvas height in pixels (its width follows the face's proportions)
 
     Returns
@@ -266,15 +268,16 @@ def load_head(mesh_path, points_path, *, height: int = 720):
     if mp.suffix.lower() not in HEAD_SUFFIXES:
         raise ValueError(f"head mesh {str(mp)!r}: unknown format {mp.suffix!r}; give a textured "
                          f"{' or '.join(HEAD_SUFFIXES)}")
+    verts3, faces, uv = _read_mesh(mp)
+    image = _texture(mp)
     if points_path is None:
-        raise ValueError(f"a 3-D head needs its landmarks: give --face-points with its 68 points in 3-D "
-                         '(JSON {"points": [[x, y, z], ...]} or menpo .ljson)')
-    L3 = read_points_3d(points_path)
+        L3 = detect_points_3d(verts3, faces, uv, image, name=str(mp))
+        points_path = "(detected)"
+    else:
+        L3 = read_points_3d(points_path)
     if len(L3) != face_layout.N_POINTS:
         raise ValueError(f"head points {str(points_path)!r} hold {len(L3)} points; a 3-D head needs the "
                          f"{face_layout.N_POINTS}-point iBUG layout")
-    verts3, faces, uv = _read_mesh(mp)
-    image = _texture(mp)
     R = frontal_frame(L3)
 
     # the frontal canvas: the landmarks' extent plus 0.45 of it on each side, ``height`` pixels high
@@ -378,6 +381,50 @@ def _texture_tones(image: np.ndarray, uv: np.ndarray) -> tuple[float, bool]:
     cols = np.clip(np.round(uv[:, 0] * (W - 1)), 0, W - 1).astype(int)
     rows = np.clip(np.round((1.0 - uv[:, 1]) * (H - 1)), 0, H - 1).astype(int)
     return _pixel_tones(image[rows, cols])
+
+
+#: the height in pixels of the front view the landmarks are detected on
+DETECT_HEIGHT = 800
+
+
+def detect_points_3d(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, image: np.ndarray,
+                     name: str = "the head") -> np.ndarray:
+    """The 68 landmarks (iBUG order) of a textured head found without being given: dlib's
+    detector and shape predictor (:func:`voicepuppet.tracking.auto_init`) on the head drawn from
+    the front as the model's axes have it (y up, looking along -z: the face towards +z, as scans
+    and modelling tools save heads), unlit, :data:`DETECT_HEIGHT` px high; each point is lifted to
+    the surface it lies on (the nearest in front along the view). Returns (68, 3) in the model's
+    units; raises ``ValueError`` naming ``name`` when no face is found there."""
+    import pyvista as pv
+
+    from voicepuppet.render import FaceMesh, FaceRenderer
+    from voicepuppet.tracking import NoFaceError, auto_init
+
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    scale = DETECT_HEIGHT / max(float(hi[1] - lo[1]), 1e-12)
+    width = int(np.ceil((hi[0] - lo[0]) * scale)) + 2
+    front = np.column_stack([(vertices[:, 0] - lo[0]) * scale + 1.0, (hi[1] - vertices[:, 1]) * scale + 1.0,
+                             (vertices[:, 2] - hi[2]) * scale])
+    view = FaceMesh(front, faces, np.zeros(len(faces), bool), uv, image, 0, np.zeros(len(front), bool),
+                    canvas=(width, DETECT_HEIGHT + 2))
+    with FaceRenderer(view, size=view.size) as r:
+        picture = r.frame(front)
+    import cv2
+
+    try:
+        xy = auto_init(cv2.cvtColor(picture, cv2.COLOR_RGB2GRAY), instead="--face-points head.json")
+    except NoFaceError:
+        raise ValueError(f"no face found on {name} seen from the front as its axes have it (y up, the face "
+                         "towards +z); give its 68 landmarks in 3-D with --face-points head.json") from None
+    surface = pv.PolyData(front, np.hstack([np.full((len(faces), 1), 3), faces]))
+    lifted = []
+    for x, y in xy:
+        hits, _ = surface.ray_trace([x, y, 1.0], [x, y, -(hi[2] - lo[2]) * scale - 1.0], first_point=True)
+        if len(hits) == 0:  # on the silhouette: the nearest vertex in the view instead
+            hits = front[np.argmin(np.sum((front[:, :2] - [x, y]) ** 2, axis=1))]
+        lifted.append(hits)
+    p = np.asarray(lifted, np.float64).reshape(-1, 3)
+    return np.column_stack([(p[:, 0] - 1.0) / scale + lo[0], hi[1] - (p[:, 1] - 1.0) / scale, p[:, 2] / scale + hi[2]])
 
 
 def sample_head() -> tuple[Path, Path]:

@@ -1073,7 +1073,8 @@ def load_face(image_path, points_path=None, rest=None, progress: bool = False) -
     s. Without ``rest``: the first frame with a face (:func:`voicepuppet.tracking.first_face`),
     or with points the first frame.
 
-    A textured 3-D head (``.obj``) with its 68 points in 3-D gives :func:`voicepuppet.head.load_head`."""
+    A textured 3-D head (``.obj``), with its 68 points in 3-D or without (detected on its front
+    view), gives :func:`voicepuppet.head.load_head`."""
     from PIL import Image, UnidentifiedImageError
 
     from voicepuppet.head import HEAD_SUFFIXES, load_head
@@ -1319,14 +1320,15 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", required=True, help="out.mp4, out.gif, a new folder, out.pvd or out.glb")
     p.add_argument("--audio", help="sound to mux into the .mp4 (wav, flac, mp3, or a video's audio)")
     p.add_argument("--face", help="face photo at rest (mouth closed), a video (e.g. the puppet's training "
-                                  "video: its frame nearest the animation's rest face), a textured 3-D head (.obj, "
-                                  "with --face-points its 68 points in 3-D), or a face name with "
+                                  "video: its frame nearest the animation's rest face), a textured 3-D head (.obj; "
+                                  "its 68 points in 3-D with --face-points), or a face name with "
                                   "--palette (default: a drawn portrait on the animation's rest face)")
     p.add_argument("--palette", help="folder of faces (NAME.png + NAME.json points) to pick --face from")
     p.add_argument("--face-points", help="the photo's points: JSON {\"points\": [[x, y], ...]}, CSV, or .npz "
                                          "(a video's: its frames', e.g. track's landmarks; default: "
                                          "detect 68 landmarks with dlib); for an .obj head, JSON "
-                                         "{\"points\": [[x, y, z], ...]} or menpo .ljson")
+                                         "{\"points\": [[x, y, z], ...]} or menpo .ljson (default: "
+                                         "detected on its front view)")
     p.add_argument("--truth", help="ground-truth animation: render side by side (prediction | truth)")
     p.add_argument("--mode", choices=["vertex", "au"], default=None,
                    help="drive vertices directly (default) or through the action-unit basis")
