@@ -302,3 +302,39 @@ def test_a_heads_points_are_found_on_its_front_view():
     with R.FaceRenderer(_marked(head)) as r:
         shown = [int(np.all(np.abs(r.frame(x).astype(int) - [0, 255, 0]) < 30, axis=2).sum()) for x in verts]
     assert shown[0] == 0 < 1000 < shown[1]
+
+
+def test_a_turned_view_turns_the_face_the_way_it_says(dome):
+    """``turn``: (0, 0) is the front view exactly. Two flat marks 60 px in front of and behind the
+    view's centre land where the turn puts them: a face turned to its left (positive yaw) moves
+    what is in front of it to the viewer's right by 60 sin(yaw) px and what is behind to the left;
+    a lifted chin (positive pitch) moves what is in front up. Out-of-range turns are refused."""
+    with R.FaceRenderer(dome, size=(300, 288)) as r, R.FaceRenderer(dome, size=(300, 288), turn=(0.0, 0.0)) as r0:
+        np.testing.assert_array_equal(r0.frame(dome.vertices), r.frame(dome.vertices))
+    tri = np.array([[-6.0, 5.0, 0.0], [6.0, 5.0, 0.0], [0.0, -6.0, 0.0]])  # y down, as the canvas
+    verts = np.vstack([tri + [150, 150, 60], tri + [150, 150, -60], [[0, 0, -200], [10, 0, -200], [0, 10, -200]]])
+    faces = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+    marks = R.FaceMesh(verts, faces, np.array([True, True, False]), np.zeros((9, 2)), np.zeros((4, 4, 3), np.uint8),
+                       0, np.zeros(9, bool), colours=np.array([[0, 255, 0], [255, 0, 255], [0, 0, 0]], np.uint8),
+                       canvas=(300, 300))
+
+    def seen(turn):
+        with R.FaceRenderer(marks, size=(300, 300), turn=turn) as r:
+            img = r.frame(verts).astype(int)
+        where = [np.argwhere(np.all(np.abs(img - c) < 30, axis=2)) for c in ([0, 255, 0], [255, 0, 255])]
+        return [w.mean(axis=0)[::-1] if len(w) else None for w in where]
+
+    front0, back0 = seen((0.0, 0.0))
+    assert back0 is None  # from the front the mark in front hides the one behind
+    back0 = front0
+    s = 60 * np.sin(np.radians(25.0))
+    front, back = seen((25.0, 0.0))
+    np.testing.assert_allclose(front - front0, [s, 0.0], atol=2.0)
+    np.testing.assert_allclose(back - back0, [-s, 0.0], atol=2.0)
+    front, back = seen((0.0, 25.0))
+    np.testing.assert_allclose(front - front0, [0.0, -s], atol=2.0)
+    with pytest.raises(ValueError, match="turn"):
+        R.FaceRenderer(dome, size=(300, 288), turn=(120.0, 0.0))
+    with pytest.raises(ValueError, match="--turn"):
+        R._turn("left")
+    assert R._turn("30") == (30.0, 0.0) and R._turn("-20,10") == (-20.0, 10.0)

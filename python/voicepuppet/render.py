@@ -779,9 +779,15 @@ class FaceRenderer:
         :data:`DEFAULT_MAX_SIZE` by :func:`default_size`; even numbers for H.264).
     shading : bool
         light the mesh (shows the depth); off by default so the neutral frame is the photo.
+    turn : (yaw, pitch), optional
+        degrees to turn the face from the front: yaw about its vertical axis (positive: to its
+        left, the nose towards the viewer's right, its right cheek showing), then pitch about the
+        horizontal (positive: the chin up); the camera orbits the view's centre at the depth of
+        the face's landmarks, its projection still parallel.
     """
 
-    def __init__(self, mesh: FaceMesh, size: Optional[tuple[int, int]] = None, shading: bool = False):
+    def __init__(self, mesh: FaceMesh, size: Optional[tuple[int, int]] = None, shading: bool = False,
+                 turn: Optional[tuple[float, float]] = None):
         pv = _pyvista()
         W, H = mesh.size
         self.size = default_size(W, H) if size is None else (_even(size[0]), _even(size[1]))
@@ -816,6 +822,16 @@ class FaceRenderer:
         aspect_win = self.size[0] / self.size[1]
         cam.parallel_scale = max(H / 2.0, W / 2.0 / aspect_win)
         cam.clipping_range = (1.0, 20.0 * max(W, H))
+        if turn is not None:
+            yaw, pitch = (float(a) for a in turn)
+            if not (np.isfinite(yaw) and np.isfinite(pitch) and abs(yaw) <= 90 and abs(pitch) <= 90):
+                raise ValueError(f"turn must be yaw, pitch in degrees within [-90, 90], got {turn!r}")
+            # the face turning one way is the camera orbiting the other way round its centre
+            cam.focal_point = (cx, -cy, float(np.mean(mesh.vertices[: mesh.n_landmarks, 2])) if mesh.n_landmarks else 0.0)
+            cam.Azimuth(-yaw)
+            cam.Elevation(-pitch)
+            cam.OrthogonalizeViewUp()
+            cam.clipping_range = (1.0, 20.0 * max(W, H))
 
     @staticmethod
     def _world(vertices: np.ndarray) -> np.ndarray:
@@ -874,6 +890,7 @@ def _label(img: np.ndarray, text: str) -> np.ndarray:
 def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str = "vertex",
                   truth: Optional[Animation] = None, renderer: str = "mesh",
                   size: Optional[tuple[int, int]] = None, shading: bool = False,
+                  turn: Optional[tuple[float, float]] = None,
                   neutral: Optional[np.ndarray] = None, progress: bool = False) -> Iterator[np.ndarray]:
     """Yields the frames (H, W, 3) uint8 of ``anim``; with ``truth``, side by side
     (prediction left, ground truth right, same face and frame count).
@@ -937,7 +954,7 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
     # vertices in chunks of frames: memory stays bounded for hour-long animations
     chunk = _FRAME_CHUNK
     pred = gt = None
-    with FaceRenderer(face, size=size, shading=shading) as r:
+    with FaceRenderer(face, size=size, shading=shading, turn=turn) as r:
         for t in frames:
             if t % chunk == 0:
                 part = slice(t, t + chunk)
@@ -1036,7 +1053,8 @@ def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: 
 
 def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None, mode: str = "vertex",
            truth: Optional[Animation] = None, renderer: str = "mesh", size: Optional[tuple[int, int]] = None,
-           shading: bool = False, neutral: Optional[np.ndarray] = None, progress: bool = False) -> Path:
+           shading: bool = False, neutral: Optional[np.ndarray] = None, progress: bool = False,
+           turn: Optional[tuple[float, float]] = None) -> Path:
     """Renders ``anim`` to ``path`` (``.mp4``, ``.gif`` or a folder of ``.png`` frames),
     with ``audio`` muxed into an ``.mp4``. See :func:`render_frames` for the options."""
     p = Path(path)
@@ -1046,7 +1064,7 @@ def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None
     if p.suffix:
         check_output_path(p, VIDEO_SUFFIXES, "render output")
     frames = render_frames(anim, face=face, mode=mode, truth=truth, renderer=renderer, size=size,
-                           shading=shading, neutral=neutral, progress=progress)
+                           shading=shading, neutral=neutral, progress=progress, turn=turn)
     return write_video(frames, p, anim.fps, audio=audio, n_frames=anim.n_frames)
 
 
@@ -1244,6 +1262,16 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _turn(text: str) -> tuple[float, float]:
+    try:
+        parts = [float(v) for v in text.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) not in (1, 2):
+        raise ValueError(f"--turn must look like 30 or 30,-10 (yaw[,pitch] in degrees), got {text!r}")
+    return parts[0], parts[1] if len(parts) == 2 else 0.0
+
+
 def apply_controls(anim: Animation, args) -> Animation:
     """The animator controls of the command line: ``--exaggerate`` then ``--expression`` over
     ``--expression-time START:END`` (seconds) with ``--fade``. The result carries the rest face
@@ -1304,7 +1332,7 @@ def _cli(args) -> int:
                 print(f"rendering the {W}x{H} face image at {w}x{h} (--size WxH for another size)")
         render(anim, args.output, audio=args.audio, face=face, mode=args.mode or "vertex", truth=truth,
                renderer=args.renderer, size=_size(args.size) if args.size else None, shading=args.shading,
-               progress=not args.quiet)
+               progress=not args.quiet, turn=_turn(args.turn) if args.turn else None)
     dt = time.perf_counter() - t0
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {args.output} "
           f"({dt:.1f} s, {anim.n_frames / max(dt, 1e-9):.1f} frames/s)")
@@ -1337,6 +1365,9 @@ def add_parser(sub) -> None:
     p.add_argument("--size", help="output size WxH (default: the face image's, scaled down to fit 1920x1080, "
                                   "or 1080x1920 for a portrait image)")
     p.add_argument("--shading", action="store_true", help="light the mesh to show its depth")
+    p.add_argument("--turn", metavar="YAW[,PITCH]",
+                   help="degrees to turn the face from the front (positive yaw turns it to its left, "
+                        "positive pitch lifts the chin), e.g. 30 for a three-quarter view of a 3-D head")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_control_arguments(p)
     p.set_defaults(func=_cli)
