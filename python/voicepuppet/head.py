@@ -74,7 +74,10 @@ def read_points_3d(path) -> np.ndarray:
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"head points {str(p)!r} are not JSON ({exc})") from None
     groups = doc.get("groups", {}).get("LJSON") if isinstance(doc, dict) else None
-    raw = groups["landmarks"]["points"] if isinstance(groups, dict) else (doc.get("points") if isinstance(doc, dict) else None)
+    if isinstance(groups, dict):
+        raw = groups.get("landmarks", {}).get("points")
+    else:
+        raw = doc.get("points") if isinstance(doc, dict) else None
     try:
         pts = np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError):

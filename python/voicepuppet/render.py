@@ -827,7 +827,8 @@ class FaceRenderer:
             if not (np.isfinite(yaw) and np.isfinite(pitch) and abs(yaw) <= 90 and abs(pitch) <= 90):
                 raise ValueError(f"turn must be yaw, pitch in degrees within [-90, 90], got {turn!r}")
             # the face turning one way is the camera orbiting the other way round its centre
-            cam.focal_point = (cx, -cy, float(np.mean(mesh.vertices[: mesh.n_landmarks, 2])) if mesh.n_landmarks else 0.0)
+            depth = float(np.mean(mesh.vertices[: mesh.n_landmarks, 2])) if mesh.n_landmarks else 0.0
+            cam.focal_point = (cx, -cy, depth)
             cam.Azimuth(-yaw)
             cam.Elevation(-pitch)
             cam.OrthogonalizeViewUp()
@@ -899,7 +900,8 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
     (``neutral``, else :attr:`Animation.rest`; 68-point layout). Both sides move from
     ``neutral`` when it is given, else each from its own rest, a truth without a ``neutral``
     from its frame nearest the animation's (:func:`voicepuppet.face.shape_distance`).
-    ``renderer="2d"`` draws the landmarks instead of the mesh.
+    ``renderer="2d"`` draws the landmarks instead of the mesh; ``turn`` (yaw, pitch) views the
+    mesh from an angle (:class:`FaceRenderer`).
     """
     if truth is not None:
         if truth.n_points != anim.n_points:
