@@ -16,8 +16,11 @@ seen from the front, so ``render`` and ``export`` drive it as they drive a photo
   stretch. The triangles that cross the inner lip line (the inner lip points, upper and lower
   averaged) between the mouth's corners are split along it; every point where the line crosses
   an edge becomes two vertices, one on each lip, at one place at rest (the surface and its
-  texture are unchanged), joined by a strip of cavity faces (``FaceMesh.mouth``) of zero area at
-  rest that opens with the lips.
+  texture are unchanged); where the cut ends inside a triangle, that triangle is split at the
+  crossing without a gap. Behind the cut lie a membrane (``FaceMesh.mouth``) on copies of its
+  vertices, 0.18 inter-ocular distances deep and walled to its edges (of zero area from the
+  front at rest), and the photo mesh's tongue and teeth (:func:`voicepuppet.render._interior`)
+  at the lip line's depth across the mouth.
 * **Driving.** Landmark displacements in the frontal plane move the vertices by a thin-plate
   spline over the 68 landmarks in 3-D (scipy's ``RBFInterpolator``), evaluated where the lips
   are pushed apart (upper lip up, lower lip down by up to 0.15 of the inter-ocular distance at the
@@ -174,7 +177,7 @@ def _read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise ValueError(f"head mesh {str(path)!r} has no texture coordinates (vt lines); give a textured mesh")
     tri = poly.faces.reshape(-1, 4)[:, 1:]
     key = np.round(np.hstack([np.asarray(poly.points, np.float64), np.asarray(tc, np.float64)]), 9)
-    uniq, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
     faces = inverse.ravel()[tri]
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
     return uniq[:, :3], faces.astype(np.int64), uniq[:, 3:5]
@@ -241,7 +244,7 @@ def _cut_mouth(verts, faces, uv, f, cut):
             np.asarray(segments, np.int64).reshape(-1, 4), side)
 
 
-def load_head(mesh_path, points_path, *, height: int = 720):
+def load_head(mesh_path, points_path=None, *, height: int = 720):
     """A :class:`voicepuppet.render.FaceMesh` of a textured 3-D head scan, seen from the front.
 
     Parameters
