@@ -224,7 +224,7 @@ def test_bad_heads_get_clear_errors(tmp_path):
         Hd.load_head(tmp_path / "junk.obj", pts)
 
 
-def test_cli_renders_and_exports_a_head(tmp_path):
+def test_cli_renders_and_exports_a_head(tmp_path, capsys):
     from voicepuppet.cli import main
 
     obj, pts = _write_head(tmp_path / "head")
@@ -237,10 +237,13 @@ def test_cli_renders_and_exports_a_head(tmp_path):
     frames = sorted((tmp_path / "frames").glob("*.png"))
     with Image.open(frames[0]) as im:
         assert len(frames) == 4 and im.size == Hd.load_head(obj, pts).size
+    assert "finding" not in capsys.readouterr().err  # the points were given
     assert main(["export", str(tmp_path / "a.npz"), "--format", "gltf", "-o", str(tmp_path / "a.glb"), *face]) == 0
     assert (tmp_path / "a.glb").stat().st_size > 0
     assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "b.mp4"), "--face", str(obj)]) == 2
     assert not (tmp_path / "b.mp4").exists()
+    err = capsys.readouterr().err
+    assert "finding the 68 landmarks of dome.obj" in err and "no face found on" in err
     from voicepuppet.live import _FaceDriver
 
     with pytest.raises(ValueError, match="render and export take the head"):

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -244,7 +245,7 @@ def _cut_mouth(verts, faces, uv, f, cut):
             np.asarray(segments, np.int64).reshape(-1, 4), side)
 
 
-def load_head(mesh_path, points_path=None, *, height: int = 720):
+def load_head(mesh_path, points_path=None, *, height: int = 720, progress: bool = False):
     """A :class:`voicepuppet.render.FaceMesh` of a textured 3-D head scan, seen from the front.
 
     Parameters
@@ -254,6 +255,7 @@ def load_head(mesh_path, points_path=None, *, height: int = 720):
     points_path : the head's 68 landmarks in 3-D, in the mesh's units (:func:`read_points_3d`);
         None: found on the head's front view (:func:`detect_points_3d`)
     height : the canvas height in pixels (its width follows the face's proportions)
+    progress : say on stderr what is being done (finding the points takes a few seconds)
 
     Returns
     -------
@@ -277,6 +279,9 @@ def load_head(mesh_path, points_path=None, *, height: int = 720):
     verts3, faces, uv = _read_mesh(mp)
     image = _texture(mp)
     if points_path is None:
+        if progress:
+            print(f"finding the 68 landmarks of {mp.name} on its front view (dlib; --face-points to give them)",
+                  file=sys.stderr, flush=True)
         L3 = detect_points_3d(verts3, faces, uv, image, name=str(mp))
         points_path = "(detected)"
     else:

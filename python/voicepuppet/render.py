@@ -1103,7 +1103,7 @@ def load_face(image_path, points_path=None, rest=None, progress: bool = False) -
     if not ip.is_file():
         raise ValueError(f"face image {str(ip)!r} does not exist")
     if ip.suffix.lower() in HEAD_SUFFIXES:
-        return load_head(ip, points_path)
+        return load_head(ip, points_path, progress=progress)
     given = None if points_path is None else _face_points(points_path)
     try:
         with Image.open(ip) as im:
