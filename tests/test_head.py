@@ -306,6 +306,11 @@ def test_a_heads_points_are_found_on_its_front_view():
     for groups, limit in (((G["right_eye"], G["left_eye"], G["right_brow"], G["left_brow"]), 0.04),
                           ((G["outer_lip"],), 0.08), ((G["inner_lip"],), 0.03), ((G["nose_bridge"],), 0.1)):
         assert err[np.concatenate([list(g) for g in groups])].mean() < limit
+    # the same head facing -z (as Blender leaves one) or +x: found from that side, the same points
+    for turn in ((0.0, 1.0, 0.0, 180.0), (0.0, 1.0, 0.0, 90.0)):
+        Rt = _rotation(turn[:3], turn[3])
+        np.testing.assert_allclose(Hd.detect_points_3d(v @ Rt.T, f, uv, Hd._texture(obj)), found @ Rt.T,
+                                   atol=0.01 * iod)
     head = Hd.load_head(obj, None)
     assert R.lip_gap_iod(head.landmarks) < 0.01  # the scan's mouth is closed: dlib parted its lips
     anim = procedural_animation(2, 10.0, width=240, height=240, jaw=np.array([0.0, 1.0]))

@@ -247,6 +247,10 @@ def test_auto_init_takes_the_face_not_the_larger_clutter():
     pts = tracking.auto_init(img)
     for i in (30, 48, 54, 57):
         assert best.left() <= pts[i, 0] <= best.right() and best.top() <= pts[i, 1] <= best.bottom()
+    # min_score: only detections scoring that much count
+    np.testing.assert_array_equal(tracking.auto_init(img, min_score=1.0), pts)
+    with pytest.raises(tracking.NoFaceError):
+        tracking.auto_init(img, min_score=float(max(scores)) + 10.0)
 
 
 def test_auto_init_waits_for_a_face_that_appears_later(tmp_path, write_avi):

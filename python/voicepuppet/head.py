@@ -398,20 +398,45 @@ def _texture_tones(image: np.ndarray, uv: np.ndarray) -> tuple[float, bool]:
 DETECT_HEIGHT = 800
 
 
+#: the views the points are looked for in, in turn: degrees about the model's y axis from the
+#: face towards +z (scans, most tools) to towards -z (Blender's OBJ export of a head facing its
+#: -Y), then +x and -x
+DETECT_TURNS = (0.0, 180.0, 90.0, -90.0)
+
+
 def detect_points_3d(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, image: np.ndarray,
                      name: str = "the head") -> np.ndarray:
     """The 68 landmarks (iBUG order) of a textured head found without being given: dlib's
-    detector and shape predictor (:func:`voicepuppet.tracking.auto_init`) on the head drawn from
-    the front as the model's axes have it (y up, looking along -z: the face towards +z, as scans
-    and modelling tools save heads), unlit, :data:`DETECT_HEIGHT` px high; each point is lifted to
-    the surface it lies on (the nearest in front along the view), and an inner lip pair with
-    the surface between them at their depth (a closed mouth) becomes one point, their middle.
-    Returns (68, 3) in the model's units; raises ``ValueError`` naming ``name`` when no face is
-    found there."""
+    detector and shape predictor (:func:`voicepuppet.tracking.auto_init`) on the head drawn with
+    its y axis up, from +z, else -z, +x or -x (:data:`DETECT_TURNS`), unlit,
+    :data:`DETECT_HEIGHT` px high, until it is sure of a face (:data:`voicepuppet.tracking.
+    SURE_FACE_SCORE`) that is not mirrored (a face mask seen from behind: :func:`frontal_frame`
+    refuses its points); each point is lifted to the surface it
+    lies on (the nearest in front along the view), and an inner lip pair with the surface
+    between them at their depth (a closed mouth) becomes one point, their middle. Returns
+    (68, 3) in the model's units; raises ``ValueError`` naming ``name`` when no view shows a face."""
+    for turn in DETECT_TURNS:
+        a = np.radians(turn)
+        Ry = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+        found = _detect_facing(vertices @ Ry.T, faces, uv, image)
+        if found is None:
+            continue
+        try:
+            frontal_frame(found)  # a face mask seen from behind shows its face mirrored
+        except ValueError:
+            continue
+        return found @ Ry
+    raise ValueError(f"no face found on {name} with its y axis up, seen from +z, -z, +x or -x; give its 68 "
+                     "landmarks in 3-D with --face-points head.json")
+
+
+def _detect_facing(vertices, faces, uv, image) -> np.ndarray | None:
+    """:func:`detect_points_3d` on the head as seen from +z (y up), or None without a face there."""
+    import cv2
     import pyvista as pv
 
     from voicepuppet.render import FaceMesh, FaceRenderer
-    from voicepuppet.tracking import NoFaceError, auto_init
+    from voicepuppet.tracking import SURE_FACE_SCORE, NoFaceError, auto_init
 
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     scale = DETECT_HEIGHT / max(float(hi[1] - lo[1]), 1e-12)
@@ -422,13 +447,11 @@ def detect_points_3d(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, im
                     canvas=(width, DETECT_HEIGHT + 2))
     with FaceRenderer(view, size=view.size) as r:
         picture = r.frame(front)
-    import cv2
-
     try:
-        xy = auto_init(cv2.cvtColor(picture, cv2.COLOR_RGB2GRAY), instead="--face-points head.json")
+        xy = auto_init(cv2.cvtColor(picture, cv2.COLOR_RGB2GRAY), instead="--face-points head.json",
+                       min_score=SURE_FACE_SCORE)
     except NoFaceError:
-        raise ValueError(f"no face found on {name} seen from the front as its axes have it (y up, the face "
-                         "towards +z); give its 68 landmarks in 3-D with --face-points head.json") from None
+        return None
     surface = pv.PolyData(front, np.hstack([np.full((len(faces), 1), 3), faces]))
 
     def lift(x, y):

@@ -1003,14 +1003,15 @@ def load_init_points(path: str | os.PathLike) -> tuple[np.ndarray, list | None]:
 
 
 def auto_init(frame: np.ndarray, instead: str = "--init points.json",
-              max_pixels: int | None = None) -> np.ndarray:
+              max_pixels: int | None = None, min_score: float | None = None) -> np.ndarray:
     """Finds 68 face landmarks on a frame with dlib's shape predictor (iBUG 300-W layout).
 
     dlib's detector looks at the frame, then (no face found) at it upsampled once and twice, each
     time twice the size on a side for faces half as small; with ``max_pixels`` only the sizes of
     at most that many pixels after the first (see :data:`PROBE_MAX_PIXELS`). Of several faces
     the largest of those the detector is sure of (:data:`SURE_FACE_SCORE`) is taken, else its
-    surest: the largest alone took the astronaut's badge (score 0.05) over her face (1.50).
+    surest: the largest alone took the astronaut's badge (score 0.05) over her face (1.50). With
+    ``min_score``, detections scoring less are no face.
 
     Needs the ``dlib-bin`` (or ``dlib``) wheel and the model file from Debian's ``libdlib-data``
     (``/usr/share/dlib/shape_predictor_68_face_landmarks.dat``) or the path in the environment
@@ -1037,6 +1038,9 @@ def auto_init(frame: np.ndarray, instead: str = "--init points.json",
             if upsample and max_pixels is not None and g.size * 4 ** upsample > max_pixels:
                 break
             faces, scores, _ = _dlib_detector().run(g, upsample, 0.0)
+            if min_score is not None:
+                faces, scores = [f for f, s in zip(faces, scores) if s >= min_score], \
+                    [s for s in scores if s >= min_score]
             if len(faces):
                 break
         if not len(faces):
