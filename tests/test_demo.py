@@ -15,7 +15,7 @@ def test_demo_writes_everything(tmp_path):
     logs = []
     s = demo.run(tmp_path, train_seconds=12, n_test=1, n_states=6, compare_conventional=False,
                  progress=False, log=logs.append)
-    for name in ("puppet.vpp", "animation.npz", "heldout.wav", "demo.mp4", "metrics.json", "results.md"):
+    for name in ("puppet.vpp", "animation.npz", "heldout.wav", "demo.mp4", "head.mp4", "metrics.json", "results.md"):
         assert (tmp_path / name).stat().st_size > 0, name
     saved = json.loads((tmp_path / "metrics.json").read_text())
     assert saved["train_frames"] == s["train_frames"] > 300
