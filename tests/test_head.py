@@ -219,6 +219,11 @@ def test_bad_heads_get_clear_errors(tmp_path):
         Hd.load_head(*_write_head(tmp_path / "bare", texture=False))
     with pytest.raises(ValueError, match="texture coordinates"):
         Hd.load_head(*_write_head(tmp_path / "nouv", uv=False))
+    two = tmp_path / "two"
+    obj2, pts2 = _write_head(two)
+    (two / "dome.mtl").write_text("newmtl skin\nmap_Kd dome_skin.png\nnewmtl eyes\nmap_Kd eyes.png\n")
+    with pytest.warns(UserWarning, match="2 textures.*dome_skin.png textures every face"):
+        Hd.load_head(obj2, pts2)
     (tmp_path / "junk.obj").write_text("this is not a mesh\n")
     with pytest.raises(ValueError, match="junk.obj"):
         Hd.load_head(tmp_path / "junk.obj", pts)

@@ -151,6 +151,13 @@ def _texture(mesh_path: Path) -> np.ndarray:
                 for m in mtl.read_text(errors="replace").splitlines():
                     if m.strip().startswith("map_Kd "):
                         candidates.append(mtl.parent / m.strip().split()[-1])
+    named = list(dict.fromkeys(candidates))
+    if len(named) > 1:
+        import warnings
+
+        warnings.warn(f"head mesh {str(mesh_path)!r} has {len(named)} textures ({', '.join(n.name for n in named)}); "
+                      f"only one is drawn: {named[0].name} textures every face, so parts made for the others "
+                      "show the wrong picture; bake them into one texture", stacklevel=3)
     candidates += [mesh_path.with_suffix(s) for s in (".png", ".jpg", ".jpeg")]
     for c in candidates:
         if c.is_file():
