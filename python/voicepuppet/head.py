@@ -274,8 +274,7 @@ def load_head(mesh_path, points_path=None, *, height: int = 720, progress: bool 
     from scipy.interpolate import RBFInterpolator
     from scipy.spatial import cKDTree
 
-    from voicepuppet.render import (_CAVITY, _INTERIOR_DEPTH, _MOUTH_COLOUR, FaceMesh, _depth, _interior,
-                                    _tone)
+    from voicepuppet.render import _INTERIOR_DEPTH, _MOUTH_COLOUR, FaceMesh, _depth, _interior, _tone
 
     mp = Path(mesh_path)
     if not mp.is_file():
@@ -365,10 +364,7 @@ def load_head(mesh_path, points_path=None, *, height: int = 720, progress: bool 
         (du1, dl1, dl2), (du1, dl2, du2),            # the membrane
         (u1, u2, du2), (u1, du2, du1), (l1, dl2, l2), (l1, dl1, dl2))])  # the walls
     deep_v = V[ends] + [0.0, 0.0, _INTERIOR_DEPTH["cavity"] * iod]
-    iv, ifaces, iteeth, icolours, icarry = _interior(L[:, :2], tones)
-    skip_v, skip_f = 8, len(_CAVITY)  # its own cavity (on the 8 inner lip points): the membrane stands for it
-    iv, icarry, ifaces = iv[skip_v:], icarry[skip_v:], ifaces[skip_f:] - skip_v
-    iteeth, icolours = iteeth[skip_f:], icolours[skip_f:]
+    iv, ifaces, iteeth, icolours, icarry = _interior(L[:, :2], tones, cavity=False)  # the membrane is ours
     iv[:, 2] += np.interp(iv[:, 0], line[:, 0], line[:, 2]) - _depth(iv[:, :2], L[:, :2])
 
     n_skin, n_deep = len(V), len(ends)

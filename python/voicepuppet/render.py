@@ -350,13 +350,14 @@ def _tone(colour, luma: Optional[float], grey: bool) -> np.ndarray:
     return np.clip(np.round(c), 0, 255).astype(np.uint8)
 
 
-def _interior(lm: np.ndarray, tones: tuple[float, bool]):
+def _interior(lm: np.ndarray, tones: tuple[float, bool], cavity: bool = True):
     """The mouth's interior of a 68-point face at rest (its lips closed): the cavity, on its own
     copies of the inner lip points (carried by them, deepest), the tongue (:data:`_TONGUE`) and
     two arches of teeth (:data:`_TEETH`: hexagons with the biting corners cut, fanned into 4
     triangles each), laid out in the face's frame (x along the eye corners, y below) about the lip
     line and carried by the skull's and the jaw's landmarks (:func:`_affine_weights`), coloured to
-    the photo's lighting (``tones``: :func:`_photo_tones`).
+    the photo's lighting (``tones``: :func:`_photo_tones`). ``cavity=False`` leaves the cavity
+    out (a 3-D head has its own behind its cut lips).
 
     Returns vertices (N, 3) with their depth, faces (F, 3) into them, the teeth's faces (F,) bool
     (the rest are the cavity's and the tongue's), colours (F, 3) uint8 and the carry rows (N, 68)."""
@@ -379,13 +380,15 @@ def _interior(lm: np.ndarray, tones: tuple[float, bool]):
             rows[:, lip] += _LOWER_LIP_SHARE / len(lip)
         return rows
 
-    inner = list(range(60, 68))
-    verts = [np.column_stack([lm[inner], _depth(lm[inner], lm) + _INTERIOR_DEPTH["cavity"] * iod])]
-    carry = [np.eye(len(lm))[inner]]
-    faces = [np.searchsorted(inner, _CAVITY)]
-    colours = [np.repeat(_tone(_MOUTH_COLOUR, None, grey)[None], len(_CAVITY), axis=0)]
-    teeth = [np.zeros(len(_CAVITY), bool)]
-    n = 8
+    verts, carry, faces, colours, teeth = [], [], [], [], []
+    if cavity:
+        inner = list(range(60, 68))
+        verts.append(np.column_stack([lm[inner], _depth(lm[inner], lm) + _INTERIOR_DEPTH["cavity"] * iod]))
+        carry.append(np.eye(len(lm))[inner])
+        faces.append(np.searchsorted(inner, _CAVITY))
+        colours.append(np.repeat(_tone(_MOUTH_COLOUR, None, grey)[None], len(_CAVITY), axis=0))
+        teeth.append(np.zeros(len(_CAVITY), bool))
+    n = len(verts[0]) if verts else 0
 
     def add(xy, depth, fan, colour, part, is_teeth):
         nonlocal n
