@@ -1,5 +1,5 @@
 // Python bindings of the DPDS / labelled SLDS kernels (dpds.hpp). Thin: argument names, the GIL
-// released around the kernels, structs returned as dicts; the public API is voicepuppet.dpds.
+// released around the kernels, structs returned as dicts; the public API is voicepuppet.phonemes.models.
 #include <pybind11/eigen.h>
 #include <pybind11/pybind11.h>
 

@@ -1,6 +1,6 @@
 // Python bindings of the puppet file (puppet_io.hpp) and the C++ puppet (puppet.hpp). Arrays
 // cross as numpy arrays (float64 or int64, any number of dimensions); the public API is
-// voicepuppet.puppet.
+// voicepuppet.puppet.model.
 #include <pybind11/eigen.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>

@@ -1,5 +1,5 @@
 // Python bindings of the streaming kernels (streaming.hpp). Thin: argument names, the GIL
-// released around pushes; the public API is voicepuppet.live.
+// released around pushes; the public API is voicepuppet.live.server.
 #include <pybind11/eigen.h>
 #include <pybind11/pybind11.h>
 

@@ -18,8 +18,9 @@ import os
 import numpy as np
 
 from voicepuppet import _core
-from voicepuppet import entropic as E
-from voicepuppet.hmm import GaussianHMM
+from voicepuppet.hmm import entropic as E
+from voicepuppet.hmm.entropic import EntropicHMM
+from voicepuppet.hmm.gaussian import GaussianHMM
 from voicepuppet.trajectory import solve_trajectory
 
 
@@ -61,7 +62,7 @@ def draw(ax, model, X, title):
 
 def random_walk(model, n_frames, seed):
     _, states = _core.gaussian_hmm_sample(model.startprob_, model.transmat_, model.means_,
-                                          model._covars_2d(), model.covariance, n_frames, seed)
+                                          model.covars_2d(), model.covariance, n_frames, seed)
     return states
 
 
@@ -82,7 +83,7 @@ def main(argv=None):
     common = dict(n_iter=args.iters, random_state=0, tol=-np.inf, covariance="full")
     models = {
         "conventional": GaussianHMM(args.states, **common).fit(X),
-        "entropic": GaussianHMM(args.states, prior="entropic", z=1.0, **common).fit(X),
+        "entropic": EntropicHMM(args.states, z=1.0, **common).fit(X),
     }
     rows = {}
     for name, m in models.items():

@@ -13,7 +13,8 @@ import argparse
 import numpy as np
 from PIL import Image
 
-from voicepuppet import head, render
+from voicepuppet.render import head
+from voicepuppet.render import mesh as render
 from voicepuppet.animation import load_animation
 
 

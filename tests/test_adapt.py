@@ -7,7 +7,7 @@ import pytest
 from scipy.special import logsumexp
 
 from voicepuppet import _core
-from voicepuppet.puppet import ADAPT_DEFAULTS, Puppet
+from voicepuppet.puppet.model import ADAPT_DEFAULTS, Puppet
 
 
 # ----------------------------------------------------------------------- numpy reference
@@ -268,7 +268,7 @@ def test_defaults_and_bad_values(puppet):
 def test_animate_switch_and_live_refuses(tmp_path, capsys):
     import soundfile as sf
 
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     rng = np.random.default_rng(3)
     fps, rate, P = 25.0, 16000, 10

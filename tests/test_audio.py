@@ -15,7 +15,7 @@ import soundfile as sf
 from voicepuppet import audio
 from voicepuppet.audio import lpc, pitch, spectral
 from voicepuppet.audio.framing import frame_centres, iter_frames
-from voicepuppet.cli import main
+from voicepuppet.cli.main import main
 
 RATE = 16000
 

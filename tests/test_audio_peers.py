@@ -10,7 +10,8 @@ import parselmouth
 import pytest
 
 from voicepuppet import audio
-from voicepuppet.audio import lpc, pitch, samples
+from voicepuppet import data as samples
+from voicepuppet.audio import lpc, pitch
 from voicepuppet.audio.framing import frame_centres, hamming, iter_frames
 
 FPS = 100.0  # Praat's and librosa's usual 10 ms step: frame k at k * 10 ms on both sides

@@ -1,4 +1,4 @@
-"""voicepuppet.batch: folders tracked and animated on a Dask LocalCluster, outputs equal to the
+"""voicepuppet.batch.jobs: folders tracked and animated on a Dask LocalCluster, outputs equal to the
 one-by-one outputs, resumable through the checksum manifest, per-file failures (unreadable,
 undecodable, full disk) reported without stopping the rest, clear errors for bad arguments."""
 
@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from voicepuppet import batch
-from voicepuppet.distributed import connect
+from voicepuppet.batch import jobs as batch
+from voicepuppet.hmm.distributed import connect
 
 cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")
 pytest.importorskip("skimage", reason="pip install scikit-image")
@@ -132,7 +132,7 @@ def test_a_points_file_warning_is_said_once_not_per_file(client, videos, tmp_pat
     with pytest.warns(UserWarning, match="share positions"):
         batch.track_file(folder / "b.avi", ref, init=str(init), passes=1)
     assert_same_file(tmp_path / "out" / "b.npz", ref)  # the same points and names as one by one
-    from voicepuppet.tracking import track_video
+    from voicepuppet.tracking.tracker import track_video
 
     with pytest.raises(ValueError, match="not with a points file"):
         track_video(folder / "a.avi", str(init), names=["x"] * 68, passes=1, progress=False)
@@ -199,7 +199,7 @@ def test_manifest_ignores_a_damaged_line(tmp_path):
 
 
 def test_cli_batch_track_reports_and_exits_nonzero_on_failure(videos, tmp_path, capfd):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     root, init = videos
     out = tmp_path / "out"
@@ -216,7 +216,7 @@ def test_cli_batch_track_reports_and_exits_nonzero_on_failure(videos, tmp_path, 
 
 
 def test_bad_arguments_are_clear_errors(videos, tmp_path, capsys):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     root, init = videos
     assert main(["batch", "track", str(tmp_path / "nope"), "-o", str(tmp_path / "o"), "--init", str(init),
@@ -364,7 +364,7 @@ def puppet_and_audio(tmp_path_factory):
     import soundfile as sf
 
     from voicepuppet import synth
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     if not synth.espeak_available():
         pytest.fail("the batch animate tests need espeak-ng (apt-get install espeak-ng; .ci/setup installs it)")
@@ -387,7 +387,7 @@ def puppet_and_audio(tmp_path_factory):
 
 
 def test_animate_folder_equals_one_by_one(client, puppet_and_audio, tmp_path):
-    from voicepuppet.puppet import load
+    from voicepuppet.puppet.model import load
 
     puppet_path, audio = puppet_and_audio
     out = tmp_path / "out"
@@ -432,7 +432,7 @@ def test_what_a_worker_warned_about_reaches_the_summary(client, puppet_and_audio
 
 
 def test_cli_batch_animate(puppet_and_audio, tmp_path, capsys):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     puppet_path, audio = puppet_and_audio
     out = tmp_path / "out"

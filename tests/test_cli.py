@@ -8,11 +8,11 @@ import sys
 import pytest
 
 from voicepuppet import __version__
-from voicepuppet.cli import main
+from voicepuppet.cli.main import main
 
 
 def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "voicepuppet.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "voicepuppet.cli.main", *args], capture_output=True, text=True,
                           env=dict(os.environ), timeout=300)
 
 
@@ -36,7 +36,7 @@ def test_info_describes_puppet_files(tmp_path, capsys):
     clear error."""
     import numpy as np
 
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     rng = np.random.default_rng(0)
     T = 600
@@ -101,7 +101,7 @@ def test_training_runs_blas_on_one_thread_unless_told(monkeypatch):
     import numpy as np
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from voicepuppet import puppet as vpuppet
+    from voicepuppet.puppet import model as vpuppet
 
     def blas_threads():
         return {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
@@ -159,30 +159,33 @@ def test_the_evaluation_entry_points_run_blas_on_one_thread_from_python_too(monk
     import numpy as np
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from voicepuppet import evaluate, evaluation
+    from voicepuppet.evaluation import crossval
+    from voicepuppet.evaluation import crossval as evaluate
+    from voicepuppet.evaluation import split as evaluation
+    from voicepuppet.puppet.guide import RidgeBaseline
 
     seen = []
-    solve = evaluation.RidgeBaseline._solve
+    solve = RidgeBaseline._solve
 
     def recording_solve(*args):
         seen.append({lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"})
         return solve(*args)
 
-    monkeypatch.setattr(evaluation.RidgeBaseline, "_solve", staticmethod(recording_solve))
+    monkeypatch.setattr(RidgeBaseline, "_solve", staticmethod(recording_solve))
     for var in ("VOICEPUPPET_BLAS_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         monkeypatch.delenv(var, raising=False)
     rng = np.random.default_rng(0)
     with threadpool_limits(limits=2, user_api="blas"):
-        evaluation.RidgeBaseline().fit([rng.normal(size=(60, 3))], [rng.normal(size=(60, 2))])
+        RidgeBaseline().fit([rng.normal(size=(60, 3))], [rng.normal(size=(60, 2))])
     assert seen and all(s == {1} for s in seen)
-    for entry in (evaluation.evaluate_split, evaluation.compare_training, evaluate.cross_validate):
+    for entry in (evaluation.evaluate_split, crossval.compare_training, evaluate.cross_validate):
         assert entry.__wrapped__.__name__ == entry.__name__  # blas.limited, docs kept
 
 
 def test_a_command_prints_warnings_as_one_line_for_the_user(capsys, monkeypatch):
     import warnings
 
-    from voicepuppet import info
+    from voicepuppet.cli import info
 
     def collect():
         warnings.warn("the face was lost in 30 of 629 frames", UserWarning)

@@ -1,4 +1,4 @@
-"""Tests of voicepuppet.crossval: folds partition the sequences by count, are seeded, and the
+"""Tests of voicepuppet.evaluation.folds: folds partition the sequences by count, are seeded, and the
 confidence interval matches the t-interval computed from its definition (and covers the true mean
 at about the nominal rate on planted Gaussian data)."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voicepuppet.crossval import kfold, mean_ci
+from voicepuppet.evaluation.folds import kfold, mean_ci
 
 SEED = 20261123
 

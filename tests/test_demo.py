@@ -4,7 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from voicepuppet import demo, synth
+from voicepuppet import synth
+from voicepuppet.cli import demo
 
 pytestmark = pytest.mark.skipif(not synth.espeak_available(),
                                 reason="the synthetic performer needs espeak-ng (apt-get install espeak-ng)")

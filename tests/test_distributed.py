@@ -1,4 +1,4 @@
-"""Distributed HMM training (voicepuppet.distributed): E-step statistics on Dask workers, M-step
+"""Distributed HMM training (voicepuppet.hmm.distributed): E-step statistics on Dask workers, M-step
 here, parameters equal to single-process training (Baum-Welch and entropic, full and diagonal
 covariances, with trimming), independent of the chunking of the data; clear errors for an
 unreachable scheduler."""
@@ -11,8 +11,9 @@ import time
 import numpy as np
 import pytest
 
-from voicepuppet.distributed import DaskEStep, chunk_bounds, connect, fit
-from voicepuppet.hmm import GaussianHMM
+from voicepuppet.hmm.distributed import DaskEStep, chunk_bounds, connect, fit
+from voicepuppet.hmm.entropic import EntropicHMM
+from voicepuppet.hmm.gaussian import GaussianHMM
 
 SEED = 20261123
 PARAMS = ("startprob_", "transmat_", "means_", "covars_")
@@ -68,9 +69,9 @@ def test_baum_welch_equals_single_process(client, covariance):
 @pytest.mark.parametrize("covariance,z", [("full", 1.0), ("diag", 1.0), ("full", 2.0)])
 def test_entropic_equals_single_process_with_trimming(client, covariance, z):
     X, lengths = planted(SEED + 1)
-    kw = dict(n_states=9, covariance=covariance, n_iter=25, prior="entropic", z=z, random_state=5)
-    local = GaussianHMM(**kw).fit(X, lengths)
-    dist = fit(GaussianHMM(**kw), X, lengths, client=client, chunk_frames=120)
+    kw = dict(n_states=9, covariance=covariance, n_iter=25, z=z, random_state=5)
+    local = EntropicHMM(**kw).fit(X, lengths)
+    dist = fit(EntropicHMM(**kw), X, lengths, client=client, chunk_frames=120)
     # the run exercised trimming (so the per-sequence trial log-likelihoods were used)
     assert sum(h["states_trimmed"] for h in local.history_) > 0
     assert sum(h["arcs_trimmed"] for h in local.history_) > 0

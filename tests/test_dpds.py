@@ -1,4 +1,4 @@
-"""Tests of voicepuppet.dpds against independent truth.
+"""Tests of voicepuppet.phonemes.models against independent truth.
 
 - DPDS: the C++ gradient of eq. 1 against central finite differences (for fixed parameters and
   for the profile likelihood that training optimises); the exact mu/nu solve against numpy's
@@ -14,8 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voicepuppet import _core, dpds
-from voicepuppet.phonemes import N_PHONES
+from voicepuppet import _core
+from voicepuppet.phonemes import models as dpds
+from voicepuppet.phonemes.labels import N_PHONES
 
 SEED = 20261123
 P = N_PHONES
@@ -282,7 +283,7 @@ def performer():
 
 @pytest.mark.parametrize("kind", list(dpds.MODELS))
 def test_phoneme_puppet_train_animate_save_load(performer, tmp_path, kind):
-    from voicepuppet.phonemes import frame_labels
+    from voicepuppet.phonemes.labels import frame_labels
 
     pts = [p for _, p in performer]
     phones = [u.phones for u, _ in performer]
@@ -294,7 +295,7 @@ def test_phoneme_puppet_train_animate_save_load(performer, tmp_path, kind):
     lab = frame_labels(u0.phones, len(p0), 29.97, alphabet="espeak")
     np.testing.assert_allclose(anim.points, pp.face_space.decode(pp.model.generate(lab)), rtol=1e-12)
     # a training utterance is reproduced far better than by the mean face
-    from voicepuppet import metrics
+    from voicepuppet.evaluation import metrics
 
     truth = pp.face_space.decode(pp.face_space.encode(p0)[0])
     assert metrics.err(anim.points, truth) < 0.6
@@ -328,9 +329,9 @@ def test_phoneme_puppet_from_speech_and_bad_input(performer, tmp_path):
 
 def test_phoneme_puppet_verb(performer, tmp_path, capsys):
     from voicepuppet.animation import Animation, load_animation, save_animation
-    from voicepuppet.audio import samples
-    from voicepuppet.cli import main
-    from voicepuppet.phonemes import write_hts, write_textgrid
+    from voicepuppet import data as samples
+    from voicepuppet.cli.main import main
+    from voicepuppet.phonemes.labels import write_hts, write_textgrid
 
     lms, labs = [], []
     for i, (u, pts) in enumerate(performer):

@@ -13,8 +13,9 @@ from scipy.optimize import minimize
 from scipy.special import logsumexp
 
 from voicepuppet import _core
-from voicepuppet import entropic as E
-from voicepuppet.hmm import GaussianHMM
+from voicepuppet.hmm import entropic as E
+from voicepuppet.hmm.entropic import EntropicHMM
+from voicepuppet.hmm.gaussian import GaussianHMM
 
 SEED = 20260523
 
@@ -82,7 +83,7 @@ def test_multinomial_matches_scipy_on_tiny_and_huge_scales():
 
 def test_z_zero_is_maximum_likelihood_exactly():
     rng = np.random.default_rng(SEED)
-    from voicepuppet.hmm import aligned
+    from voicepuppet.hmm.gaussian import aligned
 
     counts = rng.exponential(size=(5, 6))
     counts[2, 3] = 0
@@ -108,12 +109,12 @@ def test_bad_input_is_a_clear_value_error():
         E.entropic_multinomial([1.0, 2.0], np.inf)
     with pytest.raises(ValueError, match="all zero"):
         E.entropic_multinomial([0.0, 0.0], 1.0)
-    with pytest.raises(ValueError, match="prior must be None"):
-        GaussianHMM(3, prior="dirichlet")
+    with pytest.raises(TypeError, match="prior"):
+        GaussianHMM(3, prior="entropic")  # entropic training is EntropicHMM's
     with pytest.raises(ValueError, match="z must be"):
-        GaussianHMM(3, prior="entropic", z=float("nan"))
+        EntropicHMM(3, z=float("nan"))
     with pytest.raises(ValueError, match="per-iteration"):
-        GaussianHMM(3, prior="entropic", z=[1.0, 1.0], n_iter=5).fit(np.random.default_rng(0).normal(size=(50, 2)))
+        EntropicHMM(3, z=[1.0, 1.0], n_iter=5).fit(np.random.default_rng(0).normal(size=(50, 2)))
     with pytest.raises(ValueError, match="n_iter"):
         E.anneal_schedule(0)
 
@@ -140,7 +141,7 @@ def planted_cycle(n_frames=3000, seed=1):
 def test_entropic_training_recovers_the_planted_machine():
     X, A_true, means_true = planted_cycle()
     ml = GaussianHMM(12, n_iter=60, random_state=0, tol=-np.inf).fit(X)
-    ent = GaussianHMM(12, n_iter=60, random_state=0, tol=-np.inf, prior="entropic", z=1.0).fit(X)
+    ent = EntropicHMM(12, n_iter=60, random_state=0, tol=-np.inf, z=1.0).fit(X)
     h = ent.history_
     assert h[-1]["states"] < 12 and h[-1]["states"] == ent.n_states >= 5
     assert set(h[0]) >= {"log_posterior", "log_likelihood", "states", "arcs"}
@@ -166,7 +167,7 @@ def test_entropic_training_recovers_the_planted_machine():
 
 def test_log_posterior_never_decreases_and_trims_raise_it():
     X, _, _ = planted_cycle(1500, seed=3)
-    ent = GaussianHMM(10, n_iter=40, random_state=1, tol=-np.inf, prior="entropic", z=1.0).fit(X)
+    ent = EntropicHMM(10, n_iter=40, random_state=1, tol=-np.inf, z=1.0).fit(X)
     lp = np.array([r["log_posterior"] for r in ent.history_])
     assert np.all(np.diff(lp) >= -1e-8 * np.abs(lp[1:])), np.diff(lp).min()
     assert sum(r["arcs_trimmed"] for r in ent.history_) > 0
@@ -199,7 +200,7 @@ def test_every_trim_step_raises_the_log_posterior(monkeypatch):
 
     monkeypatch.setattr(E, "_evaluate", spy)
     monkeypatch.setattr(E, "_log_posterior", spy_lp)
-    ent = GaussianHMM(10, n_iter=25, random_state=1, tol=-np.inf, prior="entropic", z=1.0).fit(X)
+    ent = EntropicHMM(10, n_iter=25, random_state=1, tol=-np.inf, z=1.0).fit(X)
     trims = [r for r in ent.history_ if r["arcs_trimmed"] or r["states_trimmed"]]
     assert trims
     for r in trims:
@@ -216,7 +217,7 @@ def test_z_zero_reduces_to_baum_welch_exactly(min_covar):
     frame in both: K = (S + c w I) / (w + Z)), so entropic vs conventional differ only by the prior."""
     X, _, _ = planted_cycle(800, seed=5)
     ml = GaussianHMM(4, n_iter=8, random_state=2, tol=-np.inf, min_covar=min_covar).fit(X)
-    ent = GaussianHMM(4, n_iter=8, random_state=2, tol=-np.inf, min_covar=min_covar, prior="entropic", z=0.0,
+    ent = EntropicHMM(4, n_iter=8, random_state=2, tol=-np.inf, min_covar=min_covar, z=0.0,
                       trim=False).fit(X)
     np.testing.assert_allclose(ent.transmat_, ml.transmat_, rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(ent.means_, ml.means_, rtol=1e-10)
@@ -228,7 +229,7 @@ def test_z_zero_reduces_to_baum_welch_exactly(min_covar):
 def test_annealed_training_runs_and_ends_at_z_final():
     X, _, _ = planted_cycle(1000, seed=6)
     zs = E.anneal_schedule(20, -1.0, 1.0, 8)
-    ent = GaussianHMM(8, n_iter=20, random_state=0, tol=-np.inf, prior="entropic", z=zs).fit(X)
+    ent = EntropicHMM(8, n_iter=20, random_state=0, tol=-np.inf, z=zs).fit(X)
     assert [r["z"] for r in ent.history_] == pytest.approx(list(zs[:len(ent.history_)]))
     fixed = [r["log_posterior"] for r in ent.history_ if r["z"] == 1.0]
     assert np.all(np.diff(fixed) >= -1e-8 * np.abs(fixed[1:]))
@@ -282,14 +283,14 @@ def test_perplexity_and_context_memory():
 
 def test_progress_bar_is_shown(capsys):
     X, _, _ = planted_cycle(300, seed=7)
-    GaussianHMM(4, n_iter=3, prior="entropic", progress=True, tol=-np.inf).fit(X)
+    EntropicHMM(4, n_iter=3, progress=True, tol=-np.inf).fit(X)
     assert "entropic EM" in capsys.readouterr().err
 
 
 def test_diagonal_covariances_and_several_sequences():
     X, _, _ = planted_cycle(1200, seed=8)
     lengths = [500, 400, 300]
-    ent = GaussianHMM(8, "diag", n_iter=30, random_state=0, tol=-np.inf, prior="entropic").fit(X, lengths)
+    ent = EntropicHMM(8, "diag", n_iter=30, random_state=0, tol=-np.inf).fit(X, lengths)
     lp = np.array([r["log_posterior"] for r in ent.history_])
     assert np.all(np.diff(lp) >= -1e-8 * np.abs(lp[1:]))
     assert ent.covars_.shape == (ent.n_states, 2) and ent.n_states <= 8

@@ -1,4 +1,4 @@
-"""Tests of voicepuppet.evaluate: the cross-validation harness on planted truth (faces that follow
+"""Tests of voicepuppet.evaluation.crossval: the cross-validation harness on planted truth (faces that follow
 a DPDS exactly are reproduced by the DPDS and not by per-phoneme means), the fold metrics against
 a direct computation, the performer clip split at sentence pauses, and the ``evaluate`` verb on
 user data (files written atomically, bad input refused)."""
@@ -11,9 +11,12 @@ import types
 import numpy as np
 import pytest
 
-from voicepuppet import dpds, evaluate as ev, phonemes as ph
+from voicepuppet.phonemes import models as dpds
+from voicepuppet.evaluation import corpus, report
+from voicepuppet.evaluation import crossval as ev
+from voicepuppet.phonemes import labels as ph
 from voicepuppet.animation import neutral_landmarks
-from voicepuppet.cli import main
+from voicepuppet.cli.main import main
 
 SEED = 20261123
 PHONE_SET = [ph.PHONE_INDEX[p] for p in ("SIL", "AA", "M", "IY", "UW", "F", "S", "OW")]
@@ -47,7 +50,7 @@ def planted_sequences(rng, n_seq=9, T=70, K=3):
         lab = np.array(lab[:T], np.int64)
         Y = dpds._core.dpds_generate(a, mu, nu, lab, np.zeros(0, np.int64))
         pts = neutral + np.einsum("tk,kpc->tpc", Y, basis)
-        seqs.append(ev.Sequence(f"s{s}", pts, 30.0, lab))
+        seqs.append(corpus.Sequence(f"s{s}", pts, 30.0, lab))
     return seqs
 
 
@@ -73,14 +76,14 @@ def test_cross_validation_on_planted_dpds_faces():
             v = m[key]
             assert v["low"] <= v["mean"] <= v["high"] and len(v["folds"]) == 3
         assert all(0 <= f <= 1 for f in m["closed"]["folds"])
-    table = ev.format_table(res)
+    table = report.format_table(res)
     assert table.count("\n| ") == 4 and table.startswith("| model |") and "RMSE / IOD" in table
 
 
 def test_closed_is_summarised_over_the_folds_with_bilabials():
     """A fold whose test sequences hold no B, P or M has no closed share: the measure is summarised
     over the others (listed in fold_index), for the models and the paired differences alike."""
-    from voicepuppet.crossval import kfold
+    from voicepuppet.evaluation.folds import kfold
 
     rng = np.random.default_rng(SEED + 2)
     seqs = planted_sequences(rng, n_seq=6, T=40)
@@ -93,7 +96,7 @@ def test_closed_is_summarised_over_the_folds_with_bilabials():
     for entry in res["models"].values():
         assert entry["closed"]["fold_index"] == [1, 2] and len(entry["closed"]["folds"]) == 2
         assert len(entry["err"]["folds"]) == 3 and "fold_index" not in entry["err"]
-    assert "over the folds whose test sequences have one" in ev.format_table(res)
+    assert "over the folds whose test sequences have one" in report.format_table(res)
 
 
 def test_fold_metrics_equal_direct_computation():
@@ -115,7 +118,7 @@ def test_fold_metrics_equal_direct_computation():
     assert got["lve"] == pytest.approx(lve)
     assert "closed" not in got  # no must-close frames given
     # the closed share pools the runs of all sequences (runs do not join across sequences)
-    from voicepuppet import metrics
+    from voicepuppet.evaluation import metrics
 
     must = [s.labels[:40] == ph.PHONE_INDEX["M"] for s in seqs]
     counts = [metrics.closures(fs.decode(p), fs.decode(t), m) for p, t, m in zip(Yp, Yt, must)]
@@ -127,7 +130,7 @@ def test_fold_metrics_equal_direct_computation():
 def test_closures_count_the_runs_the_prediction_closes():
     """metrics.closures: of the runs of must-close frames, those in which the prediction's lip gap
     (points 62-66) gets to at most 1 % of the true inter-ocular distance, in any frame of the run."""
-    from voicepuppet import metrics
+    from voicepuppet.evaluation import metrics
 
     truth = np.repeat(neutral_landmarks()[None], 20, axis=0)
     iod = np.linalg.norm(truth[0, 36] - truth[0, 45])
@@ -159,7 +162,7 @@ def test_split_clip_at_sentence_pauses():
     art = articulate(u.phones, u.samples, u.rate, neutral_landmarks(), fps=fps, seed=1)
     clip = types.SimpleNamespace(points=art.points, fps=fps, rate=u.rate, samples=u.samples,
                                  phones=u.phones, source=u.source, text=u.text)
-    seqs = ev.split_clip(clip, name="c")
+    seqs = corpus.split_clip(clip, name="c")
     assert len(seqs) == 2
     assert sum(len(s.points) for s in seqs) == len(art.points)
     # the cut lies inside the 0.4 s pause after the first sentence
@@ -232,29 +235,29 @@ def test_voice_puppet_on_the_same_folds():
         n = int(round(len(art.points) / fps * u.rate))
         x = np.zeros(n, np.float32)
         x[:min(n, len(u.samples))] = u.samples[:n]
-        seqs.append(ev.Sequence(f"u{i}", art.points, fps, lab, x, u.rate))
+        seqs.append(corpus.Sequence(f"u{i}", art.points, fps, lab, x, u.rate))
     res = ev.cross_validate(seqs, k=2, seed=0, peers=False, puppet=True, n_states=8, progress=False)
     m = res["models"]["voice-puppet"]
     print({k: v["mean"] for k, v in m.items() if isinstance(v, dict)})
     assert "loglik" not in m
     assert m["err"]["mean"] < 0.95  # 0.81 at this seed; the mean face scores 1
     assert sum(m["frames"]) == sum(len(s.points) for s in seqs)
-    assert "| voice-puppet |" in ev.format_table(res)
+    assert "| voice-puppet |" in report.format_table(res)
     # its baselines on the same folds, from the features computed from each sequence's audio, and
     # the same (guided) puppet without its guide
     assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face", ev.UNGUIDED]
     assert res["models"][ev.UNGUIDED]["frames"] == m["frames"]
     assert res["models"][ev.UNGUIDED]["err"]["folds"] != m["err"]["folds"]
-    assert f"| {ev.UNGUIDED} |" in ev.format_table(res)
+    assert f"| {ev.UNGUIDED} |" in report.format_table(res)
     np.testing.assert_allclose(res["models"]["mean-face"]["err"]["folds"], 1.0, atol=1e-12)
     assert {"err", "lve", "rmse_iod", "closed"} <= set(res["differences"]["voice-puppet"]["ridge"])
     # a fold without B, P, M (its labels made AA): one fold left has a closed share, too few to
     # summarise, so the measure is not reported, for the models or their differences
-    from voicepuppet.crossval import kfold
+    from voicepuppet.evaluation.folds import kfold
 
     _, te = kfold(len(seqs), 2, 0)[1]
     for i in te:
-        seqs[i].labels[ev.bilabial_mask(seqs[i].labels)] = ph.PHONE_INDEX["AA"]
+        seqs[i].labels[corpus.bilabial_mask(seqs[i].labels)] = ph.PHONE_INDEX["AA"]
     res = ev.cross_validate(seqs, k=2, seed=0, peers=False, puppet=True, n_states=8, progress=False)
     assert "closed" not in res["models"]["voice-puppet"] and "err" in res["models"]["voice-puppet"]
     assert "closed" not in res["differences"]["voice-puppet"]["ridge"]
@@ -345,13 +348,14 @@ def test_synth_sequences_train_on_tracked_with_a_planted_tracker(tmp_path, monke
     or size changes; a track that does not fit the clip is refused."""
     import os
 
-    from voicepuppet import synth, tracking
+    from voicepuppet import synth
+    from voicepuppet.tracking import tracker as tracking
 
     train = _performer_clip(tmp_path, "train", ["Please remember to feed the fish.",
                                                 "Who knows where the ferry goes?"], 1)
     test = _performer_clip(tmp_path, "test_00", ["You can hear the waves."], 2)
-    corpus = types.SimpleNamespace(train=train, test=[test])
-    monkeypatch.setattr(synth, "make_corpus", lambda *a, **k: corpus)
+    clips = types.SimpleNamespace(train=train, test=[test])
+    monkeypatch.setattr(synth, "make_corpus", lambda *a, **k: clips)
     calls = []
     shift = {"train": 0.5, "test_00": -0.25}
 
@@ -363,11 +367,11 @@ def test_synth_sequences_train_on_tracked_with_a_planted_tracker(tmp_path, monke
         return types.SimpleNamespace(points=pts[:-1] if stem == "test_00" else pts)  # one frame dropped
 
     monkeypatch.setattr(tracking, "track_video", planted)
-    seqs = ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    seqs = corpus.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
     assert [c[0] for c in calls] == ["train", "test_00"]
     np.testing.assert_array_equal(calls[0][1], train.points[0])
     np.testing.assert_array_equal(calls[1][1], test.points[0])
-    truth = ev.synth_sequences(str(tmp_path), progress=False)
+    truth = corpus.synth_sequences(str(tmp_path), progress=False)
     assert len(calls) == 2  # the second run read the cache
     assert [s.name for s in seqs] == [s.name for s in truth] == ["train_00", "train_01", "test_00"]
     assert all(s.train_points is None for s in truth)
@@ -383,30 +387,30 @@ def test_synth_sequences_train_on_tracked_with_a_planted_tracker(tmp_path, monke
     np.testing.assert_allclose(seqs[2].train_points[:-1], (test.points - 0.25 * np.sin(
         np.arange(len(test.points)))[:, None, None])[:-1])
 
-    ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    corpus.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
     assert len(calls) == 2  # cache hit
     st = os.stat(train.video)
     os.utime(train.video, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
-    ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    corpus.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
     assert [c[0] for c in calls[2:]] == ["train"]  # modification time changed: re-tracked
     with open(test.video, "ab") as fh:
         fh.write(b"!")
     os.utime(test.video, ns=(st.st_atime_ns, os.stat(test.video).st_mtime_ns))
-    ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    corpus.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
     assert [c[0] for c in calls[3:]] == ["test_00"]  # size changed: re-tracked
     (tmp_path / "tracked" / "train.npz").write_bytes(b"not an npz")
-    again = ev.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
+    again = corpus.synth_sequences(str(tmp_path), train_on="tracked", progress=False)
     assert [c[0] for c in calls[4:]] == ["train"]  # unreadable cache: tracked again, overwritten
     np.testing.assert_array_equal(again[0].train_points, seqs[0].train_points)
 
     with pytest.raises(ValueError, match="train_on must be one of"):
-        ev.synth_sequences(str(tmp_path), train_on="trakced", progress=False)
+        corpus.synth_sequences(str(tmp_path), train_on="trakced", progress=False)
     monkeypatch.setattr(tracking, "track_video",
                         lambda path, init, progress=True: types.SimpleNamespace(points=np.zeros((5, 68, 2))))
     with pytest.raises(ValueError, match=r"gave landmarks of shape \(5, 68, 2\)"):
-        ev.tracked_landmarks(train, cache_dir=tmp_path / "other", progress=False)
+        corpus.tracked_landmarks(train, cache_dir=tmp_path / "other", progress=False)
     with pytest.raises(ValueError, match="does not exist"):
-        ev.tracked_landmarks(types.SimpleNamespace(video=str(tmp_path / "gone.mp4"), points=train.points))
+        corpus.tracked_landmarks(types.SimpleNamespace(video=str(tmp_path / "gone.mp4"), points=train.points))
 
 
 def test_evaluate_verb_train_on_tracked(tmp_path, capsys, monkeypatch):
@@ -421,7 +425,7 @@ def test_evaluate_verb_train_on_tracked(tmp_path, capsys, monkeypatch):
         got.update(seed=seed, train_on=train_on, speech=speech)
         return seqs
 
-    monkeypatch.setattr(ev, "synth_sequences", fake)
+    monkeypatch.setattr(corpus, "synth_sequences", fake)
     js = tmp_path / "r.json"
     assert main(["evaluate", "--train-on", "tracked", "--seed", "1", "--corpus-seed", "0", "--folds", "2",
                  "--peers", "--no-puppet", "--components", "3", "--json", str(js), "-q"]) == 0
@@ -455,25 +459,25 @@ def test_with_landmark_noise_adds_seeded_gaussian_noise_to_the_learnt_landmarks_
     rng = np.random.default_rng(SEED + 6)
     seqs = planted_sequences(rng, n_seq=3, T=200)
     tracked = seqs[1].points + 0.5
-    seqs[1] = ev.Sequence(seqs[1].name, seqs[1].points, 30.0, seqs[1].labels, train_points=tracked)
-    noisy = ev.with_landmark_noise(seqs, 2.0, seed=3)
+    seqs[1] = corpus.Sequence(seqs[1].name, seqs[1].points, 30.0, seqs[1].labels, train_points=tracked)
+    noisy = corpus.with_landmark_noise(seqs, 2.0, seed=3)
     for a, b in zip(seqs, noisy):
         assert b.points is a.points and b.name == a.name
-    d = np.concatenate([(b.train_points - ev.learnt_points(a)).ravel() for a, b in zip(seqs, noisy)])
+    d = np.concatenate([(b.train_points - corpus.learnt_points(a)).ravel() for a, b in zip(seqs, noisy)])
     assert d.size == 3 * 200 * 68 * 2
     assert np.std(d) == pytest.approx(2.0, rel=0.02) and abs(np.mean(d)) < 0.02
     assert abs(np.mean(noisy[1].train_points - tracked)) < 0.05  # on the tracked ones, not the truth
     # independent across sequences and fixed by the seed
     assert abs(np.corrcoef((noisy[0].train_points - seqs[0].points).ravel(),
                            (noisy[2].train_points - seqs[2].points).ravel())[0, 1]) < 0.02
-    again = ev.with_landmark_noise(seqs, 2.0, seed=3)
-    other = ev.with_landmark_noise(seqs, 2.0, seed=4)
+    again = corpus.with_landmark_noise(seqs, 2.0, seed=3)
+    other = corpus.with_landmark_noise(seqs, 2.0, seed=4)
     assert all(np.array_equal(a.train_points, b.train_points) for a, b in zip(noisy, again))
     assert not np.allclose(noisy[0].train_points, other[0].train_points)
-    assert ev.with_landmark_noise(seqs, 0.0)[0].train_points is None
+    assert corpus.with_landmark_noise(seqs, 0.0)[0].train_points is None
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="finite number of pixels >= 0"):
-            ev.with_landmark_noise(seqs, bad)
+            corpus.with_landmark_noise(seqs, bad)
 
 
 def test_evaluate_verb_landmark_noise(tmp_path, capsys, monkeypatch):
@@ -481,7 +485,7 @@ def test_evaluate_verb_landmark_noise(tmp_path, capsys, monkeypatch):
     clean ones, and is written into the reproducing command; a negative value is refused."""
     rng = np.random.default_rng(SEED + 7)
     seqs = planted_sequences(rng, n_seq=4, T=40)
-    monkeypatch.setattr(ev, "synth_sequences", lambda *a, **k: seqs)
+    monkeypatch.setattr(corpus, "synth_sequences", lambda *a, **k: seqs)
     seen = {}
 
     def fake_cv(sequences, **kw):
@@ -494,7 +498,7 @@ def test_evaluate_verb_landmark_noise(tmp_path, capsys, monkeypatch):
     assert main(["evaluate", "--landmark-noise", "1.5", "--seed", "2", "--folds", "2", "--peers",
                  "--no-puppet", "--components", "3", "--json", str(js), "-q"]) == 0
     assert "--landmark-noise 1.5 --folds 2 --seed 2" in json.loads(js.read_text())["command"]
-    want = ev.with_landmark_noise(seqs, 1.5, seed=2)
+    want = corpus.with_landmark_noise(seqs, 1.5, seed=2)
     for got, w, clean in zip(seen["seqs"], want, seqs):
         assert np.array_equal(got.train_points, w.train_points) and got.points is clean.points
     capsys.readouterr()
@@ -507,13 +511,13 @@ def _direct_baselines(seqs, feats, k, seed, n_components):
     space fitted on the training sequences' learnt landmarks, the features standardised with the
     training frames' own mean and std (what the puppet does to the raw columns of its input),
     a RidgeBaseline fitted directly, and the training mean face."""
-    from voicepuppet.crossval import kfold
-    from voicepuppet.evaluation import RidgeBaseline
+    from voicepuppet.evaluation.folds import kfold
+    from voicepuppet.puppet.guide import RidgeBaseline
     from voicepuppet.face import FaceSpace
 
     out = {"ridge": [], "mean-face": []}
     for tr, te in kfold(len(seqs), k, seed):
-        fit = [ev.learnt_points(seqs[i]) for i in tr]
+        fit = [corpus.learnt_points(seqs[i]) for i in tr]
         fs = FaceSpace.fit(fit, n_components=n_components)
         Ytr = [fs.encode(p)[0] for p in fit]
         Yte = [fs.encode(seqs[i].points)[0] for i in te]
@@ -535,8 +539,8 @@ def test_cross_validation_baselines_equal_a_direct_fit_on_each_fold(tmp_path):
     JSON carry them."""
     from dataclasses import replace
 
-    from voicepuppet.crossval import mean_ci
-    from voicepuppet.evaluation import RIDGE_ALPHAS
+    from voicepuppet.evaluation.folds import mean_ci
+    from voicepuppet.puppet.guide import RIDGE_ALPHAS
 
     from test_evaluation import _planted_sequences
 
@@ -580,14 +584,14 @@ def test_cross_validation_baselines_equal_a_direct_fit_on_each_fold(tmp_path):
         assert abs(noisy["ridge"][m]["mean"] / plain["ridge"][m]["mean"] - 1) > 0.02, m
     assert results["tracked"]["config"]["separate_training_landmarks"] is True
 
-    table = ev.format_table(results["truth"])
+    table = report.format_table(results["truth"])
     assert "| ridge |" in table and "| mean-face |" in table and "| paired difference (fold by fold) |" in table
     d = results["truth"]["differences"]["voice-puppet"]["ridge"]["err"]
     row = next(line for line in table.splitlines() if line.startswith("| voice-puppet − ridge |"))
     assert row.rstrip(" |").split(" | ")[4] == f"{d['mean']:+.3g} [{d['low']:+.3g}, {d['high']:+.3g}]"  # L1, RMS, L∞, Err
     assert "| voice-puppet − mean-face |" in table
     md, js = tmp_path / "r.md", tmp_path / "r.json"
-    ev.write_results(results["truth"], md, js, "voicepuppet evaluate")
+    report.write_results(results["truth"], md, js, "voicepuppet evaluate")
     back = json.loads(js.read_text())
     assert back["differences"]["voice-puppet"]["mean-face"]["err"]["folds"] == pytest.approx(
         results["truth"]["differences"]["voice-puppet"]["mean-face"]["err"]["folds"])
@@ -595,7 +599,7 @@ def test_cross_validation_baselines_equal_a_direct_fit_on_each_fold(tmp_path):
     # without the puppet: no baselines, no differences, no second table
     alone = ev.cross_validate(seqs, k=3, seed=0, peers=True, puppet=False, n_components=3, progress=False)
     assert "ridge" not in alone["models"] and alone["differences"] == {}
-    assert "paired difference" not in ev.format_table(alone)
+    assert "paired difference" not in report.format_table(alone)
 
 
 def test_cross_validation_baselines_refuse_bad_features():

@@ -1,15 +1,17 @@
 import numpy as np
 import pytest
 
-from voicepuppet import evaluation
-from voicepuppet.puppet import Puppet
+from voicepuppet.evaluation import crossval, report
+from voicepuppet.evaluation import split as evaluation
+from voicepuppet.puppet import guide
+from voicepuppet.puppet.model import Puppet
 
 from test_puppet import _planted
 
 
 def test_context_stack_edges():
     A = np.arange(5.0)[:, None]
-    S = evaluation.context_stack(A, 2)
+    S = guide.context_stack(A, 2)
     np.testing.assert_array_equal(S[0], [0, 0, 0, 1, 2])
     np.testing.assert_array_equal(S[4], [2, 3, 4, 4, 4])
 
@@ -18,7 +20,7 @@ def test_ridge_recovers_a_planted_lagged_map(rng):
     A = rng.normal(size=(2000, 3))
     W1, W2 = rng.normal(size=(3, 2)), rng.normal(size=(3, 2))
     Y = np.roll(A, 2, axis=0) @ W1 + np.roll(A, -1, axis=0) @ W2 + 0.01 * rng.normal(size=(2000, 2))
-    model = evaluation.RidgeBaseline(k=3).fit([A[:1500]], [Y[:1500]])
+    model = guide.RidgeBaseline(k=3).fit([A[:1500]], [Y[:1500]])
     pred = model.predict(A[1500:])
     inner = slice(5, -5)  # away from the wrapped edges of np.roll
     assert np.sqrt(np.mean((pred[inner] - Y[1500:][inner]) ** 2)) < 0.05
@@ -48,7 +50,7 @@ def test_evaluate_split_on_planted_puppet():
     assert rows["voice"]["test"]["err"] < 0.2 < rows["mean-face"]["test"]["err"]
     assert rows["states"]["test"]["err"] < 0.2
     assert r["model"]["bits_per_frame"] < 2.0
-    table = evaluation.format_table(r)
+    table = report.format_split(r)
     assert "| voice |" in table and "| ridge |" in table
     n, arcs = r["model"]["states"][0], r["model"]["arcs"][0]
     assert f"\nstates {n}, arcs {arcs}, perplexity" in table and isinstance(n, int)  # not [6.0]
@@ -80,7 +82,7 @@ def test_evaluate_split_fits_the_ridge_on_the_puppets_landmarks():
 
 
 def _planted_sequences(n_seq=6, T=240):
-    from voicepuppet.evaluate import Sequence
+    from voicepuppet.evaluation.corpus import Sequence
 
     seqs, feats = [], []
     for s in range(n_seq):
@@ -100,7 +102,7 @@ def test_compare_training_pairs_folds_and_separates_a_crippled_variant():
     # (at λ = 4 the crippled variant scores 0.07)
     base = {"n_states": 6, "n_iter": 12, "n_components": 3, "guide": "none"}
     variants = {"good": base, "same": dict(base), "deaf": dict(base, vocal_shrinkage=1e6)}
-    r = evaluation.compare_training(seqs, variants, k=3, seed=0, n_components=3, features=feats)
+    r = crossval.compare_training(seqs, variants, k=3, seed=0, n_components=3, features=feats)
     good, deaf = r["variants"]["good"], r["variants"]["deaf"]
     print({n: v["err"]["folds"] for n, v in r["variants"].items()})
     assert good["err"]["mean"] < 0.3 < deaf["err"]["mean"]
@@ -114,20 +116,20 @@ def test_compare_training_pairs_folds_and_separates_a_crippled_variant():
     assert all(0 <= v < np.log(6) for v in good["entropy_rate"]["folds"])
     assert "closed" not in good  # the planted sequences' labels hold no B, P, M
     assert sum(len(f) for f in r["config"]["folds"]) == len(seqs)
-    table = evaluation.format_comparison(r)
+    table = report.format_comparison(r)
     assert "| good − deaf |" in table and "| deaf |" in table
 
 
 def test_compare_training_refuses_bad_input():
     seqs, feats = _planted_sequences(n_seq=3, T=120)
     with pytest.raises(ValueError, match="at least two"):
-        evaluation.compare_training(seqs, {"a": {}}, k=2, features=feats)
+        crossval.compare_training(seqs, {"a": {}}, k=2, features=feats)
     with pytest.raises(ValueError, match="unknown training options"):
-        evaluation.compare_training(seqs, {"a": {}, "b": {"n_stats": 3}}, k=2, features=feats)
+        crossval.compare_training(seqs, {"a": {}, "b": {"n_stats": 3}}, k=2, features=feats)
     with pytest.raises(ValueError, match="baseline"):
-        evaluation.compare_training(seqs, {"a": {}, "b": {}}, baseline="c", k=2, features=feats)
+        crossval.compare_training(seqs, {"a": {}, "b": {}}, baseline="c", k=2, features=feats)
     with pytest.raises(ValueError, match="one row per"):
-        evaluation.compare_training(seqs, {"a": {}, "b": {}}, k=2, features=feats[:2])
+        crossval.compare_training(seqs, {"a": {}, "b": {}}, k=2, features=feats[:2])
 
 
 def test_compare_training_learns_from_train_points_and_measures_against_the_truth(monkeypatch):
@@ -142,7 +144,7 @@ def test_compare_training_learns_from_train_points_and_measures_against_the_trut
                 "b": {"n_states": 6, "n_iter": 12, "n_components": 3, "prior": "ml"}}
 
     def run(ss):
-        return evaluation.compare_training(ss, variants, k=2, seed=0, n_components=3, features=feats)
+        return crossval.compare_training(ss, variants, k=2, seed=0, n_components=3, features=feats)
 
     plain = run(seqs)
     assert plain["config"]["separate_training_landmarks"] is False
@@ -153,8 +155,8 @@ def test_compare_training_learns_from_train_points_and_measures_against_the_trut
             # (equal up to rounding: a copy may sit differently aligned for the vector kernels)
             np.testing.assert_allclose(same["variants"][name][m]["folds"], plain["variants"][name][m]["folds"],
                                        rtol=1e-9)
-    from voicepuppet import evaluate as ev
-    from voicepuppet.crossval import kfold
+    from voicepuppet.evaluation import crossval as ev
+    from voicepuppet.evaluation.folds import kfold
     from voicepuppet.face import FaceSpace
 
     seen = []  # what every fold is measured against, in the face space it fitted
@@ -179,7 +181,7 @@ def test_compare_training_learns_from_train_points_and_measures_against_the_trut
     print({n: (plain["variants"][n]["err"]["mean"], rev["variants"][n]["err"]["mean"]) for n in variants})
     for name in variants:
         assert plain["variants"][name]["err"]["mean"] < 0.3 < rev["variants"][name]["err"]["mean"]
-    assert "separate training landmarks" in evaluation.format_comparison(rev)
+    assert "separate training landmarks" in report.format_comparison(rev)
     bad = [replace(s, train_points=s.points[:-1]) if i == 2 else s for i, s in enumerate(seqs)]
     with pytest.raises(ValueError, match="sequence s2: train_points must have the shape"):
         run(bad)

@@ -7,8 +7,8 @@ import os
 import numpy as np
 import pytest
 
-from voicepuppet import export as E
-from voicepuppet import render as R
+from voicepuppet.render import export as E
+from voicepuppet.render import mesh as R
 from voicepuppet.animation import Animation, load_animation, neutral_landmarks, procedural_animation, save_animation
 
 pytest.importorskip("pyvista")
@@ -146,7 +146,7 @@ def test_an_animation_moves_from_its_neutral_not_its_first_frame(tmp_path):
     that frame, a photo at rest would keep its mouth shut there and open by the difference only.
     The animation's ``neutral`` (a puppet's face in silence) is the rest it moves from, and it
     travels in the .npz (not the .csv: frames only, rest = first frame)."""
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     jaw = np.linspace(0.6, 1.0, 9)
     anim = procedural_animation(9, 30.0, jaw=jaw, smile=0.0)
@@ -264,7 +264,7 @@ def test_bad_exports_give_clear_errors_and_no_files(tmp_path):
 
 
 def test_cli_export(tmp_path):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     anim = procedural_animation(6, 10.0)
     save_animation(anim, tmp_path / "a.npz")
@@ -300,9 +300,9 @@ def test_outputs_get_the_permissions_of_plainly_created_files(tmp_path, monkeypa
     must carry the mode open()/mkdir() would give under the process's umask (here 022)."""
     import stat
 
-    from voicepuppet import animation
+    from voicepuppet import _files
 
-    monkeypatch.setattr(animation, "_UMASK", 0o022)
+    monkeypatch.setattr(_files, "_UMASK", 0o022)
     anim = procedural_animation(4, 10.0)
     save_animation(anim, tmp_path / "a.npz")
     save_animation(anim, tmp_path / "a.csv")

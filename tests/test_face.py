@@ -1,13 +1,14 @@
 import numpy as np
 import pytest
 
-from voicepuppet import face, metrics
+from voicepuppet import face, layout
+from voicepuppet.evaluation import metrics
 
 
 def _planted(rng, T=50, P=68):
     base = rng.normal(size=(P, 2)) * 40
     motion = rng.normal(size=(T, 1, 1)) * rng.normal(size=(1, P, 2)) * 2.0   # one mode of shape motion
-    motion[:, list(face.IBUG68_RIGID)] = 0                                   # the rigid points stay put
+    motion[:, list(layout.RIGID)] = 0                                   # the rigid points stay put
     pose = np.stack([rng.normal(0, 0.1, T), rng.normal(0, 0.2, T), rng.normal(160, 5, T),
                      rng.normal(150, 5, T)], axis=1)
     shapes = base + motion
@@ -19,13 +20,13 @@ def _planted(rng, T=50, P=68):
 def test_pose_removed_and_round_trip(rng):
     pts, shapes, pose = _planted(rng)
     w = np.zeros(68)
-    w[list(face.IBUG68_RIGID)] = 1
+    w[list(layout.RIGID)] = 1
     fs = face.FaceSpace.fit(pts, weights=w)
     Y, est_pose = fs.encode(pts)
     # Planted: the rigid points do not move, so with the fit on them alone the normalised rigid
     # points are identical across frames.
     norm, _ = fs.normalize(pts)
-    rigid = list(face.IBUG68_RIGID)
+    rigid = list(layout.RIGID)
     assert np.max(np.std(norm[:, rigid], axis=0)) < 1e-9
     # Pose differences between frames are recovered exactly (the reference's own pose is arbitrary).
     d_est = est_pose - est_pose[0]

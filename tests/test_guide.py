@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from voicepuppet import _core
-from voicepuppet.evaluation import RidgeBaseline, context_stack, ridge_input
-from voicepuppet.face import IBUG68_RIGID
-from voicepuppet.projection import GUIDE_WEIGHTS, cross_fit
-from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, load
+from voicepuppet.puppet.guide import RidgeBaseline, context_stack
+from voicepuppet.layout import RIGID
+from voicepuppet.puppet.guide import GUIDE_WEIGHTS, cross_fit
+from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet, load
 
 FPS = 30.0
 DATA = Path(__file__).parent / "data"
@@ -24,7 +24,7 @@ def _world(rng, T, P=68):
     world = np.random.default_rng(1)
     base = world.normal(size=(P, 2)) * 40 + 160
     modes = world.normal(size=(3, P, 2)) * 4
-    modes[:, list(IBUG68_RIGID)[: min(P, 68)] if P == 68 else []] = 0
+    modes[:, list(RIGID)[: min(P, 68)] if P == 68 else []] = 0
     states = np.repeat(rng.integers(0, 3, T // 12 + 1), 12)[:T]
     shape = base + modes[states] + rng.normal(0, 0.3, (T, P, 2))
     k = np.array([0.25, 0.5, 0.25])
@@ -202,10 +202,10 @@ def test_stored_guide_is_the_ridge_baseline_and_its_cross_fitted_residuals(puppe
     a = pup.arrays
     assert TRAIN_DEFAULTS["guide"] == "ridge" and TRAIN_DEFAULTS["guide_context"] == 5
     assert int(a["guide/context"][0]) == 3 and int(a["guide/columns"][0]) == 5  # features without deltas
-    Z, Y = ridge_input(pup, feats), pup.face_space.encode(pts)[0]
+    Z, Y = pup.ridge_input(feats), pup.face_space.encode(pts)[0]
     ridge = RidgeBaseline(3).fit([Z], [Y])
     zt = pup._core.standardize(np.ascontiguousarray(test_feats))
-    np.testing.assert_allclose(pup._core.guide_predict(zt), ridge.predict(ridge_input(pup, test_feats)),
+    np.testing.assert_allclose(pup._core.guide_predict(zt), ridge.predict(pup.ridge_input(test_feats)),
                                rtol=1e-10, atol=1e-10)
     res = Y - cross_fit(context_stack(Z, 3), Y, [len(Y)])
     np.testing.assert_allclose(a["guide/covariance"], np.cov(res, rowvar=False, bias=True), rtol=1e-12, atol=1e-14)

@@ -6,8 +6,8 @@ fixed weight, determinism and bad options."""
 import numpy as np
 import pytest
 
-from voicepuppet.projection import GUIDE_WEIGHTS
-from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet
+from voicepuppet.puppet.guide import GUIDE_WEIGHTS
+from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet
 
 FPS = 30.0
 OPTS = dict(fps=FPS, n_states=4, n_iter=8, n_components=2, audio_deltas=0, seed=0, guide_context=2)
@@ -78,7 +78,7 @@ def test_the_stored_weight_is_the_recorded_errors_argmin_and_the_file_keeps_it(l
     cv = linear_puppet.metadata["training"]["guide"]["weight_cv"]
     assert linear_puppet.guide_weight == GUIDE_WEIGHTS[int(np.argmin(cv["mse"]))]
     assert linear_puppet.metadata["training"]["guide"]["weight"] == linear_puppet.guide_weight
-    from voicepuppet.puppet import load
+    from voicepuppet.puppet.model import load
 
     again = load(linear_puppet.save(tmp_path / "p.vpp"))
     assert again.guide_weight == linear_puppet.guide_weight

@@ -1,4 +1,4 @@
-"""A textured 3-D head scan driven by landmark animations (voicepuppet.head).
+"""A textured 3-D head scan driven by landmark animations (voicepuppet.render.head).
 
 Heads are planted: a textured dome with the 68 landmarks of a parametric face on its surface,
 written as .obj + material + texture, in any pose; and the real scan ``james`` of menpo3d's
@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from voicepuppet import face_layout
-from voicepuppet import head as Hd
-from voicepuppet import render as R
+from voicepuppet import layout as face_layout
+from voicepuppet.render import head as Hd
+from voicepuppet.render import mesh as R
 from voicepuppet.animation import Animation, neutral_landmarks, procedural_animation, save_animation
 
 pytest.importorskip("pyvista")
@@ -230,7 +230,7 @@ def test_bad_heads_get_clear_errors(tmp_path):
 
 
 def test_cli_renders_and_exports_a_head(tmp_path, capsys):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     obj, pts = _write_head(tmp_path / "head")
     anim = procedural_animation(4, 10.0, width=240, height=240, jaw=np.array([0.0, 0.5, 1.0, 0.5]))
@@ -249,7 +249,7 @@ def test_cli_renders_and_exports_a_head(tmp_path, capsys):
     assert not (tmp_path / "b.mp4").exists()
     err = capsys.readouterr().err
     assert "finding the 68 landmarks of dome.obj" in err and "no face found on" in err
-    from voicepuppet.live import _FaceDriver
+    from voicepuppet.live.server import _FaceDriver
 
     with pytest.raises(ValueError, match="render and export take the head"):
         _FaceDriver(str(obj), str(pts), 68)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from voicepuppet import _core
-from voicepuppet.hmm import GaussianHMM
+from voicepuppet.hmm.gaussian import GaussianHMM
 
 hmmlearn_hmm = pytest.importorskip("hmmlearn.hmm", reason="hmmlearn is a test dependency: pip install hmmlearn")
 
@@ -256,14 +256,14 @@ def test_random_frame_start_draws_distinct_training_frames_per_seed(rng):
     starts = []
     for seed in (4, 4, 5):
         m = GaussianHMM(6, "full", n_iter=0, random_state=seed, init="frames")
-        m._init(X)
+        m.initialize(X)
         rows = [int(np.flatnonzero(np.all(X == mu, axis=1))[0]) for mu in m.means_]  # each mean is a frame
         assert len(set(rows)) == 6
         starts.append(m.means_)
     np.testing.assert_array_equal(starts[0], starts[1])
     assert not np.array_equal(starts[0], starts[2])
     km = GaussianHMM(6, "full", n_iter=0, random_state=4)
-    km._init(X)
+    km.initialize(X)
     assert not any(np.all(X == mu, axis=1).any() for mu in km.means_)  # k-means means are averages
     # EM from random starts (which can stick: one state over two clusters) finds a planted model
     # of well-separated states in the best of a few seeds, its likelihood never decreasing (no
@@ -345,7 +345,7 @@ def screened_vs_exact(m, X, lengths):
     assert ll == pytest.approx(ell, rel=1e-12, abs=0)
     assert np.max(np.abs(gamma - egamma)) < 1e-10
     args = (X, np.asarray(lengths, dtype=np.int64), m.startprob_, m.transmat_, m.means_,
-            m._covars_2d(), "full")
+            m.covars_2d(), "full")
     return {"score": _core.gaussian_hmm_score(*args)[1], "decode": _core.gaussian_hmm_decode(*args)[2],
             "posteriors": _core.gaussian_hmm_posteriors(*args)[5]}
 
@@ -361,7 +361,7 @@ def test_float32_screening_bound_holds_where_float32_is_poor(rng):
         X, _ = m.sample(800, random_state=1)
         m.means_ = m.means_ + offset
         X = X + offset
-        est, bound = _core.gaussian_log_density_screened(X, m.means_, m._covars_2d())
+        est, bound = _core.gaussian_log_density_screened(X, m.means_, m.covars_2d())
         exact = m.log_density(X)
         assert np.all(np.abs(est - exact) <= bound), name
         # the bound is not vacuous: within a few hundred times the real error at the top entries
@@ -372,7 +372,7 @@ def test_float32_screening_bound_holds_where_float32_is_poor(rng):
     m = screening_model(rng, 3, d, spread=5.0)
     X, _ = m.sample(50, random_state=2)
     X[7] = 1e30
-    est, bound = _core.gaussian_log_density_screened(X, m.means_, m._covars_2d())
+    est, bound = _core.gaussian_log_density_screened(X, m.means_, m.covars_2d())
     assert np.all(np.isinf(bound[7]))
     assert np.all(np.isfinite(bound[np.arange(50) != 7]))
 

@@ -1,4 +1,4 @@
-"""Live voice puppetry (voicepuppet.live, voicepuppet::StreamingPuppet): the stream against the
+"""Live voice puppetry (voicepuppet.live.server, voicepuppet::StreamingPuppet): the stream against the
 offline puppet, latency bounds, the ``live`` verb (file, raw PCM on stdin, WebSocket, viewer in
 headless Chromium) and bad input.
 
@@ -19,9 +19,10 @@ import numpy as np
 import pytest
 
 from voicepuppet.animation import neutral_landmarks
-from voicepuppet.audio import load_audio, prepare, samples
+from voicepuppet import data as samples
+from voicepuppet.audio import load_audio, prepare
 from voicepuppet.audio.stream import speech_level_db
-from voicepuppet.live import TRUSTED_GUIDE_WEIGHT, LivePuppet, split_lag
+from voicepuppet.live.server import TRUSTED_GUIDE_WEIGHT, LivePuppet, split_lag
 
 SEED = 20261123
 FPS = 30000 / 1001
@@ -57,7 +58,7 @@ def planted_face(speech):
 
 @pytest.fixture(scope="module")
 def puppet(speech, tmp_path_factory):
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     au, pts = planted_face(speech)
     p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0)
@@ -250,7 +251,7 @@ def test_guide_lag_and_latency(puppet):
 
 
 def test_unguided_puppet_streams_without_a_guide(speech):
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     au, pts = planted_face(speech[:48000])
     p = Puppet.train([pts], [au], fps=FPS, n_states=4, n_iter=4, seed=0, guide="none")
@@ -263,7 +264,7 @@ def test_unguided_puppet_streams_without_a_guide(speech):
 
 
 def test_puppet_with_a_feature_set_the_stream_cannot_make(speech):
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     rng = np.random.default_rng(SEED)
     au = prepare(speech[:32000], 16000, target_rate=None, remove_dc=False)
@@ -284,7 +285,7 @@ def run_cli(args, stdin=b""):
     """``voicepuppet live ARGS`` in this process with ``stdin`` as raw bytes on standard input."""
     import contextlib
 
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     out, err = io.StringIO(), io.StringIO()
     old_in = sys.stdin
@@ -398,8 +399,8 @@ def free_port() -> int:
 
 def start_live(argv):
     """``voicepuppet live ARGV`` in a thread: (thread, its stdout, {"code": exit code} when done)."""
-    from voicepuppet.cli import build_parser
-    from voicepuppet.live import run_live
+    from voicepuppet.cli.main import build_parser
+    from voicepuppet.live.server import run_live
 
     args = build_parser().parse_args(argv)
     out = io.StringIO()
@@ -494,7 +495,7 @@ def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path)
     from PIL import Image
     from selenium.webdriver.support.ui import WebDriverWait
 
-    from voicepuppet import render
+    from voicepuppet.render import mesh as render
     from voicepuppet.animation import Animation
 
     p, path = puppet
@@ -573,8 +574,8 @@ def test_face_options_are_checked_before_the_stream(puppet, speech, tmp_path, ca
     import soundfile
     from PIL import Image
 
-    from voicepuppet import render
-    from voicepuppet.cli import main
+    from voicepuppet.render import mesh as render
+    from voicepuppet.cli.main import main
 
     _, path = puppet
     wav = tmp_path / "in.wav"
@@ -629,7 +630,7 @@ def test_osc_messages(puppet, speech, tmp_path):
 def projected(speech, tmp_path_factory):
     """The test puppet's face and audio, trained with the option for voices never heard: vocal
     Gaussians (one tied covariance) on a projection of +-5 standardised frames."""
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     au, pts = planted_face(speech)
     p = Puppet.train([pts], [au], fps=FPS, n_states=8, n_iter=8, seed=0, vocal_features="projected",

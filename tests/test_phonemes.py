@@ -1,4 +1,4 @@
-"""Tests of voicepuppet.phonemes: the phone set, label mapping, frame labels by majority vote
+"""Tests of voicepuppet.phonemes.labels: the phone set, label mapping, frame labels by majority vote
 (against a brute-force per-frame count), TextGrid and HTS round trips, and pocketsphinx forced
 alignment on CMU ARCTIC a0009 against its hand-checked labels."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voicepuppet import phonemes as ph
+from voicepuppet.phonemes import labels as ph
 
 SEED = 20261123
 
@@ -126,7 +126,7 @@ def test_textgrid_and_hts_round_trip(tmp_path):
 
 
 def test_hts_full_context_labels_of_arctic():
-    from voicepuppet.audio import samples
+    from voicepuppet import data as samples
 
     _, lab = samples.arctic_a0009(with_labels=True)
     segs = ph.read_hts(lab)
@@ -136,7 +136,7 @@ def test_hts_full_context_labels_of_arctic():
 
 @pytest.fixture(scope="module")
 def arctic():
-    from voicepuppet.audio import samples
+    from voicepuppet import data as samples
 
     wav, lab = samples.arctic_a0009(with_labels=True)
     return wav, ph.read_hts(lab)
@@ -176,7 +176,7 @@ def test_phone_recognition_without_transcript(arctic):
 
 
 def test_align_verb_writes_labels(arctic, tmp_path, capsys):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     wav, ref = arctic
     out = tmp_path / "a.TextGrid"

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from voicepuppet import _core
-from voicepuppet.evaluation import context_stack
-from voicepuppet.projection import cross_fit, cross_fit_folds, fit_projection
-from voicepuppet.puppet import Puppet, load
+from voicepuppet.puppet.guide import context_stack
+from voicepuppet.puppet.guide import cross_fit, cross_fit_folds, fit_projection
+from voicepuppet.puppet.model import Puppet, load
 
 
 def _voice(rng, nuisance_mean, nuisance_spread, T=900, P=12):

@@ -6,9 +6,10 @@ import os
 import numpy as np
 import pytest
 
-from voicepuppet import _core, puppet as vpuppet
+from voicepuppet import _core
+from voicepuppet.puppet import model as vpuppet
 from voicepuppet.face import observations
-from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, load, remap
+from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet, load, remap
 
 
 def _planted(rng, T=900, P=12):
@@ -198,7 +199,7 @@ def test_separate_face_parts():
 
 
 def test_training_on_a_dask_cluster_equals_one_process():
-    from voicepuppet import distributed
+    from voicepuppet.hmm import distributed
 
     rng = np.random.default_rng(11)
     seqs = [_planted(rng, T=300) for _ in range(3)]
@@ -318,7 +319,7 @@ def test_the_band_of_the_training_audio_is_the_puppets(tmp_path):
         whole.animate(wide)
     with pytest.warns(AudioWarning, match=r"sampled at 8000 Hz.*up to 8000 Hz.*--audio-band 4000"):
         whole.animate(narrow)
-    from voicepuppet.live import LivePuppet
+    from voicepuppet.live.server import LivePuppet
 
     with pytest.warns(AudioWarning, match=r"the live audio is sampled at 8000 Hz.*--audio-band 4000"):
         LivePuppet(whole, rate=8000)

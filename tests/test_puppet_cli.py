@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from voicepuppet.cli import main
-from voicepuppet.puppet import load
+from voicepuppet.cli.main import main
+from voicepuppet.puppet.model import load
 
 FPS = 25.0
 RATE = 16000
@@ -128,7 +128,7 @@ def _example_exe() -> Path:
 
 def _assert_cpp_animates_like_python(exe, puppet_path, wav, folder):
     """The C++ example animates the features of ``wav`` as Python's ``Puppet.animate`` does."""
-    from voicepuppet.puppet import load
+    from voicepuppet.puppet.model import load
 
     p = load(puppet_path)
     feats = p.audio_features(str(wav))
@@ -161,7 +161,7 @@ def test_cpp_example_animates_a_non_default_vocal_model_like_python(workdir, tmp
     # "projected") as the projection of +-5 frames the C++ puppet applies to the raw feature
     # frames: the C++ program animates both as Python does.
     exe = _example_exe()
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     d = workdir
     with np.load(d / "train.npz") as z:
@@ -338,7 +338,7 @@ def test_a_face_and_audio_of_different_lengths_are_warned_about(workdir, tmp_pat
 def test_a_video_without_sound_fails_before_it_is_tracked(workdir, tmp_path, capsys, monkeypatch):
     import cv2
 
-    from voicepuppet import tracking
+    from voicepuppet.tracking import tracker as tracking
 
     def no_tracking(*args, **kwargs):
         raise AssertionError("tracked a video whose sound was never going to load")
@@ -375,14 +375,14 @@ def test_palette_of_puppets(workdir, tmp_path, capsys):
 
 
 def test_command_line_entry_point(workdir):
-    out = subprocess.run([sys.executable, "-m", "voicepuppet.cli", "animate", "--help"], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "voicepuppet.cli.main", "animate", "--help"], capture_output=True,
                          text=True)
     assert out.returncode == 0 and "--states-in" in out.stdout
 
 
 def test_tiny_and_silent_audio(workdir, tmp_path, capsys):
     from voicepuppet.audio import AudioWarning
-    from voicepuppet.puppet import load
+    from voicepuppet.puppet.model import load
 
     d = workdir
     sf.write(tmp_path / "blip.wav", 0.1 * np.sin(np.arange(100) / 3.0), RATE)  # 6 ms: under one frame
@@ -402,7 +402,7 @@ def test_tiny_and_silent_audio(workdir, tmp_path, capsys):
 
 def test_frames_where_the_face_is_lost_are_dropped_with_a_warning(rng):
     from voicepuppet.audio import prepare
-    from voicepuppet.puppet_cli import usable_segments
+    from voicepuppet.cli.puppet import usable_segments
 
     T, P = 100, 10
     pts = rng.normal(size=(T, P, 2))
@@ -431,7 +431,7 @@ def test_frames_where_the_face_is_lost_are_dropped_with_a_warning(rng):
 
 
 def test_points_of_a_variable_frame_rate_video_are_resampled_onto_the_grid():
-    from voicepuppet.tracking import on_uniform_grid
+    from voicepuppet.tracking.tracker import on_uniform_grid
 
     fps = 30.0
     # 1 s at 30 fps, 1 s at 15 fps, a 0.5 s stall, 0.5 s at 30 fps
@@ -484,7 +484,7 @@ def test_animation_files_are_byte_identical_across_writes(tmp_path):
 
 
 def test_train_on_a_local_dask_cluster(workdir, tmp_path):
-    from voicepuppet.puppet import load
+    from voicepuppet.puppet.model import load
 
     d = workdir
     assert main(["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"),

@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from voicepuppet import phonemes, synth
-from voicepuppet.audio import samples
-from voicepuppet.cli import main
+from voicepuppet import synth
+from voicepuppet.phonemes import labels as phonemes
+from voicepuppet import data as samples
+from voicepuppet.cli.main import main
 from voicepuppet.synth.speech import recording_utterance
 
 DURATIONS = {"arctic_a0009": 3.10, "arctic_a0007": 4.00, "librivox_0870": 7.10, "librivox_0880": 2.99,

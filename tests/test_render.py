@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from voicepuppet import face_layout
-from voicepuppet import render as R
+from voicepuppet import layout as face_layout
+from voicepuppet.render import mesh as R
 from voicepuppet.animation import Animation, load_animation, neutral_landmarks, procedural_animation, save_animation
 
 pytest.importorskip("pyvista")
@@ -417,7 +417,7 @@ def test_animation_files_round_trip(tmp_path):
 
 
 def test_cli_render(tmp_path, capsys):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     anim = procedural_animation(5, 10.0, width=200, height=200)
     save_animation(anim, tmp_path / "a.npz")
@@ -436,7 +436,7 @@ def test_a_large_face_image_renders_scaled_down_to_fit_hd(tmp_path, capsys):
     it, aspect kept, and says so; smaller images and a given --size render as asked."""
     from PIL import Image
 
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     assert R.default_size(4000, 3000) == (1440, 1080) and R.default_size(3000, 4000) == (1080, 1440)
     assert R.default_size(3000, 3000) == (1080, 1080) and R.default_size(2000, 500) == (1920, 480)
@@ -459,9 +459,9 @@ def test_a_large_face_image_renders_scaled_down_to_fit_hd(tmp_path, capsys):
 
 
 def test_animator_controls_exaggerate_and_expression_offset(tmp_path):
-    from voicepuppet import export as E
+    from voicepuppet.render import export as E
     from voicepuppet.animation import add_offset, exaggerate
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     anim = procedural_animation(20, 10.0, seed=5)
     mu = anim.points.mean(axis=0)
@@ -510,7 +510,7 @@ def test_a_photo_without_a_face_names_the_option_that_gives_its_points(tmp_path,
     from PIL import Image
 
     pytest.importorskip("dlib")
-    from voicepuppet.tracking import DLIB_MODEL_PATHS
+    from voicepuppet.tracking.tracker import DLIB_MODEL_PATHS
 
     if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
         pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
@@ -529,7 +529,7 @@ def test_real_photo_with_dlib_landmarks():
     photo, a planted jaw opening moves the mouth and chin, not the eyes."""
     dlib = pytest.importorskip("dlib")
     skdata = pytest.importorskip("skimage.data")
-    from voicepuppet.tracking import DLIB_MODEL_PATHS
+    from voicepuppet.tracking.tracker import DLIB_MODEL_PATHS
 
     model = next((p for p in DLIB_MODEL_PATHS if Path(p).is_file()), None)
     if model is None:
@@ -565,7 +565,7 @@ def test_a_video_gives_the_face_of_its_first_frame_with_one(tmp_path):
 
     dlib = pytest.importorskip("dlib")
     skdata = pytest.importorskip("skimage.data")
-    from voicepuppet.tracking import DLIB_MODEL_PATHS, auto_init
+    from voicepuppet.tracking.tracker import DLIB_MODEL_PATHS, auto_init
 
     if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
         pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
@@ -606,7 +606,7 @@ def test_a_video_gives_its_face_at_rest_when_the_animation_has_one(tmp_path):
 
     dlib = pytest.importorskip("dlib")
     skdata = pytest.importorskip("skimage.data")
-    from voicepuppet.tracking import DLIB_MODEL_PATHS, auto_init
+    from voicepuppet.tracking.tracker import DLIB_MODEL_PATHS, auto_init
 
     if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
         pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
@@ -666,7 +666,7 @@ def test_face_palette_by_name(tmp_path):
 
     from PIL import Image
 
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     pal = tmp_path / "faces"
     pal.mkdir()

@@ -13,7 +13,9 @@ import av
 import numpy as np
 import pytest
 
-from voicepuppet import synth, tracking, video
+from voicepuppet import synth
+from voicepuppet.tracking import tracker as tracking
+from voicepuppet.tracking import video
 from voicepuppet.synth.video import _pose_matrices, rgb_to_yuv420p
 
 FPS, RATE, SEED = 30000 / 1001, 16000, 4
@@ -229,7 +231,7 @@ def test_write_video_does_not_depend_on_the_cpus_or_the_heap(photo, tmp_path, mo
     # voicepuppet render's mp4 writer (imageio-ffmpeg's ffmpeg process): x264 chose 3 frame
     # threads on 2 cores and 1 under one CPU, and wrote another bitstream; and with B-frames the
     # bytes in its heap changed it (MALLOC_PERTURB_, inherited by ffmpeg). Measured, both.
-    from voicepuppet.render import write_video
+    from voicepuppet.render.mesh import write_video
 
     art = synth.articulate([], _hum(6.0), RATE, photo.points, fps=FPS, seed=SEED)
     warper = synth.FaceWarper(photo.image, photo.points)

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from scipy.signal import resample_poly
 
-from voicepuppet.audio import AudioWarning, extract, load_audio, prepare, samples
-from voicepuppet.audio.featureset import reference_extract
+from voicepuppet import data as samples
+from voicepuppet.audio import AudioWarning, extract, load_audio, prepare
+from voicepuppet.audio.extract import reference_extract
 from voicepuppet.audio.stream import (STREAMABLE, StreamingFeatures, StreamResampler,
                                       pcm_to_float)
 

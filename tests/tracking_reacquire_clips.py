@@ -17,7 +17,8 @@ import sys
 import cv2
 import numpy as np
 
-from voicepuppet import tracking, video
+from voicepuppet.tracking import tracker as tracking
+from voicepuppet.tracking import video
 
 CASES = (  # (absent from, absent to, shift x, shift y, cover)
     (60, 90, 90, 60, "plain"),

@@ -50,7 +50,7 @@ def make(out: Path, clips: list[Path]) -> None:
 
 
 def track(video: Path, working_scale: str, out: Path) -> None:
-    from voicepuppet import tracking
+    from voicepuppet.tracking import tracker as tracking
 
     truth = np.load(video.with_suffix(".npy"))
     scale_file = video.with_suffix(".scale.npy")

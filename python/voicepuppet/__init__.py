@@ -19,7 +19,7 @@ __all__ = ["__version__", "Puppet", "load"]
 def __getattr__(name):
     # imported on first use, so ``import voicepuppet`` (and the command line) stays light
     if name in ("Puppet", "load"):
-        from voicepuppet import puppet
+        from voicepuppet.puppet import model as puppet
 
         return getattr(puppet, name)
     raise AttributeError(f"module 'voicepuppet' has no attribute {name!r}")

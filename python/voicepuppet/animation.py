@@ -1,4 +1,4 @@
-"""Landmark animations: the file format users exchange, validation, atomic writes.
+"""Landmark animations: the file format users exchange, validation, the animator's controls.
 
 An animation is ``points`` float64 [T, P, 2] (pixel coordinates x, y), ``fps`` and optional
 ``names`` [P], ``confidence`` [T, P] and ``neutral`` [P, 2] (the face at rest, which rendering
@@ -7,26 +7,23 @@ and export retarget from; a puppet's animation carries the face it makes in sile
 one row per frame: ``frame,time,x0,y0,x1,y1,...`` (frames only: read back, its rest is its first
 frame).
 
-Also here: :func:`atomic_path`, the temp-file-then-rename helper every writer of the package
-can use, and :func:`neutral_landmarks` / :func:`procedural_animation`, a parametric 68-point
+Also here: :func:`exaggerate` and :func:`add_offset` (the animator's controls), and :func:`neutral_landmarks` / :func:`procedural_animation`, a parametric 68-point
 face with planted jaw, smile, pucker, brow and blink motion for demos, tests and benchmarks.
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Optional
 
 import numpy as np
 
-from voicepuppet import face_layout
+from voicepuppet import layout as face_layout
+from voicepuppet._files import atomic_path, write_npz
 
-__all__ = ["Animation", "load_animation", "save_animation", "check_points", "atomic_path",
-           "check_output_path", "neutral_landmarks", "procedural_animation", "exaggerate", "add_offset"]
+__all__ = ["Animation", "load_animation", "save_animation", "check_points",
+           "neutral_landmarks", "procedural_animation", "exaggerate", "add_offset"]
 
 
 def check_points(points, name: str = "points", n_points: Optional[int] = None) -> np.ndarray:
@@ -126,78 +123,6 @@ class Animation:
     def times(self) -> np.ndarray:
         """Frame times ``t / fps``, shape (T,)."""
         return np.arange(self.n_frames) / self.fps
-
-
-def check_output_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Path:
-    """Checks that ``path`` can be written: known suffix, existing writable folder.
-
-    Raises ``ValueError`` saying what to do otherwise. Returns ``Path(path)``.
-    """
-    p = Path(path)
-    if suffixes is not None and p.suffix.lower() not in suffixes:
-        raise ValueError(f"{what} {str(p)!r} has an unknown format {p.suffix or '(no suffix)'!r}; "
-                         f"use one of {', '.join(suffixes)}")
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise ValueError(f"{what} folder {str(parent)!r} does not exist; create it first")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"{what} folder {str(parent)!r} is not writable; choose another output path")
-    if p.is_dir():
-        raise ValueError(f"{what} {str(p)!r} is a folder; give a file name")
-    return p
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-#: The process's file-creation mask, read once (os.umask can only be read by setting it).
-_UMASK = _umask()
-
-
-def publish(tmp, path) -> None:
-    """Renames the finished temporary file or folder ``tmp`` onto ``path``, first giving it the
-    permissions a plainly created one would have (``tempfile.mkstemp`` / ``mkdtemp`` make them
-    owner-only)."""
-    os.chmod(tmp, (0o777 if os.path.isdir(tmp) else 0o666) & ~_UMASK)
-    os.replace(tmp, path)
-
-
-@contextlib.contextmanager
-def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Iterator[Path]:
-    """Yields a temporary path next to ``path``; on success it is renamed onto ``path``.
-
-    On any exception the temporary file is removed and ``path`` is untouched, so a reader never
-    sees a half-written file. The temporary name keeps the suffix (writers that dispatch on it
-    still work).
-    """
-    p = check_output_path(path, suffixes, what)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".partial{p.suffix}", dir=p.parent or ".")
-    os.close(fd)
-    tmp_path = Path(tmp)
-    try:
-        yield tmp_path
-        publish(tmp_path, p)
-    finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
-
-
-def write_npz(fh, arrays: dict) -> None:
-    """``np.savez_compressed`` with fixed member timestamps, so equal arrays give equal bytes
-    (numpy stamps the current time into each member, which makes re-runs differ byte for byte).
-    ``fh`` is a binary file object; members are ``NAME.npy`` in the given order."""
-    import zipfile
-
-    with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for name, value in arrays.items():
-            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            info.external_attr = 0o644 << 16
-            with zf.open(info, "w", force_zip64=True) as member:
-                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 def _csv_header(P: int) -> str:
@@ -324,7 +249,7 @@ def _arc(cx, cy, rx, ry, a0, a1, n):
 
 
 def neutral_landmarks(width: int = 320, height: int = 320) -> np.ndarray:
-    """A frontal neutral face in the 68-point layout of :mod:`voicepuppet.face_layout`,
+    """A frontal neutral face in the 68-point layout of :mod:`voicepuppet.layout`,
     centred in a ``width`` x ``height`` image, mouth closed. Returns (68, 2) float64.
     """
     s = min(width, height) / 440.0

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: iBUG 68-point layout: points that stay put while speaking (nose bridge and base, eye corners).
-IBUG68_RIGID = (27, 28, 29, 30, 31, 32, 33, 34, 35, 36, 39, 42, 45)
+from voicepuppet.layout import RIGID
+
 #: iBUG 68-point layout: the upper face (brows, eyes, nose) and the lower face (jaw line, mouth).
 IBUG68_PARTS = {"upper": tuple(range(17, 48)), "lower": tuple(range(0, 17)) + tuple(range(48, 68))}
 
@@ -51,7 +51,7 @@ def default_weights(n_points: int) -> np.ndarray:
     """Procrustes weights per point (see the module notes)."""
     if n_points == 68:
         w = np.full(68, 0.05)
-        w[list(IBUG68_RIGID)] = 1.0
+        w[list(RIGID)] = 1.0
         return w
     return np.ones(n_points)
 

@@ -8,10 +8,11 @@ See docs/audio.md for the features, their conventions and how they were checked 
 librosa and Praat.
 """
 
-from .featureset import (DEFAULT_OPTIONS, DEFAULT_SET, FEATURE_SETS, FEATURES, Features,
-                         FeatureSet, Standardizer, as_feature_set, extract)
-from .framing import frame_centres, frame_times, n_frames
-from .loading import MIN_RATE, Audio, AudioWarning, load_audio, prepare
+from voicepuppet.audio.extract import extract
+from voicepuppet.audio.featureset import (DEFAULT_OPTIONS, DEFAULT_SET, FEATURE_SETS, FEATURES, Features, FeatureSet,
+                                          Standardizer, as_feature_set)
+from voicepuppet.audio.framing import frame_centres, frame_times, n_frames
+from voicepuppet.audio.loading import MIN_RATE, Audio, AudioWarning, load_audio, prepare
 
 __all__ = ["Audio", "AudioWarning", "MIN_RATE", "load_audio", "prepare", "extract", "Features",
            "FeatureSet", "Standardizer", "FEATURES", "FEATURE_SETS", "DEFAULT_SET",

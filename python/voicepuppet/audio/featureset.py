@@ -1,7 +1,8 @@
 """Feature sets: which features, with which settings, and how they are standardised.
 
-A :class:`FeatureSet` names the features and their settings; :func:`extract` computes them at an
-output frame rate into a :class:`Features` table (one row per video frame, named columns);
+A :class:`FeatureSet` names the features and their settings; :func:`voicepuppet.audio.extract.extract`
+computes them at an output frame rate into a :class:`Features` table (one row per video frame,
+named columns);
 :class:`Standardizer` holds per-column mean and standard deviation, fitted once on training audio
 and applied unchanged to novel audio, saved and loaded as plain arrays (a puppet file carries
 them).
@@ -23,13 +24,12 @@ from __future__ import annotations
 
 import json
 import os
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .framing import check_fps, frame_times, n_frames
-from .loading import Audio, AudioWarning, load_audio, prepare
+from voicepuppet._files import atomic_path
+from voicepuppet.audio.framing import frame_times
 
 FEATURES = ("lpc", "lpc_cepstra", "rasta_plp", "mfcc", "mfcc_deltas", "formants", "bands", "f0",
             "voicing", "log_energy")
@@ -201,7 +201,7 @@ class Features:
 
     def group(self, feature: str) -> np.ndarray:
         """Columns of one feature (e.g. ``"mfcc"``), shape (T, d)."""
-        cols = [i for i, n in enumerate(self.names) if _feature_of(n) == feature]
+        cols = [i for i, n in enumerate(self.names) if feature_of(n) == feature]
         if not cols:
             raise ValueError(f"feature {feature!r} not in this table; it has "
                              f"{', '.join(self.feature_set.features)}")
@@ -222,8 +222,7 @@ class Features:
         suffix = path[-4:].lower()
         if suffix not in (".npz", ".csv"):
             raise ValueError(f"features: output must end in .npz or .csv, got {path!r}")
-        tmp = path[:-4] + ".tmp" + suffix
-        try:
+        with atomic_path(path, (".npz", ".csv"), "features") as tmp:
             if suffix == ".csv":
                 table = np.column_stack([np.arange(len(self)), self.times, self.values])
                 np.savetxt(tmp, table, delimiter=",", fmt=["%d", "%.6f"] + ["%.17g"] * self.values.shape[1],
@@ -235,10 +234,6 @@ class Features:
                 if self.voiced is not None:
                     payload["voiced"] = self.voiced
                 np.savez(tmp, **payload)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.remove(tmp)
 
     @classmethod
     def load(cls, path) -> "Features":
@@ -257,7 +252,8 @@ _PREFIX = {"lpc": "lpc", "lpcc": "lpc_cepstra", "rplp": "rasta_plp", "mfcc": "mf
            "dmfcc": "mfcc_deltas", "band": "bands"}
 
 
-def _feature_of(col: str) -> str:
+def feature_of(col: str) -> str:
+    """The feature a column belongs to (``"mfcc3"`` -> ``"mfcc"``)."""
     if col in ("f1", "f2", "f3", "f4", "f5"):
         return "formants"
     if col in ("f0", "voicing", "log_energy"):
@@ -266,173 +262,10 @@ def _feature_of(col: str) -> str:
     return _PREFIX.get(head, head)
 
 
-def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = None,
-            progress: bool = False, **options) -> Features:
-    """Compute a feature set at video frame times.
-
-    The streamable features (all but ``f0`` and ``voicing``) are computed by the C++ front end
-    (``voicepuppet::StreamingAudioFeatures``) on the whole signal in one push, so offline and
-    streamed features are the same computation; F0 and voicing by :mod:`.pitch`.
-
-    Parameters
-    ----------
-    source : Audio, str or os.PathLike
-        Prepared audio or a file to load (audio or video; resampled to 16 kHz).
-    fps : float
-        Output frame rate (default NTSC 29.97); frame ``k`` is centred at ``k / fps``.
-    features : FeatureSet, str or list of str, optional
-        A set (default ``"puppet"``), a set name, or feature names.
-    n_out : int, optional
-        Number of output frames, e.g. the frame count of the video the audio belongs to
-        (default ``ceil(duration * fps)``); frames past the end of the audio see silence.
-    progress : bool
-        Show a tqdm progress bar over the analysis stages.
-    **options
-        Overrides of ``DEFAULT_OPTIONS`` for this call.
-
-    Returns
-    -------
-    Features
-        ``values`` (T, D), all finite, ``T = n_out`` or ``ceil(duration * fps)``.
-    """
-    return _extract(source, fps, features, n_out, progress, options, reference=False)
-
-
-def reference_extract(source, fps: float = 29.97, features=None, *, n_out: int | None = None,
-                      **options) -> Features:
-    """:func:`extract` computed by the numpy definitions in :mod:`.spectral` and :mod:`.lpc`
-    (the test oracle of the C++ front end; no production path calls it). Same arguments."""
-    return _extract(source, fps, features, n_out, False, options, reference=True)
-
-
-def _extract(source, fps, features, n_out, progress, options, reference: bool) -> Features:
-    from . import pitch as pitch_mod
-    from tqdm import tqdm
-
-    fps = check_fps(fps)
-    fset = as_feature_set(features)
-    if options:
-        fset = FeatureSet(fset.features, {**fset.options, **options}, fset.name)
-    opt = fset.settings()
-    audio = source if isinstance(source, Audio) else load_audio(source)
-    x, rate = audio.samples, audio.rate
-    if n_out is None:
-        T = n_frames(x.shape[0], rate, fps)
-        if x.shape[0] / rate < 1.0 / fps:
-            where = f" in {audio.path!r}" if audio.path else ""
-            warnings.warn(f"audio{where}: {1e3 * x.shape[0] / rate:.1f} ms long, shorter than one "
-                          f"frame ({1e3 / fps:.1f} ms at {fps:g} fps); its one frame is analysed "
-                          "with silence after it", AudioWarning, stacklevel=3)
-    elif isinstance(n_out, (int, np.integer)) and not isinstance(n_out, bool) and n_out >= 1:
-        T = int(n_out)
-    else:
-        raise ValueError(f"n_out must be a positive whole number of frames, got {n_out!r}")
-    want = set(fset.features)
-    # The options on the samples (the stream's own front end, in its order), once for every
-    # feature: the stream below is given the result with them off.
-    if opt["level_db"] is not None:
-        from .stream import LevelNormalizer
-
-        x = LevelNormalizer(opt["level_db"], rate).apply(x)
-    if opt["band_hz"] is not None:
-        from .stream import BandLimiter
-
-        x = BandLimiter(opt["band_hz"], rate).apply(x)
-    cols: dict[str, tuple[list[str], np.ndarray]] = {}
-    framewise = [f for f in fset.features if f not in ("f0", "voicing")]
-    stages = [bool(framewise), bool(want & {"f0", "voicing"})]
-    bar = tqdm(total=sum(stages), desc="features", unit="stage", disable=not progress,
-               leave=False)
-    if framewise and not reference:
-        from .stream import StreamingFeatures
-
-        bar.set_postfix_str("spectra, lpc, formants")
-        sub = FeatureSet(tuple(framewise), {**fset.options, "level_db": None, "band_hz": None}, fset.name)
-        s = StreamingFeatures(sub, fps=fps, rate=rate)
-        values = s.process(x, T)
-        for f in framewise:
-            idx = [j for j, n in enumerate(s.names) if _feature_of(n) == f]
-            cols[f] = ([s.names[j] for j in idx], values[:, idx])
-        bar.update()
-    elif framewise:
-        cols.update(_reference_columns(x, rate, fps, T, want, opt))
-        bar.update()
-    voiced = None
-    if want & {"f0", "voicing"}:
-        bar.set_postfix_str("f0")
-        f0, prob = pitch_mod.pitch_frames(x, rate, fps, T, floor=opt["pitch_floor"],
-                                          ceiling=opt["pitch_ceiling"])
-        voiced = np.isfinite(f0)
-        if "f0" in want:
-            cols["f0"] = (["f0"], pitch_mod.fill_unvoiced(f0)[:, None])
-        if "voicing" in want:
-            cols["voicing"] = (["voicing"], prob[:, None])
-        bar.update()
-    bar.close()
-
-    names: list[str] = []
-    blocks = []
-    for feat in fset.features:
-        n, v = cols[feat]
-        names += n
-        blocks.append(np.asarray(v, dtype=np.float64).reshape(T, -1))
-    values = np.ascontiguousarray(np.hstack(blocks))
-    if not np.all(np.isfinite(values)):  # a bug, not bad input: every path floors its logs
-        bad = [names[j] for j in np.nonzero(~np.all(np.isfinite(values), axis=0))[0]]
-        raise RuntimeError(f"features: non-finite values in {bad}")
-    return Features(values, tuple(names), fps, fset, audio.duration, voiced)
-
-
 def analysis_window_s(opt: dict, fps: float) -> float:
     """Length (s) of the spectral and LPC analysis windows: ``window_s`` if set, else 25 ms or
     one frame period, whichever is longer."""
     return float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
-
-
-def _reference_columns(x, rate, fps, T, want, opt) -> dict:
-    """The streamable features by the numpy definitions (``reference_extract``)."""
-    from . import lpc as lpc_mod
-    from . import spectral
-
-    window_s = analysis_window_s(opt, fps)
-    cols: dict[str, tuple[list[str], np.ndarray]] = {}
-    spec_want = want & {"mfcc", "mfcc_deltas", "rasta_plp", "bands", "log_energy"}
-    if spec_want:
-        kinds = {("mfcc" if k == "mfcc_deltas" else k) for k in spec_want}
-        sp = spectral.spectral_features(x, rate, fps, T, want=kinds, window_s=window_s,
-                                        n_fft=opt["n_fft"], n_mfcc=opt["n_mfcc"],
-                                        n_mels=opt["n_mels"], rasta_order=opt["rasta_order"],
-                                        rasta_ceps=opt["n_rasta"])
-        if "mfcc" in sp:
-            m = sp["mfcc"]
-            cols["mfcc"] = ([f"mfcc{i}" for i in range(m.shape[1])], m)
-            if "mfcc_deltas" in want:
-                cols["mfcc_deltas"] = ([f"dmfcc{i}" for i in range(m.shape[1])],
-                                       spectral.deltas(m, opt["delta_width"]))
-        if "rasta_plp" in sp:
-            r = sp["rasta_plp"]
-            first = 0 if opt["rasta_c0"] else 1
-            cols["rasta_plp"] = ([f"rplp{i}" for i in range(first, r.shape[1])], r[:, first:])
-        if "bands" in sp:
-            b = sp["bands"]
-            cols["bands"] = ([f"band{i}" for i in range(b.shape[1])], b)
-        if "log_energy" in sp:
-            cols["log_energy"] = (["log_energy"], sp["log_energy"][:, None])
-    if want & {"lpc", "lpc_cepstra"}:
-        order = int(opt["lpc_order"])
-        a, err = lpc_mod.lpc_frames(x, rate, fps, T, order=order, window_s=window_s,
-                                    preemph=opt["lpc_preemph"])
-        if "lpc" in want:
-            cols["lpc"] = ([f"lpc{i}" for i in range(1, order + 1)], a[:, 1:])
-        if "lpc_cepstra" in want:
-            n = int(opt["n_lpc_cepstra"])
-            c = lpc_mod.lpc_to_cepstrum(a, err, n + 1)[:, 1:]
-            cols["lpc_cepstra"] = ([f"lpcc{i}" for i in range(1, n + 1)], c)
-    if "formants" in want:
-        f = lpc_mod.formant_frames(x, rate, fps, T, ceiling=opt["formant_ceiling"],
-                                   max_bandwidth=opt["formant_max_bandwidth"])
-        cols["formants"] = ([f"f{i}" for i in range(1, f.shape[1] + 1)], f)
-    return cols
 
 
 @dataclass(frozen=True)
@@ -512,4 +345,4 @@ class Standardizer:
 
 
 __all__ = ["FEATURES", "FEATURE_SETS", "DEFAULT_SET", "DEFAULT_OPTIONS", "FeatureSet", "Features",
-           "Standardizer", "extract", "as_feature_set", "prepare", "load_audio"]
+           "Standardizer", "as_feature_set", "feature_of", "analysis_window_s", "check_level_db"]

@@ -2,7 +2,7 @@
 
 These numpy functions define the LPC and formant features; the front end computes them in C++
 (``cpp/include/voicepuppet/audio_features.hpp``, through ``stream.StreamingFeatures``), and
-``lpc_frames`` / ``formant_frames`` are its reference (``featureset.reference_extract``, the
+``lpc_frames`` / ``formant_frames`` are its reference (``extract.reference_extract``, the
 test oracle) and the benchmark peers' counterparts.
 
 Conventions: the inverse filter is ``A(z) = 1 + a_1 z^-1 + ... + a_p z^-p`` (the coefficient
@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from .framing import fast_len, frame_centres, hamming, iter_frames
+from voicepuppet.audio.framing import fast_len, frame_centres, hamming, iter_frames
 
 #: Relative white-noise correction added to lag 0 (-90 dB): keeps Levinson-Durbin well posed.
 WHITE_NOISE_CORRECTION = 1e-9
@@ -301,7 +301,7 @@ def formant_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, n_form
     -------
     ndarray, shape (n_out, n_formants)
     """
-    from .loading import _resample
+    from voicepuppet.audio.loading import _resample
 
     fs, order, preemph = formant_analysis(int(rate), ceiling, n_formants)
     y = _resample(np.asarray(x, dtype=np.float64), int(rate), fs) if fs != rate else x

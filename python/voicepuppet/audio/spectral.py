@@ -3,7 +3,7 @@
 All analysis windows are centred on video frame times (see ``framing``); power spectra are
 ``|rfft(window * frame)|^2``. The tables (windows, filterbanks) are used by the C++ front end
 (``stream.core_options``); ``spectral_features`` is the numpy reference of its per-frame work
-(``featureset.reference_extract``, the test oracle).
+(``extract.reference_extract``, the test oracle).
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from .framing import centred_window, fast_len, frame_centres, hann, iter_frames
-from .lpc import levinson, lpc_to_cepstrum
+from voicepuppet.audio.framing import centred_window, fast_len, frame_centres, hann, iter_frames
+from voicepuppet.audio.lpc import levinson, lpc_to_cepstrum
 
 #: Power floor (amin of librosa.power_to_db): -100 dB.
 POWER_FLOOR = 1e-10

@@ -7,7 +7,7 @@ released); this module builds its analysis tables from the definitions in ``spec
 ``lpc`` and checks the input. The offline front end (:func:`voicepuppet.audio.extract`) is the
 same C++ code run on the whole (DC-removed) signal in one push, so stream and offline agree by
 construction; both are tested to 1e-9 against the numpy reference
-(``featureset.reference_extract``, the test oracle, on
+(``extract.reference_extract``, the test oracle, on
 ``prepare(x, rate, target_rate=None, remove_dc=False)``):
 
 - spectral features (``mfcc``, ``bands``, ``log_energy``, ``rasta_plp``) and LPC features are
@@ -39,9 +39,9 @@ from fractions import Fraction
 
 import numpy as np
 
-from .featureset import FeatureSet, analysis_window_s, as_feature_set, check_level_db
-from .framing import check_fps, n_frames
-from .loading import MIN_RATE, AudioWarning
+from voicepuppet.audio.featureset import FeatureSet, analysis_window_s, as_feature_set, check_level_db
+from voicepuppet.audio.framing import check_fps, n_frames
+from voicepuppet.audio.loading import MIN_RATE, AudioWarning
 
 #: Features the stream can produce.
 STREAMABLE = ("lpc", "lpc_cepstra", "rasta_plp", "mfcc", "mfcc_deltas", "formants", "bands",
@@ -135,8 +135,8 @@ def core_options(fset: FeatureSet, fps: float, rate: int, formant_lag: int | Non
 
     from voicepuppet import _core
 
-    from . import lpc as lpc_mod
-    from . import spectral
+    from voicepuppet.audio import lpc as lpc_mod
+    from voicepuppet.audio import spectral
 
     opt = fset.settings()
     want = set(fset.features)

@@ -17,6 +17,8 @@ import statistics
 import time
 from typing import Callable
 
+from voicepuppet._files import atomic_path
+
 # suite name -> module implementing run(quick, repeats)
 SUITES = {
     "hmm": "voicepuppet.bench.hmm",
@@ -79,11 +81,9 @@ def machine_info() -> dict:
 
 def write_json_atomic(path: str, payload: dict) -> None:
     """Write JSON to ``path`` through a temporary file and a rename (never half-written)."""
-    tmp = f"{path}.tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
+    with atomic_path(path, (".json",), "benchmark results") as tmp, open(tmp, "w", encoding="utf-8") as fh:
         json.dump(payload, fh, indent=2)
         fh.write("\n")
-    os.replace(tmp, path)
 
 
 def print_table(cases: list[dict]) -> None:
@@ -99,7 +99,7 @@ def print_table(cases: list[dict]) -> None:
 
 
 def _run(args) -> int:
-    from voicepuppet.cli import UserError
+    from voicepuppet.cli.main import UserError
 
     if args.suite not in SUITES:
         raise UserError(f"unknown suite {args.suite!r}; choose one of {', '.join(sorted(SUITES))}")

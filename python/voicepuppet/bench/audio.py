@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import case, rel_diff, timeit_interleaved
+from voicepuppet.bench import case, rel_diff, timeit_interleaved
 
 
 def _peers():
@@ -28,7 +28,7 @@ def _peers():
 
 def _speech(seconds: float):
     from voicepuppet import audio
-    from voicepuppet.audio import samples
+    from voicepuppet import data as samples
 
     try:
         path = samples.arctic_a0009()
@@ -60,7 +60,7 @@ def run(quick: bool = False, repeats: int = 3) -> list[dict]:
 
     a = _speech(long_s)
     size = f"{long_s / 60:g} min 16 kHz speech"
-    from voicepuppet.audio.featureset import reference_extract
+    from voicepuppet.audio.extract import reference_extract
 
     t, res = _timed({"ours": lambda: audio.extract(a, fps=29.97),
                      "peer": lambda: reference_extract(a, fps=29.97)}, repeats)

@@ -9,7 +9,7 @@ Cases (``ours`` = the batch engine, ``peer`` = the same work file by file in thi
   which is also audio hours per wall hour.
 - ``track, W workers``: the spring-mesh tracker on ``F`` short planted-face videos (640x480).
 - ``train Baum-Welch, W workers``: seconds per EM iteration with the E-step on the cluster
-  (:class:`voicepuppet.distributed.DaskEStep`, data held on the workers) vs ``GaussianHMM.fit``
+  (:class:`voicepuppet.hmm.distributed.DaskEStep`, data held on the workers) vs ``GaussianHMM.fit``
   in this process; ``agree`` is the largest absolute difference of the trained parameters.
 - ``engine overhead``: a trivial task per file (read the input, return its bytes): the batch
   engine's cost per file (scheduling, checksums, manifest, atomic writes) against the same
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import case, timeit_interleaved
+from voicepuppet.bench import case, timeit_interleaved
 
 SENTENCES = [
     "Peter bought a map of the bay before the boats came back.",
@@ -61,7 +61,7 @@ def _compare(out: Path, ref: Path) -> float:
 
 
 def _cluster(n: int):
-    from voicepuppet.distributed import connect
+    from voicepuppet.hmm.distributed import connect
 
     t0 = time.perf_counter()
     ctx = connect(workers=n, timeout=120)
@@ -72,7 +72,7 @@ def _cluster(n: int):
 def _make_puppet(work: Path, quick: bool):
     """A puppet trained on the synthetic performer (cached corpus), saved to work/puppet.vpp."""
     from voicepuppet import synth
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     corpus = synth.make_corpus(work / "corpus", train_seconds=20 if quick else 60, n_test=0, seed=0,
                                real_test=False, progress=False)
@@ -101,7 +101,7 @@ def _speech_files(folder: Path, n: int) -> float:
 def _videos(folder: Path, n: int, frames_each: int) -> float:
     import cv2
 
-    from .tracker import planted_face_sequence
+    from voicepuppet.bench.tracker import planted_face_sequence
 
     frames, _, _ = planted_face_sequence(n * frames_each, seed=3, occlusion=None, blur=None)
     folder.mkdir(parents=True, exist_ok=True)
@@ -119,7 +119,7 @@ def _trivial_task(path: str, name: str) -> dict:
 
 
 def _engine_overhead(work: Path, client, n_files: int, repeats: int) -> dict:
-    from voicepuppet import batch
+    from voicepuppet.batch import jobs as batch
 
     src = work / "trivial"
     src.mkdir(exist_ok=True)
@@ -150,10 +150,10 @@ def _engine_overhead(work: Path, client, n_files: int, repeats: int) -> dict:
 
 def _training_case(client, quick: bool, repeats: int) -> dict:
     """Baum-Welch with its E-steps on the cluster vs in this process (same data, same start)."""
-    from voicepuppet.distributed import DaskEStep
-    from voicepuppet.hmm import GaussianHMM
+    from voicepuppet.hmm.distributed import DaskEStep
+    from voicepuppet.hmm.gaussian import GaussianHMM
 
-    from .hmm import make_problem
+    from voicepuppet.bench.hmm import make_problem
 
     n, d, T, S, n_iter = (10, 20, 4000, 8, 3) if quick else (40, 40, 18000, 24, 5)
     _, X = make_problem(n, d, T, seed=4)
@@ -180,7 +180,7 @@ def _training_case(client, quick: bool, repeats: int) -> dict:
 
 def run(quick: bool = False, repeats: int = 3, animate: bool = True) -> list[dict]:
     """The suite; ``animate=False`` leaves out the animation cases (no puppet training)."""
-    from voicepuppet import batch
+    from voicepuppet.batch import jobs as batch
 
     rows = []
     work = Path(tempfile.mkdtemp(prefix="voicepuppet-bench-batch-"))
@@ -189,7 +189,7 @@ def run(quick: bool = False, repeats: int = 3, animate: bool = True) -> list[dic
         n_vid, frames_each = (4, 12) if quick else (8, 40)
         vid_dir = work / "videos"
         video_seconds = _videos(vid_dir, n_vid, frames_each)
-        from .tracker import ASTRONAUT_POINTS
+        from voicepuppet.bench.tracker import ASTRONAUT_POINTS
 
         init = work / "points.json"
         import json
@@ -210,7 +210,7 @@ def run(quick: bool = False, repeats: int = 3, animate: bool = True) -> list[dic
         aref = work / "animate-ref"
 
         def animate_peer():
-            from voicepuppet.puppet import load
+            from voicepuppet.puppet.model import load
 
             shutil.rmtree(aref, ignore_errors=True)
             aref.mkdir()

@@ -5,7 +5,7 @@ Cases (K = 16 face dimensions, 41 phones, phones dwelling 2-12 frames at 29.97 f
 
 - ``generate_hour``: DPDS generation for one hour of labels (107,892 frames), C++ recursion vs a
   numpy loop over frames; ``realtime_factor`` = seconds of video per second of compute.
-- ``stream_hour``: the same hour pushed one frame at a time through :class:`voicepuppet.dpds.DPDSStream`
+- ``stream_hour``: the same hour pushed one frame at a time through :class:`voicepuppet.phonemes.models.DPDSStream`
   (Python call per frame included): ``frame_ms_p50`` / ``frame_ms_p99``.
 - ``trajectory_hour``: beside it, the puppet's synthesis kernel on the same hour (Brand's
   closed-form trajectory with one full-covariance Gaussian per phone, block Cholesky), no peer.
@@ -17,7 +17,7 @@ Cases (K = 16 face dimensions, 41 phones, phones dwelling 2-12 frames at 29.97 f
   A in numpy; ``agree`` compares the gradients.
 - ``solve_10min``: the exact mu/nu/r solve (Algorithm 1) on the same frames, no peer (the
   tests compare it with lstsq on small problems).
-- ``train_10min``: :meth:`voicepuppet.dpds.DPDS.fit` on the same 10 minutes (L-BFGS-B, 100
+- ``train_10min``: :meth:`voicepuppet.phonemes.models.DPDS.fit` on the same 10 minutes (L-BFGS-B, 100
   iterations at most), no peer.
 """
 
@@ -36,7 +36,7 @@ SEED = 2007
 
 
 def _labels(rng, T):
-    from voicepuppet.phonemes import N_PHONES
+    from voicepuppet.phonemes.labels import N_PHONES
 
     dwell = rng.integers(2, 13, size=T)
     seq = np.repeat(rng.integers(0, N_PHONES, size=T), dwell)[:T]
@@ -44,7 +44,7 @@ def _labels(rng, T):
 
 
 def _params(rng):
-    from voicepuppet.phonemes import N_PHONES
+    from voicepuppet.phonemes.labels import N_PHONES
 
     a = rng.uniform(0.5, 0.95, size=(N_PHONES, K))
     mu = rng.normal(size=(N_PHONES, K))
@@ -79,7 +79,7 @@ def _puppet_animate_case(rng, n_frames: int, repeats: int) -> dict:
     """A 40-state puppet trained on 2 minutes of performer landmarks with synthetic feature
     frames (features_list), then animated from an hour of feature frames."""
     from voicepuppet.animation import neutral_landmarks
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     T = int(120 * FPS)
     neutral = neutral_landmarks()
@@ -100,8 +100,8 @@ def _puppet_animate_case(rng, n_frames: int, repeats: int) -> dict:
 
 
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
-    from voicepuppet.dpds import DPDS
-    from voicepuppet.phonemes import N_PHONES
+    from voicepuppet.phonemes.models import DPDS
+    from voicepuppet.phonemes.labels import N_PHONES
     from voicepuppet.trajectory import make_model
 
     rng = np.random.default_rng(SEED)

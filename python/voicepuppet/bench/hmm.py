@@ -15,7 +15,7 @@ import numpy as np
 
 from voicepuppet import _core
 from voicepuppet.bench import case, rel_diff, timeit_interleaved
-from voicepuppet.hmm import GaussianHMM
+from voicepuppet.hmm.gaussian import GaussianHMM
 
 
 def _peer():

@@ -12,7 +12,7 @@ Cases (medians of interleaved repeats; per-frame percentiles over every frame of
   ``vocal_features="projected", vocal_covariance="tied"`` (±5 frames, exact look-ahead), against
   the unprojected puppet's stream (``agree``: its exact stream against its offline animate;
   ``frame_ms_p50_10x``: per-frame compute on the clip's features repeated 10 times);
-- ``live_lag{L}ms``: :class:`voicepuppet.live.LivePuppet` end to end (audio chunks of 5 ms in,
+- ``live_lag{L}ms``: :class:`voicepuppet.live.server.LivePuppet` end to end (audio chunks of 5 ms in,
   face frames out) for several latency budgets. A frame's end-to-end latency is the audio
   time between the frame's moment and the end of the chunk that completed it, plus the compute
   time of that push: ``latency = lag + compute`` measured, not assumed.
@@ -42,7 +42,7 @@ def _corpus(quick: bool):
     """Training clip and held-out clips of the synthetic performer (cached), and a puppet."""
     import os
 
-    from voicepuppet.audio.samples import cache_dir
+    from voicepuppet.data import cache_dir
     from voicepuppet.synth import make_corpus
 
     secs = 20 if quick else 60
@@ -63,8 +63,8 @@ def _cached_puppet(corpus, quick: bool, **options):
     import json
     import os
 
-    from voicepuppet.projection import GUIDE_WEIGHT, GUIDE_WEIGHTS
-    from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, load
+    from voicepuppet.puppet.guide import GUIDE_WEIGHT, GUIDE_WEIGHTS
+    from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet, load
 
     with open(os.path.join(corpus.out_dir, "corpus.json")) as fh:
         key = json.load(fh)["key"]
@@ -104,9 +104,9 @@ def _stream_live(live, x):
 def run(quick: bool = False, repeats: int = 3) -> list:
     from voicepuppet import _core
     from voicepuppet.audio import extract, load_audio, prepare
-    from voicepuppet.audio.featureset import reference_extract
+    from voicepuppet.audio.extract import reference_extract
     from voicepuppet.audio.stream import StreamingFeatures, speech_level_db
-    from voicepuppet.live import LivePuppet
+    from voicepuppet.live.server import LivePuppet
 
     corpus, puppet = _corpus(quick)
     clip = corpus.test[0]
@@ -250,8 +250,8 @@ def error_table(quick: bool = False) -> str:
     inter-ocular distance; 'vs truth' columns compare with the performer's real landmarks."""
     from voicepuppet.audio import load_audio
     from voicepuppet.audio.stream import speech_level_db
-    from voicepuppet.live import LivePuppet
-    from voicepuppet.metrics import err, landmark_rmse_iod
+    from voicepuppet.live.server import LivePuppet
+    from voicepuppet.evaluation.metrics import err, landmark_rmse_iod
 
     corpus, puppet = _corpus(quick)
     rows = ["| lag budget (ms) | latency (ms) | look-aheads (formant, deltas, guide, decoder, trajectory) | mode "
@@ -299,8 +299,8 @@ def _lag_price_table(puppet, clips, settings, sweep=(None, (None,)), guide_weigh
     option, values = sweep
     from voicepuppet.audio import load_audio
     from voicepuppet.audio.stream import speech_level_db
-    from voicepuppet.live import LivePuppet
-    from voicepuppet.metrics import err, landmark_rmse_iod
+    from voicepuppet.live.server import LivePuppet
+    from voicepuppet.evaluation.metrics import err, landmark_rmse_iod
 
     offline = {c.audio: puppet.animate(load_audio(c.audio), guide_weight=guide_weight
                                        ).animation.points for c in clips}

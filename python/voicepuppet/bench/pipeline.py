@@ -25,7 +25,7 @@ def _corpus(seconds: float):
 
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
     from voicepuppet import _core, audio as vaudio
-    from voicepuppet.puppet import Puppet
+    from voicepuppet.puppet.model import Puppet
 
     seconds = 30.0 if quick else 180.0
     corpus = _corpus(seconds)

@@ -18,7 +18,8 @@ from voicepuppet.bench import case, timeit_interleaved
 def run(quick: bool = False, repeats: int = 1) -> list[dict]:
     import soundfile as sf
 
-    from voicepuppet import export, render
+    from voicepuppet.render import export
+    from voicepuppet.render import mesh as render
     from voicepuppet.animation import procedural_animation
 
     fps, seconds, (w, h) = 30000 / 1001, (3.0 if quick else 30.0), (640, 480)

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from . import case, timeit_interleaved
+from voicepuppet.bench import case, timeit_interleaved
 
 
 def _skimage():
@@ -26,8 +26,8 @@ def _skimage():
 
 
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
-    from .. import synth
-    from ..synth.video import _pose_matrices
+    from voicepuppet import synth
+    from voicepuppet.synth.video import _pose_matrices
 
     if not synth.espeak_available():
         raise RuntimeError("the synth benchmark needs espeak-ng: apt-get install espeak-ng")

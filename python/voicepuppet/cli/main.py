@@ -1,0 +1,75 @@
+"""The ``voicepuppet`` command line.
+
+Each verb lives next to the code it drives: a module exposing ``add_parser(subparsers)`` that
+registers its sub-command and sets ``func`` (called with the parsed arguments, returning an
+exit code). Only verbs that work are listed in ``VERB_MODULES``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import warnings
+
+from voicepuppet.blas import blas_threads
+
+# Order is the order shown in --help.
+VERB_MODULES = [
+    "voicepuppet.cli.info",
+    "voicepuppet.cli.demo",
+    "voicepuppet.tracking.tracker",
+    "voicepuppet.cli.puppet",
+    "voicepuppet.cli.features",
+    "voicepuppet.render.mesh",
+    "voicepuppet.render.export",
+    "voicepuppet.batch.jobs",
+    "voicepuppet.live.server",
+    "voicepuppet.bench",
+    "voicepuppet.cli.evaluate",
+    "voicepuppet.phonemes.labels",
+    "voicepuppet.phonemes.models",
+]
+
+
+class UserError(Exception):
+    """An error caused by the user's input: printed as one line, exit code 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from voicepuppet import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="voicepuppet",
+        description="Voice-driven facial animation (Brand's Voice Puppetry).",
+    )
+    parser.add_argument("--version", action="version", version=f"voicepuppet {__version__}")
+    sub = parser.add_subparsers(dest="verb", metavar="VERB")
+    sub.required = True
+    for name in VERB_MODULES:
+        importlib.import_module(name).add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        with blas_threads(), warnings.catch_warnings():
+            # Warnings are news for the user (a dropped stretch of video, a fallback), not for a
+            # developer: one line each, without the source line of the code that raised them.
+            def show(message, category, filename, lineno, file=None, line=None):
+                print(f"voicepuppet {args.verb}: warning: {message}", file=sys.stderr)
+
+            warnings.showwarning = show
+            return int(args.func(args) or 0)
+    except (UserError, ValueError, FileNotFoundError) as exc:
+        print(f"voicepuppet {args.verb}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"voicepuppet {args.verb}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,8 @@
+"""Hidden Markov models over face observations: the Gaussian HMM (:mod:`.gaussian`), its
+entropic MAP training (:mod:`.entropic`, one-way: it uses the HMM, never the reverse) and
+E-steps distributed over a Dask cluster (:mod:`.distributed`)."""
+
+from voicepuppet.hmm.entropic import EntropicHMM, fit_entropic
+from voicepuppet.hmm.gaussian import GaussianHMM, aligned, check_sequences
+
+__all__ = ["EntropicHMM", "GaussianHMM", "aligned", "check_sequences", "fit_entropic"]

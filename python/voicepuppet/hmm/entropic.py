@@ -1,0 +1,549 @@
+"""Entropic estimation of Gaussian HMMs (Brand, Neural Computation 1999; Voice Puppetry §4.2).
+
+Training maximises the log posterior ``log p(X | θ) + log P_e(θ)`` under the entropic prior
+``P_e(θ) ∝ exp(−Z·H(θ))``: a large fully connected HMM whittles itself down to a sparse machine.
+The kernels (the MAP multinomial via Lambert W, the entropic covariance, trimming candidates,
+the annealing schedule) are C++; this module runs the training loop with trimming verified
+against the exact log posterior, and computes the diagnostics the paper reports: perplexity,
+context memory, entropy rate of decoding and the Viterbi share of the posterior mass.
+
+Use it through :class:`EntropicHMM`, a :class:`voicepuppet.hmm.gaussian.GaussianHMM` trained
+under the prior::
+
+    EntropicHMM(40, z=1.0, trim=True, n_iter=50).fit(X)
+
+``z`` may also be a sequence of per-iteration weights, e.g. :func:`anneal_schedule`.
+See ``docs/entropic.md`` for the method and the state-trimming rule.
+"""
+
+from __future__ import annotations
+
+import math
+import numpy as np
+
+from voicepuppet import _core
+from voicepuppet.hmm.gaussian import GaussianHMM, aligned, check_sequences
+
+__all__ = [
+    "EntropicHMM", "entropic_multinomial", "entropic_rows", "entropic_objective", "anneal_schedule",
+    "log_prior", "fit_entropic", "perplexity", "context_memory", "entropy_rate",
+    "viterbi_share", "diagnostics", "LocalData", "LocalEvaluation",
+]
+
+LOG_2PI_E = math.log(2 * math.pi * math.e)
+
+
+def _check_z(z) -> float:
+    try:
+        z = float(z)
+    except (TypeError, ValueError):
+        raise ValueError(f"z must be a finite number, got {z!r}") from None
+    if not math.isfinite(z):
+        raise ValueError(f"z must be a finite number (1: minimum entropy, 0: maximum likelihood, "
+                         f"< 0: annealing), got {z!r}")
+    return z
+
+
+def _check_evidence(omega, name: str, ndim: int) -> np.ndarray:
+    a = np.ascontiguousarray(omega, dtype=np.float64)
+    if a.ndim != ndim:
+        raise ValueError(f"{name} must be a {ndim}-D array of expected counts, got shape {a.shape}")
+    if a.size == 0:
+        raise ValueError(f"{name} is empty; give at least one entry of evidence")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} contains NaN or infinite values; expected counts must be finite")
+    if np.any(a < 0):
+        raise ValueError(f"{name} has negative entries (min {a.min():.3g}); expected counts must be >= 0")
+    return a
+
+
+def entropic_multinomial(omega, z: float = 1.0) -> np.ndarray:
+    """Entropic MAP estimate of a multinomial: argmax over the simplex of Σ (ω_k + Z θ_k) log θ_k.
+
+    Parameters
+    ----------
+    omega : array_like, shape (K,)
+        Non-negative evidence (expected counts).
+    z : float
+        Prior weight: 1 minimum entropy, 0 maximum likelihood, < 0 maximum-entropy bias.
+
+    Returns
+    -------
+    theta : ndarray, shape (K,)
+        Probabilities summing to one; zero-evidence entries are 0 when ``z > 0``.
+    """
+    z = _check_z(z)
+    omega = _check_evidence(omega, "omega", 1)
+    if z >= 0 and not np.any(omega > 0):
+        raise ValueError(f"omega is all zero: with z = {z} >= 0 the estimate is not unique; "
+                         "give some evidence or keep the previous parameters")
+    return _core.entropic_multinomial(omega, z)
+
+
+def entropic_rows(counts, z: float, old) -> np.ndarray:
+    """Row-wise :func:`entropic_multinomial` of counts [R, K]; rows without evidence kept from ``old``."""
+    z = _check_z(z)
+    counts = _check_evidence(counts, "counts", 2)
+    old = np.ascontiguousarray(old, dtype=np.float64)
+    if old.shape != counts.shape:
+        raise ValueError(f"old must have the shape of counts {counts.shape}, got {old.shape}")
+    return _core.entropic_rows(counts, z, old)
+
+
+def entropic_objective(omega, theta, z: float) -> float:
+    """Σ_k (ω_k + Z θ_k) log θ_k (0 log 0 = 0; −inf when evidence meets a zero probability)."""
+    return float(_core.entropic_objective(_check_evidence(omega, "omega", 1),
+                                          np.ascontiguousarray(theta, dtype=np.float64), _check_z(z)))
+
+
+def anneal_schedule(n_iter: int, z_start: float = -1.0, z_final: float = 1.0,
+                    n_anneal: int | None = None) -> np.ndarray:
+    """Per-iteration prior weights: a cosine ramp from ``z_start`` (high temperature, Z < 0 favours
+    spreading probability, so states share the data before they specialise) to ``z_final`` over
+    ``n_anneal`` iterations (default: half of ``n_iter``), then constant."""
+    if int(n_iter) != n_iter or n_iter < 1:
+        raise ValueError(f"n_iter must be a positive integer, got {n_iter!r}")
+    n_anneal = int(n_iter) // 2 if n_anneal is None else n_anneal
+    if int(n_anneal) != n_anneal or n_anneal < 0:
+        raise ValueError(f"n_anneal must be an integer >= 0, got {n_anneal!r}")
+    return _core.anneal_schedule(int(n_iter), _check_z(z_start), _check_z(z_final), int(n_anneal))
+
+
+def log_prior(model, z: float, covar_prior: float = 0.0) -> float:
+    """Log entropic prior of a fitted :class:`~voicepuppet.hmm.gaussian.GaussianHMM` (see docs/entropic.md)."""
+    return float(_core.entropic_log_prior(model.startprob_, model.transmat_, model.covars_2d(),
+                                          model.covariance, _check_z(z), float(covar_prior)))
+
+
+# ---------------------------------------------------------------------------------- training
+class _State:
+    """Parameters of the model being trained (kept apart so that a rejected trim is a no-op)."""
+
+    def __init__(self, startprob, transmat, means, covars, covariance):
+        self.startprob, self.transmat, self.means, self.covars = startprob, transmat, means, covars
+        self.covariance = covariance
+
+    @property
+    def n(self) -> int:
+        return self.transmat.shape[0]
+
+    def covars_2d(self) -> np.ndarray:
+        return np.ascontiguousarray(self.covars.reshape(-1, self.covars.shape[-1]))
+
+    def params(self) -> dict:
+        """The parameters as :meth:`voicepuppet.hmm.gaussian.GaussianHMM.parameters` gives them."""
+        return {"startprob": self.startprob, "transmat": self.transmat, "means": self.means,
+                "covars": self.covars_2d(), "covariance": self.covariance}
+
+    def log_prior(self, z: float) -> float:
+        """Brand's entropic prior alone (no covariance prior: training never uses one)."""
+        return float(_core.entropic_log_prior(self.startprob, self.transmat, self.covars_2d(),
+                                              self.covariance, z, 0.0))
+
+
+class LocalEvaluation:
+    """Forward-backward at one model on data held in this process (see :class:`LocalData`).
+
+    Attributes
+    ----------
+    log_likelihood : float
+    expected_transitions : ndarray, shape (N, N)
+        ξ summed over frames and sequences.
+    expected_starts : ndarray, shape (N,)
+    """
+
+    def __init__(self, data: "LocalData", log_b: np.ndarray, params: dict):
+        ll, post, xi, starts, _ = _core.forward_backward(log_b, params["startprob"], params["transmat"],
+                                                          data.lengths)
+        self.log_likelihood, self.expected_transitions, self.expected_starts = float(ll), xi, starts
+        self._data, self._log_b, self._post = data, log_b, post
+        self._heirs = None
+
+    def exclusive_evidence(self) -> np.ndarray:
+        """Σ_t γ_ti · max(0, log b_i(x_t) − max_{j≠i} log b_j(x_t)), shape (N,): the evidence only
+        state i explains (N >= 2)."""
+        log_b, post = self._log_b, self._post
+        n = log_b.shape[1]
+        top2 = np.partition(log_b, n - 2, axis=1)[:, n - 2:]
+        second, first = top2[:, 0], top2[:, 1]
+        runner_up = np.where(log_b >= first[:, None], second[:, None], first[:, None])
+        advantage = np.maximum(0.0, log_b - runner_up)
+        return (post * advantage).sum(axis=0)
+
+    def heirs(self) -> np.ndarray:
+        """For each state i, the other state that best explains i's frames:
+        argmax_j≠i Σ_t γ_ti log b_j(x_t), shape (N,) int."""
+        if self._heirs is None:
+            fit = self._post.T @ self._log_b  # [i, j]
+            np.fill_diagonal(fit, -np.inf)
+            self._heirs = np.argmax(fit, axis=1)
+        return self._heirs
+
+    def gaussian_stats(self):
+        """γ-weighted Gaussian statistics ``(weight [N], sum [N,D], outer)`` about the data's
+        ``shift`` (outer: full [N*D,D], diag [N,D])."""
+        return _core.gaussian_stats(self._data.X, self._post, self._data.shift, self._data.covariance)
+
+
+class LocalData:
+    """The data side of entropic training, in this process (the default of :func:`fit_entropic`).
+
+    An object with the same methods over the same data (e.g.
+    :class:`voicepuppet.hmm.distributed.DaskEStep`) computes them elsewhere; training calls only these:
+
+    - ``densities(params) -> handle``: the log densities [T, N] of the Gaussians in ``params``
+      (or anything that stands for them);
+    - ``drop_state(handle, i) -> handle``: the same without state i;
+    - ``log_likelihood(params, handle) -> float``: Σ over sequences of log p(x | params), a
+      forward pass (raises ``RuntimeError`` when no state sequence explains the data);
+    - ``evaluate(params, handle) -> evaluation``: forward-backward, with ``log_likelihood``,
+      ``expected_transitions``, ``expected_starts``, ``exclusive_evidence()``, ``heirs()`` and
+      ``gaussian_stats()`` (see :class:`LocalEvaluation`);
+    - ``shift`` [D]: the mean of all frames, ``X.mean(axis=0)``, about which the Gaussian
+      statistics are taken.
+
+    ``params`` are dicts as :meth:`voicepuppet.hmm.gaussian.GaussianHMM.parameters` gives them.
+    """
+
+    def __init__(self, X: np.ndarray, lengths: np.ndarray, covariance: str):
+        self.X, self.lengths, self.covariance = X, lengths, covariance
+        self.shift = X.mean(axis=0)
+
+    def densities(self, params: dict) -> np.ndarray:
+        return _core.gaussian_log_density(self.X, params["means"], params["covars"], self.covariance)
+
+    def drop_state(self, log_b: np.ndarray, i: int) -> np.ndarray:
+        return np.ascontiguousarray(np.delete(log_b, i, axis=1))
+
+    def log_likelihood(self, params: dict, log_b: np.ndarray) -> float:
+        return float(_core.log_likelihood(log_b, params["startprob"], params["transmat"], self.lengths))
+
+    def evaluate(self, params: dict, log_b: np.ndarray) -> LocalEvaluation:
+        return LocalEvaluation(self, log_b, params)
+
+
+_TRIALS = [0]  # forward passes spent on trimming trials (reported per iteration in the history)
+
+
+def _log_posterior(st: _State, log_b, data, z) -> float:
+    """Exact log posterior at st from a forward pass only (for trimming trials)."""
+    _TRIALS[0] += 1
+    return data.log_likelihood(st.params(), log_b) + st.log_prior(z)
+
+
+def _evaluate(st: _State, log_b, data, z):
+    """Forward-backward at st: (log posterior, log-likelihood, evaluation)."""
+    ev = data.evaluate(st.params(), log_b)
+    return ev.log_likelihood + st.log_prior(z), ev.log_likelihood, ev
+
+
+def _drop_state(st: _State, i: int, into: int) -> _State | None:
+    """The model with state i merged into state ``into``: arcs and start mass that went to i go
+    to ``into``, then i is deleted. None if some state would be left without an exit."""
+    A = st.transmat.copy()
+    pi = st.startprob.copy()
+    A[:, into] += A[:, i]
+    pi[into] += pi[i]
+    keep = np.delete(np.arange(st.n), i)
+    A = A[np.ix_(keep, keep)]
+    rows = A.sum(axis=1)
+    pi = pi[keep]
+    if np.any(rows <= 0) or pi.sum() <= 0:
+        return None
+    return _State(np.ascontiguousarray(pi / pi.sum()), np.ascontiguousarray(A / rows[:, None]),
+                  np.ascontiguousarray(st.means[keep]), np.ascontiguousarray(st.covars[keep]), st.covariance)
+
+
+def _state_trim_scores(st: _State, ev, z) -> np.ndarray:
+    """Estimated log-posterior gain of deleting each state (the rule of docs/entropic.md):
+    its description cost Z·[H(θ_i·) + ½ log((2πe)^D |K_i|)] minus the evidence only it explains, Σ_t γ_ti · max(0, log b_i(x_t) − max_{j≠i} log b_j(x_t))."""
+    n = st.n
+    if n < 2:
+        return np.full(n, -np.inf)
+    cost = _core.entropic_state_costs(st.transmat, st.covars_2d(), st.covariance, z, 0.0)
+    return cost - ev.exclusive_evidence()
+
+
+def _record(history, it, z, lp, lp0, ll, st, n_arcs_trimmed, n_states_trimmed, trials):
+    history.append({"iteration": it, "z": z, "log_posterior": lp, "log_posterior_untrimmed": lp0,
+                    "log_likelihood": ll,
+                    "states": int(st.n), "arcs": int(np.count_nonzero(st.transmat)),
+                    "arcs_trimmed": int(n_arcs_trimmed), "states_trimmed": int(n_states_trimmed),
+                    "trim_trials": int(trials)})
+
+
+class EntropicHMM(GaussianHMM):
+    """A Gaussian HMM trained by entropic MAP-EM (:func:`fit_entropic`) instead of Baum-Welch.
+
+    Parameters
+    ----------
+    n_states, covariance, **options
+        As for :class:`voicepuppet.hmm.gaussian.GaussianHMM`.
+    z : float or sequence of float
+        Weight of the entropic prior (1: minimum entropy; 0: maximum likelihood; < 0: high
+        temperature), or one value per iteration (see :func:`anneal_schedule`).
+    trim : bool
+        Trim arcs and states whenever that raises the log posterior.
+
+    Attributes
+    ----------
+    history_ : list of dict
+        One entry per iteration, as :func:`fit_entropic` returns them (``log_posterior``,
+        ``states``, ``arcs``, ...); states may be trimmed, so ``n_states`` can shrink.
+    """
+
+    def __init__(self, n_states: int = 1, covariance: str = "full", *, z=1.0, trim: bool = True, **options):
+        super().__init__(n_states, covariance, **options)
+        z_values = np.atleast_1d(np.asarray(z, dtype=np.float64))
+        if z_values.ndim != 1 or z_values.size == 0 or not np.all(np.isfinite(z_values)):
+            raise ValueError(f"z must be a finite number or a 1-D sequence of them, got {z!r}")
+        self.z = z
+        self.trim = bool(trim)
+
+    def fit(self, X, lengths=None, estep=None) -> "EntropicHMM":
+        """Estimate the parameters by entropic MAP-EM, trimming as it goes.
+
+        Parameters
+        ----------
+        X : array_like, shape (T, D)
+        lengths : array_like of int, shape (S,), optional
+        estep : object, optional
+            Where the data-side quantities come from (default :class:`LocalData` over ``X``; on
+            a cluster :class:`voicepuppet.hmm.distributed.DaskEStep`).
+
+        Returns
+        -------
+        self
+        """
+        fit_entropic(self, X, lengths, estep=estep)
+        return self
+
+
+def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
+    """Train ``model`` (an :class:`EntropicHMM`) by
+    entropic MAP-EM; returns (and stores as ``model.history_``) one dict per iteration with ``z``,
+    ``log_posterior`` and ``log_likelihood`` (at the parameters entering that iteration's M-step,
+    after trimming), ``log_posterior_untrimmed`` (the same before trimming), ``states``, ``arcs``,
+    how many arcs / states that iteration trimmed and ``trim_trials`` (forward passes spent).
+
+    Each iteration: log densities and forward-backward; if ``model.trim`` and Z > 0, transition
+    trimming (Brand's test θ_ij ≤ exp(−(ξ_ij/θ_ij)/Z)) and then state trimming, each kept only if
+    the exact log posterior (a forward pass on the same densities) rises; then the entropic
+    M-step (MAP multinomials for starts and rows, entropic covariances). At fixed Z every step
+    is a generalised EM step, so the log posterior never decreases.
+
+    ``estep`` (default: :class:`LocalData` over ``X``) computes the data-side quantities, e.g. on a
+    cluster (:class:`voicepuppet.hmm.distributed.DaskEStep`); initialisation, trimming decisions and
+    the M-step stay here.
+    """
+    X, lengths = check_sequences(X, lengths)
+    X = aligned(X)  # one data layout in every run (see voicepuppet.hmm.gaussian.aligned)
+    model.initialize(X)
+    model.check_params()
+    n_iter = model.n_iter
+    zs = np.asarray(model.z, dtype=np.float64).ravel()
+    if zs.size == 1:
+        zs = np.full(max(n_iter, 1), float(zs[0]))
+    if zs.size < n_iter:
+        raise ValueError(f"z has {zs.size} per-iteration values but n_iter = {n_iter}; give one value "
+                         "or one per iteration (see voicepuppet.hmm.entropic.anneal_schedule)")
+    for z in zs:
+        _check_z(z)
+    # The variance floor c acts per frame, as in Baum-Welch: K = (S + c w I) / (w + Z⁺), so Z = 0
+    # is Baum-Welch with its floor. It is not part of the prior: the log posterior is the
+    # log-likelihood plus Brand's entropic prior alone (no covariance prior term).
+    floor = model.variance_floor
+    cov = model.covariance
+    shift = X.mean(axis=0)
+    data = LocalData(X, lengths, cov) if estep is None else estep
+    if not np.array_equal(np.asarray(data.shift), shift):
+        raise ValueError("estep holds other data than X (its shift, the mean frame, differs); build it "
+                         "from the same X and lengths")
+    st = _State(model.startprob_.copy(), model.transmat_.copy(), model.means_.copy(),
+                model.covars_.copy(), cov)
+    history: list[dict] = []
+    bar = None
+    if model.progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n_iter, desc="entropic EM", unit="it")
+    previous, previous_z = -np.inf, None
+    try:
+        for it in range(n_iter):
+            z = float(zs[it])
+            log_b = data.densities(st.params())
+            try:
+                lp, ll, ev = _evaluate(st, log_b, data, z)
+            except RuntimeError as exc:
+                raise RuntimeError(f"entropic training at iteration {it} (z = {z}, {st.n} states, "
+                                   f"{int(np.count_nonzero(st.transmat))} arcs) has no state sequence "
+                                   f"that explains the data: {exc}. Lower z, use trim=False, or start "
+                                   "from more states") from exc
+            arcs_trimmed = states_trimmed = 0
+            lp_untrimmed = lp
+            trials_before = _TRIALS[0]
+            if model.trim and z > 0:
+                # Transition trimming: all candidates, then the weaker half, then a quarter.
+                flags = _core.transition_trim_candidates(st.transmat, ev.expected_transitions, z)
+                cand = np.argwhere(flags > 0)
+                if len(cand):
+                    order = np.argsort(st.transmat[cand[:, 0], cand[:, 1]])
+                    for frac in (1.0, 0.5, 0.25):
+                        k = max(1, int(math.ceil(frac * len(cand))))
+                        f = np.zeros_like(flags)
+                        sel = cand[order[:k]]
+                        f[sel[:, 0], sel[:, 1]] = 1.0
+                        trial = _State(st.startprob, _core.trim_transitions(st.transmat, f), st.means,
+                                       st.covars, cov)
+                        if _log_posterior(trial, log_b, data, z) > lp:
+                            st, (lp, ll, ev) = trial, _evaluate(trial, log_b, data, z)
+                            arcs_trimmed = k
+                            break
+                        if k == 1:
+                            break
+                # State trimming: best-scoring candidates first, each verified exactly.
+                scores = _state_trim_scores(st, ev, z)
+                tried = 0
+                while st.n > 1 and tried < 3:
+                    i = int(np.argmax(scores))
+                    if not scores[i] > 0:
+                        break
+                    tried += 1
+                    scores[i] = -np.inf
+                    trial = _drop_state(st, i, int(ev.heirs()[i]))
+                    if trial is None:
+                        continue
+                    trial_log_b = data.drop_state(log_b, i)
+                    try:
+                        accept = _log_posterior(trial, trial_log_b, data, z) > lp
+                    except RuntimeError:  # no allowed path without this state
+                        continue
+                    if accept:
+                        res = _evaluate(trial, trial_log_b, data, z)
+                        st, log_b, (lp, ll, ev) = trial, trial_log_b, res
+                        scores = _state_trim_scores(st, ev, z)
+                        states_trimmed += 1
+            _record(history, it, z, lp, lp_untrimmed, ll, st, arcs_trimmed, states_trimmed,
+                    _TRIALS[0] - trials_before)
+            if bar is not None:
+                bar.set_postfix(logpost=f"{lp:.6g}", states=st.n, arcs=int(np.count_nonzero(st.transmat)))
+                bar.update(1)
+            if previous_z == z and lp - previous < model.tol and not (arcs_trimmed or states_trimmed):
+                break
+            previous, previous_z = lp, z
+            # Entropic M-step.
+            weight, ssum, outer = ev.gaussian_stats()
+            xi, starts = ev.expected_transitions, ev.expected_starts
+            params = model.params
+            if "s" in params:
+                st.startprob = _core.entropic_rows(starts[None, :], z, st.startprob[None, :])[0]
+            if "t" in params:
+                st.transmat = _core.entropic_rows(xi, z, st.transmat)
+            if "m" in params or "c" in params:
+                means, covars = _core.entropic_gaussian_mstep(weight, ssum, outer, shift, cov, z, floor,
+                                                              st.means, st.covars_2d())
+                if "m" in params:
+                    st.means = means
+                if "c" in params:
+                    d = st.means.shape[1]
+                    st.covars = covars.reshape(st.n, d, d) if cov == "full" else covars
+    finally:
+        if bar is not None:
+            bar.close()
+    model.n_states = st.n
+    model.startprob_, model.transmat_ = st.startprob, st.transmat
+    model.means_, model.covars_ = st.means, st.covars
+    model.history_ = history
+    return history
+
+
+# ---------------------------------------------------------------------------------- diagnostics
+def _stationary(transmat: np.ndarray) -> np.ndarray:
+    n = transmat.shape[0]
+    # Solve p (A − I) = 0, Σp = 1 in the least-squares sense (unique for an irreducible chain).
+    M = np.vstack([transmat.T - np.eye(n), np.ones((1, n))])
+    b = np.zeros(n + 1)
+    b[-1] = 1.0
+    p = np.linalg.lstsq(M, b, rcond=None)[0]
+    p = np.clip(p, 0.0, None)
+    return p / p.sum()
+
+
+def perplexity(transmat, weights=None) -> float:
+    """Average branching factor exp(Σ_i w_i H(θ_i·)) of a transition matrix, in states.
+
+    ``weights`` [N] (e.g. state occupancies) default to the stationary distribution.
+    """
+    A = np.asarray(transmat, dtype=np.float64)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or A.size == 0:
+        raise ValueError(f"transmat must be a square (N, N) matrix, got shape {A.shape}")
+    if not np.all(np.isfinite(A)) or np.any(A < 0) or not np.allclose(A.sum(axis=1), 1.0, atol=1e-6):
+        raise ValueError("transmat must be finite, non-negative, with rows summing to 1")
+    w = _stationary(A) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (A.shape[0],) or np.any(w < 0) or not w.sum() > 0:
+        raise ValueError(f"weights must be {A.shape[0]} non-negative numbers with a positive sum")
+    w = w / w.sum()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        H = -np.where(A > 0, A * np.log(np.where(A > 0, A, 1.0)), 0.0).sum(axis=1)
+    return float(np.exp(w @ H))
+
+
+def context_memory(transmat, weights=None) -> float:
+    """Frames of context the machine carries: log_perplexity(N) = log N / log perplexity
+    (Voice Puppetry §5, footnote 1); inf for a deterministic machine."""
+    n = np.asarray(transmat).shape[0]
+    p = perplexity(transmat, weights)
+    return math.inf if p <= 1.0 + 1e-12 else math.log(n) / math.log(p)
+
+
+def entropy_rate(log_b, startprob, transmat, lengths=None) -> float:
+    """Entropy of the posterior over state sequences, per frame (nats): H(S | X) / T.
+
+    Exact, from one forward-backward pass: H(S|X) = log p(X) − E[log p(S, X)] with
+    E[log p(S, X)] = Σ γ_1 log π + Σ ξ_ij log θ_ij + Σ_t Σ_i γ_ti log b_i(x_t).
+    """
+    log_b = np.ascontiguousarray(log_b, dtype=np.float64)
+    T = log_b.shape[0]
+    lengths = np.array([T], dtype=np.int64) if lengths is None else np.ascontiguousarray(lengths, dtype=np.int64)
+    pi = np.ascontiguousarray(startprob, dtype=np.float64)
+    A = np.ascontiguousarray(transmat, dtype=np.float64)
+    ll, post, xi, starts, _ = _core.forward_backward(log_b, pi, A, lengths)
+
+    def xlogy(x, y):
+        return np.where(x > 0, x * np.log(np.where(y > 0, y, 1.0)), 0.0)
+
+    expected = xlogy(starts, pi).sum() + xlogy(xi, A).sum() + np.where(post > 0, post * log_b, 0.0).sum()
+    return float(max(0.0, ll - expected) / T)
+
+
+def viterbi_share(log_b, startprob, transmat, lengths=None) -> tuple[float, float]:
+    """Share of the posterior mass on the Viterbi path: ``(log_share, share_per_frame)`` with
+    log_share = log p(V | X) = log p(V, X) − log p(X) (summed over sequences) and
+    share_per_frame = exp(log_share / T)."""
+    log_b = np.ascontiguousarray(log_b, dtype=np.float64)
+    T = log_b.shape[0]
+    lengths = np.array([T], dtype=np.int64) if lengths is None else np.ascontiguousarray(lengths, dtype=np.int64)
+    pi = np.ascontiguousarray(startprob, dtype=np.float64)
+    A = np.ascontiguousarray(transmat, dtype=np.float64)
+    vit, _ = _core.viterbi(log_b, pi, A, lengths)
+    ll = _core.log_likelihood(log_b, pi, A, lengths)
+    log_share = min(0.0, float(vit - ll))
+    return log_share, math.exp(log_share / T)
+
+
+def diagnostics(model, X, lengths=None) -> dict:
+    """The paper's measures for a fitted model on data X: states, arcs, perplexity (weights: the
+    occupancy of X), context memory, log-likelihood per frame, entropy rate and Viterbi share."""
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    log_b = model.log_density(X)
+    T = X.shape[0]
+    lengths = np.array([T], dtype=np.int64) if lengths is None else np.ascontiguousarray(lengths, dtype=np.int64)
+    occupancy = model.predict_proba(X, lengths).sum(axis=0)
+    log_share, share = viterbi_share(log_b, model.startprob_, model.transmat_, lengths)
+    return {"states": int(model.transmat_.shape[0]), "arcs": int(np.count_nonzero(model.transmat_)),
+            "perplexity": perplexity(model.transmat_, occupancy),
+            "context_memory": context_memory(model.transmat_, occupancy),
+            "log_likelihood_per_frame": model.score(X, lengths) / T,
+            "entropy_rate": entropy_rate(log_b, model.startprob_, model.transmat_, lengths),
+            "viterbi_log_share": log_share, "viterbi_share_per_frame": share}
+

@@ -1,0 +1,6 @@
+"""The voice puppet: training (facial HMM, remap), its guide (ridge regression, projection)
+and the puppet file (Voice Puppetry §4)."""
+
+from voicepuppet.puppet.model import TRAIN_DEFAULTS, Animated, Puppet, load, remap, training_feature_set
+
+__all__ = ["TRAIN_DEFAULTS", "Animated", "Puppet", "load", "remap", "training_feature_set"]
