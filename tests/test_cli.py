@@ -101,7 +101,8 @@ def test_training_runs_blas_on_one_thread_unless_told(monkeypatch):
     import numpy as np
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    from voicepuppet.puppet import model as vpuppet
+    from voicepuppet.puppet import training as vpuppet
+    from voicepuppet.puppet.model import Puppet
 
     def blas_threads():
         return {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
@@ -122,11 +123,11 @@ def test_training_runs_blas_on_one_thread_unless_told(monkeypatch):
     feats = rng.normal(size=(3, 3))[states] + rng.normal(0, 0.3, (300, 3))
     opts = dict(fps=25.0, n_states=3, n_iter=3, n_components=2, audio_deltas=0, guide_weight=1.0)
     with threadpool_limits(limits=2, user_api="blas"):
-        vpuppet.Puppet.train([pts], features_list=[feats], **opts)
+        Puppet.train([pts], features_list=[feats], **opts)
         assert seen and all(s == {1} for s in seen) and blas_threads() == {2}
         seen.clear()
         monkeypatch.setenv("VOICEPUPPET_BLAS_THREADS", "2")
-        vpuppet.Puppet.train([pts], features_list=[feats], **opts)
+        Puppet.train([pts], features_list=[feats], **opts)
         assert seen and all(s == {2} for s in seen)
 
 

@@ -12,7 +12,8 @@ from voicepuppet import _core
 from voicepuppet.puppet.guide import RidgeBaseline, context_stack
 from voicepuppet.layout import RIGID
 from voicepuppet.puppet.guide import GUIDE_WEIGHTS, cross_fit
-from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet, load
+from voicepuppet.puppet.model import Puppet, load
+from voicepuppet.puppet.training import TRAIN_DEFAULTS
 
 FPS = 30.0
 DATA = Path(__file__).parent / "data"

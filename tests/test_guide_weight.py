@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from voicepuppet.puppet.guide import GUIDE_WEIGHTS
-from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet
+from voicepuppet.puppet.model import Puppet
+from voicepuppet.puppet.training import TRAIN_DEFAULTS
 
 FPS = 30.0
 OPTS = dict(fps=FPS, n_states=4, n_iter=8, n_components=2, audio_deltas=0, seed=0, guide_context=2)

@@ -9,7 +9,8 @@ import pytest
 from voicepuppet import _core
 from voicepuppet.puppet import model as vpuppet
 from voicepuppet.face import observations
-from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet, load, remap
+from voicepuppet.puppet.model import Puppet, load
+from voicepuppet.puppet.training import TRAIN_DEFAULTS, remap
 
 
 def _planted(rng, T=900, P=12):
@@ -158,7 +159,7 @@ def test_bad_training_input(rng):
         Puppet.train([pts], features_list=[rng.normal(size=(100, 3))], n_states=40, fps=25.0)
     with pytest.raises(ValueError, match="one audio per landmark"):
         Puppet.train([pts, pts], features_list=[rng.normal(size=(100, 3))], n_states=4)
-    with pytest.raises(ValueError, match="unknown training options"):
+    with pytest.raises(TypeError, match="n_state"):
         Puppet.train([pts], features_list=[rng.normal(size=(100, 3))], n_state=4)
     bad = pts.copy()
     bad[10, 2, 1] = np.nan

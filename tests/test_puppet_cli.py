@@ -402,7 +402,7 @@ def test_tiny_and_silent_audio(workdir, tmp_path, capsys):
 
 def test_frames_where_the_face_is_lost_are_dropped_with_a_warning(rng):
     from voicepuppet.audio import prepare
-    from voicepuppet.cli.puppet import usable_segments
+    from voicepuppet.puppet.sources import usable_segments
 
     T, P = 100, 10
     pts = rng.normal(size=(T, P, 2))

@@ -1,17 +1,14 @@
 """voicepuppet: voice-driven facial animation (Brand, Voice Puppetry, SIGGRAPH 1999).
 
 The compiled kernels live in the private module ``voicepuppet._core``; the public API is
-spread over submodules named for what they hold (``hmm``, ``trajectory``, ``audio``, ...).
+spread over subpackages in the order of the data flow (``tracking``, ``face``, ``audio``, ``hmm``,
+``trajectory``, ``puppet``, ``animation``, ``render``, ``phonemes``, ``evaluation``, ``live``,
+``batch``).
 The puppet itself is here too (DESIGN.md, "Python API"): ``voicepuppet.Puppet.train(...)``,
 ``voicepuppet.load(path)``, ``puppet.animate(audio)``, ``puppet.save(path)``.
 """
 
-from importlib.metadata import PackageNotFoundError, version as _version
-
-try:
-    __version__ = _version("voicepuppet")
-except PackageNotFoundError:  # running from a source tree (PYTHONPATH=python)
-    __version__ = "0.1.0"
+from voicepuppet._version import __version__
 
 __all__ = ["__version__", "Puppet", "load"]
 

@@ -127,7 +127,20 @@ def _read_pyav(path: str):
     return np.ascontiguousarray(data), int(rate)
 
 
-def _resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
+def resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
+    """Resample by the rational factor ``rate_out / rate_in`` (polyphase filtering).
+
+    Parameters
+    ----------
+    x : ndarray, shape (N,)
+    rate_in, rate_out : int
+        Sample rates (Hz).
+
+    Returns
+    -------
+    ndarray, shape (N * rate_out / rate_in,)
+        ``x`` itself when the rates are equal.
+    """
     from scipy.signal import resample_poly
 
     if rate_in == rate_out:
@@ -210,7 +223,7 @@ def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc:
     # Files are read as float32 (half the memory of float64); the mix and all after it are float64.
     mono = x.mean(axis=1, dtype=np.float64) if channels > 1 else x[:, 0].astype(np.float64)
     out_rate = rate if target_rate is None else int(target_rate)
-    mono = _resample(mono, rate, out_rate)
+    mono = resample(mono, rate, out_rate)
     if remove_dc:
         mono = mono - mono.mean()
     if not np.any(np.abs(mono) > 1e-7):

@@ -301,10 +301,10 @@ def formant_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, n_form
     -------
     ndarray, shape (n_out, n_formants)
     """
-    from voicepuppet.audio.loading import _resample
+    from voicepuppet.audio.loading import resample
 
     fs, order, preemph = formant_analysis(int(rate), ceiling, n_formants)
-    y = _resample(np.asarray(x, dtype=np.float64), int(rate), fs) if fs != rate else x
+    y = resample(np.asarray(x, dtype=np.float64), int(rate), fs) if fs != rate else x
     a, _ = lpc_frames(y, fs, fps, n_out, order=order, window_s=window_s, preemph=preemph,
                       window="gaussian")
     f, b = formant_candidates(a, fs, max_bandwidth=max_bandwidth)

@@ -55,7 +55,7 @@ def pitch_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, floor: f
     voicing : ndarray, shape (n_out,)
         Voicing probability in [0, 1] (see ``voicing_probability``).
     """
-    from voicepuppet.audio.loading import _resample
+    from voicepuppet.audio.loading import resample
 
     if not 0 < floor < ceiling:
         raise ValueError(f"pitch: need 0 < floor < ceiling, got floor={floor}, ceiling={ceiling}")
@@ -63,7 +63,7 @@ def pitch_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, floor: f
     if ceiling >= fs / 2:
         raise ValueError(f"pitch: ceiling {ceiling} Hz must be below half the analysis rate "
                          f"{fs / 2} Hz")
-    y = _resample(np.asarray(x, dtype=np.float64), int(rate), fs) if fs != rate else \
+    y = resample(np.asarray(x, dtype=np.float64), int(rate), fs) if fs != rate else \
         np.asarray(x, dtype=np.float64)
     global_peak = float(np.max(np.abs(y))) if y.size else 0.0
     length = int(round(periods / floor * fs))

@@ -64,7 +64,8 @@ def _cached_puppet(corpus, quick: bool, **options):
     import os
 
     from voicepuppet.puppet.guide import GUIDE_WEIGHT, GUIDE_WEIGHTS
-    from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet, load
+    from voicepuppet.puppet.model import Puppet, load
+    from voicepuppet.puppet.training import TRAIN_DEFAULTS
 
     with open(os.path.join(corpus.out_dir, "corpus.json")) as fh:
         key = json.load(fh)["key"]

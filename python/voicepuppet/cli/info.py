@@ -10,7 +10,8 @@ def collect() -> dict:
     uses with its current thread count, as a dict."""
     import numpy
 
-    from voicepuppet import __version__, _core
+    from voicepuppet import _core
+    from voicepuppet._version import __version__
 
     info = {"voicepuppet": __version__, "python": platform.python_version(),
             "numpy": numpy.__version__, "platform": platform.platform()}

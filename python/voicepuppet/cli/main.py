@@ -37,7 +37,7 @@ class UserError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from voicepuppet import __version__
+    from voicepuppet._version import __version__
 
     parser = argparse.ArgumentParser(
         prog="voicepuppet",

@@ -2,82 +2,21 @@
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
 
-#: A frame whose share of lost points exceeds this is not used for training.
-MAX_LOST_SHARE = 0.3
-#: Shortest run of usable frames kept for training.
-MIN_SEGMENT = 10
-#: A face and its audio whose durations differ by more than this (s) are warned about: they may
-#: not belong together.
-MAX_AV_MISMATCH_S = 0.5
-
-
-def usable_segments(points, lost=None, audio=None, fps: float = 29.97, where: str = ""):
-    """Split a tracked sequence where the face was lost; returns ``[(points, audio), ...]``.
-
-    Frames with more than :data:`MAX_LOST_SHARE` of their points flagged lost are dropped, and
-    runs shorter than :data:`MIN_SEGMENT` frames too; a warning says how much was dropped. A NaN
-    or infinite point (another tool's mark for a point it lost) counts as lost; one on a frame
-    that is kept is refused, with its frame. The audio of each kept run is cut to match
-    (``audio`` is an :class:`voicepuppet.audio.Audio`).
-    """
-    from dataclasses import replace
-
-    T = len(points)
-    missing = ~np.isfinite(np.asarray(points, dtype=np.float64)).reshape(T, -1, 2).all(axis=2)
-    if lost is None and not missing.any():
-        return [(points, audio)]
-    lost = missing if lost is None else np.asarray(lost, dtype=bool).reshape(T, -1) | missing
-    bad = lost.mean(axis=1) > MAX_LOST_SHARE
-    if missing[~bad].any():
-        t, p = np.argwhere(missing & ~bad[:, None])[0]
-        raise ValueError(f"{where}point {p} of frame {t} is NaN or infinite on a frame where the face is found "
-                         f"(at most {100 * MAX_LOST_SHARE:g}% of its points lost); fill it in (interpolate) or "
-                         "drop the frame")
-    if not bad.any():
-        return [(points, audio)]
-    runs, start = [], None
-    for t in range(T + 1):
-        ok = t < T and not bad[t]
-        if ok and start is None:
-            start = t
-        elif not ok and start is not None:
-            if t - start >= MIN_SEGMENT:
-                runs.append((start, t))
-            start = None
-    kept = sum(b - a for a, b in runs)
-    if not runs:
-        raise ValueError(f"{where}the face is lost in {int(bad.sum())} of {T} frames, leaving no run of "
-                         f"{MIN_SEGMENT} usable frames; check the video or the tracker's init points")
-    warnings.warn(f"{where}the face was lost in {int(bad.sum())} of {T} frames; training on the "
-                  f"{len(runs)} stretch(es) where it was found ({kept} frames)", stacklevel=2)
-    out = []
-    for a, b in runs:
-        s0, s1 = int(round(a / fps * audio.rate)), int(round(b / fps * audio.rate))
-        out.append((points[a:b], replace(audio, samples=audio.samples[s0:s1])))
-    return out
+# The library is imported when a verb runs, so that ``voicepuppet --help`` stays fast.
 
 
 def _train(args) -> int:
     from voicepuppet import audio as vaudio
     from voicepuppet._files import check_output_path
-    from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet
-    from voicepuppet.tracking.tracker import VariableFrameRateWarning, load_landmarks, on_uniform_grid, track_video
+    from voicepuppet.puppet.model import Puppet
+    from voicepuppet.puppet.sources import training_sequences
+    from voicepuppet.puppet.training import TRAIN_DEFAULTS
 
     out = check_output_path(args.output, (".vpp",), "puppet file")
-    videos, marks, audios = list(args.video), list(args.landmarks or []), list(args.audio or [])
-    if not videos and not marks:
-        raise ValueError("give training videos, or --landmarks with --audio")
-    if marks and videos and len(marks) != len(videos):
-        raise ValueError(f"{len(marks)} --landmarks files for {len(videos)} videos; give one per video")
-    if audios and len(audios) != max(len(videos), len(marks)):
-        raise ValueError(f"{len(audios)} --audio files for {max(len(videos), len(marks))} sequences; give one each")
-    if marks and not videos and not audios:
-        raise ValueError("--landmarks needs --audio (or the videos they were tracked from)")
     feature_set = args.feature_set
     if args.audio_band is not None:  # checked here, before any tracking
         from voicepuppet.audio.stream import BandLimiter
@@ -101,40 +40,8 @@ def _train(args) -> int:
         except ValueError:
             raise ValueError(f"--audio-level takes a speech level in dBFS between -100 and 0 (e.g. -20) or "
                              f"'none', got {args.audio_level!r}") from None
-    n = max(len(videos), len(marks))
-    # Every sound before any tracking: a video without an audio track fails in a second, not
-    # after minutes of tracking it (and the ones before it).
-    sounds = [vaudio.load_audio(audios[i] if audios else videos[i]) for i in range(n)]
-    points_list, audio_list, fps = [], [], None
-    for i in range(n):
-        if marks:
-            data = load_landmarks(marks[i])
-            if "points" not in data:
-                raise ValueError(f"{marks[i]}: no 'points' array; expected landmarks from voicepuppet track")
-            pts, f = data["points"], float(np.asarray(data.get("fps", 29.97)).reshape(-1)[0])
-            lost, times = data.get("lost"), data.get("times")
-            where = f"{marks[i]}: "
-        else:
-            print(f"tracking {videos[i]} ...")
-            with warnings.catch_warnings():  # the resampling below says it, with what it did
-                warnings.simplefilter("ignore", VariableFrameRateWarning)
-                res = track_video(videos[i], init=args.init, progress=not args.quiet)
-            pts, f, lost, times, where = res.points, res.fps, res.lost, res.times, f"{videos[i]}: "
-        if fps is None:
-            fps = f
-        elif times is None and abs(f - fps) > 1e-3:
-            raise ValueError(f"sequence {i} runs at {f:g} fps but the first at {fps:g}; use one frame rate")
-        pts, lost = on_uniform_grid(pts, lost, times, fps, where)
-        seen, heard = len(pts) / fps, sounds[i].duration
-        if abs(seen - heard) > MAX_AV_MISMATCH_S:
-            warnings.warn(f"{where}the face runs {seen:.2f} s and its audio {heard:.2f} s ("
-                          f"{audios[i] if audios else videos[i]}): "
-                          + ("the frames after the audio ends are trained on silence" if seen > heard else
-                             "the audio after the last frame is not used")
-                          + "; check that the two belong together", stacklevel=2)
-        for seg in usable_segments(pts, lost, sounds[i], fps, where):
-            points_list.append(seg[0])
-            audio_list.append(seg[1])
+    points_list, audio_list, fps = training_sequences(args.video, args.landmarks or [], args.audio or [],
+                                                      init=args.init, progress=not args.quiet)
     options = {k: v for k, v in {"n_states": args.states, "n_iter": args.iterations, "parts": args.parts,
                                   "prior": args.prior, "feature_set": feature_set, "noise_snrs": noise_snrs,
                                   "vocal_features": args.vocal_features,
@@ -178,54 +85,11 @@ def _guide_weight_option(text):
         raise ValueError(f"--guide-weight must be 'cv' or a number >= 0, got {text!r}") from None
 
 
-def save_states(path, states: np.ndarray, fps: float) -> Path:
-    """Write a state sequence as CSV ``frame,time,part0[,part1...]``, atomically."""
-    from voicepuppet._files import atomic_path
-
-    T, n_parts = states.shape
-    table = np.column_stack([np.arange(T), np.arange(T) / fps, states])
-    with atomic_path(path, (".csv",), "states file") as tmp:
-        np.savetxt(tmp, table, fmt=["%d", "%.9g"] + ["%d"] * n_parts, delimiter=",",
-                   header="frame,time," + ",".join(f"part{k}" for k in range(n_parts)), comments="")
-    return Path(path)
-
-
-def load_states(path) -> tuple[np.ndarray, float]:
-    """Read a states CSV written by :func:`save_states` (possibly edited): ``(states, fps)``."""
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"states file {str(p)!r} does not exist")
-    try:
-        table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
-    except ValueError as exc:
-        raise ValueError(f"states file {str(p)!r} is not a 'frame,time,part0,...' CSV: {exc}") from None
-    if table.shape[0] < 2 or table.shape[1] < 3:
-        raise ValueError(f"states file {str(p)!r} needs at least 2 rows of frame,time,part0[,...]")
-    states = table[:, 2:]
-    if not np.all(states == np.round(states)):
-        raise ValueError(f"states file {str(p)!r} holds non-integer states")
-    fps = 1.0 / float(np.median(np.diff(table[:, 1])))
-    return states.astype(np.int64), fps
-
-
-def palette_puppet(palette, name: str) -> Path:
-    """The puppet file called ``name`` (with or without ``.vpp``) in the folder ``palette``
-    (Brand §6: the animator picks a character's manner from a palette of puppets)."""
-    folder = Path(palette)
-    if not folder.is_dir():
-        raise ValueError(f"--palette {str(folder)!r} is not a folder of .vpp puppets")
-    available = sorted(p.stem for p in folder.glob("*.vpp"))
-    stem = name[:-4] if name.endswith(".vpp") else name
-    if stem not in available:
-        raise ValueError(f"no puppet {stem!r} in palette {str(folder)!r}; it holds: "
-                         f"{', '.join(available) if available else 'no .vpp files'}")
-    return folder / f"{stem}.vpp"
-
-
 def _animate(args) -> int:
     from voicepuppet.animation import exaggerate, save_animation
     from voicepuppet._files import check_output_path
-    from voicepuppet.puppet.model import load
+    from voicepuppet.puppet.model import load, palette_puppet
+    from voicepuppet.puppet.states import load_states, save_states
 
     if Path(args.output).suffix.lower() in (".mp4", ".mov", ".mkv", ".webm", ".avi", ".gif"):
         raise ValueError(f"animate writes the landmark animation (.npz or .csv), not {args.output!r}; for a "

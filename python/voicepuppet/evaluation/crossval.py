@@ -40,7 +40,8 @@ from voicepuppet.evaluation.split import decoding_entropy_rate, facial_states, s
 from voicepuppet.face import FaceSpace
 from voicepuppet.phonemes import models as dpds
 from voicepuppet.puppet.guide import RidgeBaseline
-from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet, training_feature_set
+from voicepuppet.puppet.model import Puppet
+from voicepuppet.puppet.training import TRAIN_DEFAULTS, training_feature_set
 
 __all__ = ["METRICS", "BASELINES", "UNGUIDED", "COMPARE_MEASURES", "cross_validate", "compare_training"]
 
@@ -271,7 +272,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     sequences : list of voicepuppet.evaluation.crossval.Sequence
         With audio (``samples``, ``rate``).
     variants : dict
-        name -> dict of :data:`voicepuppet.puppet.model.TRAIN_DEFAULTS` overrides (``seed`` is set here).
+        name -> dict of :data:`voicepuppet.puppet.training.TRAIN_DEFAULTS` overrides (``seed`` is set here).
     baseline : str, optional
         The variant the others are paired against (default: the last one).
     k, seed : int

@@ -1,0 +1,146 @@
+"""Training data from videos and landmark files: each sequence's landmarks on the audio's frame
+grid with its audio, cut where the face was lost (what ``voicepuppet train`` feeds
+:meth:`voicepuppet.puppet.model.Puppet.train`)."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+
+from voicepuppet import audio as vaudio
+from voicepuppet.tracking.tracker import VariableFrameRateWarning, load_landmarks, on_uniform_grid, track_video
+
+__all__ = ["MAX_LOST_SHARE", "MIN_SEGMENT", "MAX_AV_MISMATCH_S", "usable_segments", "training_sequences"]
+
+#: A frame whose share of lost points exceeds this is not used for training.
+MAX_LOST_SHARE = 0.3
+#: Shortest run of usable frames kept for training.
+MIN_SEGMENT = 10
+#: A face and its audio whose durations differ by more than this (s) are warned about: they may
+#: not belong together.
+MAX_AV_MISMATCH_S = 0.5
+
+
+def usable_segments(points, lost=None, audio=None, fps: float = 29.97, where: str = ""):
+    """Split a tracked sequence where the face was lost; returns ``[(points, audio), ...]``.
+
+    Frames with more than :data:`MAX_LOST_SHARE` of their points flagged lost are dropped, and
+    runs shorter than :data:`MIN_SEGMENT` frames too; a warning says how much was dropped. A NaN
+    or infinite point (another tool's mark for a point it lost) counts as lost; one on a frame
+    that is kept is refused, with its frame. The audio of each kept run is cut to match
+    (``audio`` is an :class:`voicepuppet.audio.Audio`).
+    """
+    T = len(points)
+    missing = ~np.isfinite(np.asarray(points, dtype=np.float64)).reshape(T, -1, 2).all(axis=2)
+    if lost is None and not missing.any():
+        return [(points, audio)]
+    lost = missing if lost is None else np.asarray(lost, dtype=bool).reshape(T, -1) | missing
+    bad = lost.mean(axis=1) > MAX_LOST_SHARE
+    if missing[~bad].any():
+        t, p = np.argwhere(missing & ~bad[:, None])[0]
+        raise ValueError(f"{where}point {p} of frame {t} is NaN or infinite on a frame where the face is found "
+                         f"(at most {100 * MAX_LOST_SHARE:g}% of its points lost); fill it in (interpolate) or "
+                         "drop the frame")
+    if not bad.any():
+        return [(points, audio)]
+    runs, start = [], None
+    for t in range(T + 1):
+        ok = t < T and not bad[t]
+        if ok and start is None:
+            start = t
+        elif not ok and start is not None:
+            if t - start >= MIN_SEGMENT:
+                runs.append((start, t))
+            start = None
+    kept = sum(b - a for a, b in runs)
+    if not runs:
+        raise ValueError(f"{where}the face is lost in {int(bad.sum())} of {T} frames, leaving no run of "
+                         f"{MIN_SEGMENT} usable frames; check the video or the tracker's init points")
+    warnings.warn(f"{where}the face was lost in {int(bad.sum())} of {T} frames; training on the "
+                  f"{len(runs)} stretch(es) where it was found ({kept} frames)", stacklevel=2)
+    out = []
+    for a, b in runs:
+        s0, s1 = int(round(a / fps * audio.rate)), int(round(b / fps * audio.rate))
+        out.append((points[a:b], replace(audio, samples=audio.samples[s0:s1])))
+    return out
+
+
+def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", progress: bool = False):
+    """The training sequences of a puppet from videos and/or landmark files with their audio.
+
+    Each video is tracked (unless its landmarks are given), its landmarks put on a uniform frame
+    grid (:func:`voicepuppet.tracking.tracker.on_uniform_grid`) and cut where the face was lost
+    (:func:`usable_segments`). Every sound is loaded before any tracking, so a video without an
+    audio track fails at once.
+
+    Parameters
+    ----------
+    videos : sequence of path
+        Training videos (their sound is the audio unless ``audio`` is given).
+    landmarks : sequence of path
+        Landmark files (``voicepuppet track`` output), one per video or instead of videos.
+    audio : sequence of path
+        One sound per sequence, instead of the videos' own.
+    init : str, path or ndarray
+        The tracker's initialisation (see :func:`voicepuppet.tracking.tracker.track_video`).
+    progress : bool
+        Progress bars while tracking.
+
+    Returns
+    -------
+    points_list : list of ndarray, shape (T_i, P, 2)
+    audio_list : list of voicepuppet.audio.Audio
+    fps : float
+        The frame rate of every sequence.
+
+    Raises
+    ------
+    ValueError
+        The inputs do not pair up, a file is unreadable, or sequences run at different rates.
+    """
+    videos, marks, audios = list(videos), list(landmarks), list(audio)
+    if not videos and not marks:
+        raise ValueError("give training videos, or --landmarks with --audio")
+    if marks and videos and len(marks) != len(videos):
+        raise ValueError(f"{len(marks)} --landmarks files for {len(videos)} videos; give one per video")
+    if audios and len(audios) != max(len(videos), len(marks)):
+        raise ValueError(f"{len(audios)} --audio files for {max(len(videos), len(marks))} sequences; give one each")
+    if marks and not videos and not audios:
+        raise ValueError("--landmarks needs --audio (or the videos they were tracked from)")
+    n = max(len(videos), len(marks))
+    # Every sound before any tracking: a video without an audio track fails in a second, not
+    # after minutes of tracking it (and the ones before it).
+    sounds = [vaudio.load_audio(audios[i] if audios else videos[i]) for i in range(n)]
+    points_list, audio_list, fps = [], [], None
+    for i in range(n):
+        if marks:
+            data = load_landmarks(marks[i])
+            if "points" not in data:
+                raise ValueError(f"{marks[i]}: no 'points' array; expected landmarks from voicepuppet track")
+            pts, f = data["points"], float(np.asarray(data.get("fps", 29.97)).reshape(-1)[0])
+            lost, times = data.get("lost"), data.get("times")
+            where = f"{marks[i]}: "
+        else:
+            print(f"tracking {videos[i]} ...")
+            with warnings.catch_warnings():  # the resampling below says it, with what it did
+                warnings.simplefilter("ignore", VariableFrameRateWarning)
+                res = track_video(videos[i], init=init, progress=progress)
+            pts, f, lost, times, where = res.points, res.fps, res.lost, res.times, f"{videos[i]}: "
+        if fps is None:
+            fps = f
+        elif times is None and abs(f - fps) > 1e-3:
+            raise ValueError(f"sequence {i} runs at {f:g} fps but the first at {fps:g}; use one frame rate")
+        pts, lost = on_uniform_grid(pts, lost, times, fps, where)
+        seen, heard = len(pts) / fps, sounds[i].duration
+        if abs(seen - heard) > MAX_AV_MISMATCH_S:
+            warnings.warn(f"{where}the face runs {seen:.2f} s and its audio {heard:.2f} s ("
+                          f"{audios[i] if audios else videos[i]}): "
+                          + ("the frames after the audio ends are trained on silence" if seen > heard else
+                             "the audio after the last frame is not used")
+                          + "; check that the two belong together", stacklevel=2)
+        for seg in usable_segments(pts, lost, sounds[i], fps, where):
+            points_list.append(seg[0])
+            audio_list.append(seg[1])
+    return points_list, audio_list, fps
