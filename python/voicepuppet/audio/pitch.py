@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from voicepuppet.audio.framing import frame_centres, hann, iter_frames
+from voicepuppet.audio.loading import resample
 
 #: Analysis rate for F0 (Hz): ample for a 600 Hz ceiling, half the samples of 16 kHz.
 PITCH_RATE = 8000
@@ -55,8 +56,6 @@ def pitch_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, floor: f
     voicing : ndarray, shape (n_out,)
         Voicing probability in [0, 1] (see ``voicing_probability``).
     """
-    from voicepuppet.audio.loading import resample
-
     if not 0 < floor < ceiling:
         raise ValueError(f"pitch: need 0 < floor < ceiling, got floor={floor}, ceiling={ceiling}")
     fs = PITCH_RATE if rate >= PITCH_RATE else int(rate)

@@ -39,6 +39,9 @@ from fractions import Fraction
 
 import numpy as np
 
+from voicepuppet import _core
+from voicepuppet.audio import lpc as lpc_mod
+from voicepuppet.audio import spectral
 from voicepuppet.audio.featureset import FeatureSet, analysis_window_s, as_feature_set, check_level_db
 from voicepuppet.audio.framing import check_fps, n_frames
 from voicepuppet.audio.loading import MIN_RATE, AudioWarning
@@ -104,8 +107,6 @@ class StreamResampler:
     """
 
     def __init__(self, rate_in: int, rate_out: int):
-        from voicepuppet import _core
-
         for name, v in (("rate_in", rate_in), ("rate_out", rate_out)):
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"resampler: {name} must be a whole number of Hz >= 1, got {v!r}")
@@ -132,11 +133,6 @@ def core_options(fset: FeatureSet, fps: float, rate: int, formant_lag: int | Non
     definitions (``spectral.analysis_window``, the filterbanks, ``lpc.lpc_window``,
     ``gaussian_window``, ``resample_poly``'s taps, ``reference_formants``)."""
     from scipy.signal import lfilter_zi
-
-    from voicepuppet import _core
-
-    from voicepuppet.audio import lpc as lpc_mod
-    from voicepuppet.audio import spectral
 
     opt = fset.settings()
     want = set(fset.features)
@@ -464,8 +460,6 @@ class StreamingFeatures:
 
     def __init__(self, features="puppet", fps: float = 29.97, rate: int = 16000,
                  formant_lag: int | None = None, input_level_db: float | None = None, **options):
-        from voicepuppet import _core
-
         fps = check_fps(fps)
         fset = as_feature_set(features)
         if options:

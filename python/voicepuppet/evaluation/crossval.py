@@ -34,8 +34,8 @@ from tqdm.auto import tqdm
 
 from voicepuppet.blas import limited
 from voicepuppet.evaluation import metrics
-from voicepuppet.evaluation.corpus import BILABIALS, bilabial_mask, learnt_points
-from voicepuppet.evaluation.folds import fold_summary, kfold, over_folds
+from voicepuppet.evaluation.corpus import bilabial_mask, learnt_points
+from voicepuppet.evaluation.folds import kfold, over_folds
 from voicepuppet.evaluation.split import decoding_entropy_rate, facial_states, sequence_features
 from voicepuppet.face import FaceSpace
 from voicepuppet.phonemes import models as dpds

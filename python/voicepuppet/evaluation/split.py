@@ -27,9 +27,11 @@ import lzma
 import numpy as np
 
 from voicepuppet import _core
-from voicepuppet.evaluation import metrics
+from voicepuppet import audio as vaudio
 from voicepuppet.blas import limited
+from voicepuppet.evaluation import metrics
 from voicepuppet.face import observations
+from voicepuppet.hmm.entropic import entropy_rate
 from voicepuppet.puppet.guide import RidgeBaseline
 
 #: The row of a guided puppet animated without its guide (``guide_weight=0``: Brand's solve).
@@ -61,8 +63,6 @@ def bits_per_frame(states) -> float:
 
 def decoding_entropy_rate(puppet, features) -> float:
     """Entropy rate (nats per frame) of the vocal HMM's posterior over state sequences."""
-    from voicepuppet.hmm.entropic import entropy_rate
-
     z = puppet._core.standardize(np.ascontiguousarray(features, dtype=np.float64))
     rates = []
     for k in range(len(puppet.part_names)):
@@ -201,8 +201,6 @@ def sequence_features(seqs, fps: float, features=None):
     ValueError
         Given features of the wrong count or shape; a sequence without audio (and no features).
     """
-    from voicepuppet import audio as vaudio
-
     if features is not None:
         features = [np.asarray(f, dtype=np.float64) for f in features]
         if len(features) != len(seqs) or any(f.ndim != 2 or len(f) != len(s.points)

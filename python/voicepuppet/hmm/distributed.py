@@ -32,6 +32,7 @@ from typing import Iterator
 import numpy as np
 
 from voicepuppet import _core
+from voicepuppet.hmm.gaussian import aligned, check_sequences
 
 __all__ = ["connect", "DaskEStep", "DaskEvaluation", "fit", "chunk_bounds", "DEFAULT_CHUNK_FRAMES"]
 
@@ -150,8 +151,6 @@ def chunk_bounds(lengths, chunk_frames: int = DEFAULT_CHUNK_FRAMES) -> list[tupl
 def _aligned(a) -> np.ndarray:
     """Deserialised buffers (and small numpy arrays) sit at varying addresses; see
     :func:`voicepuppet.hmm.gaussian.aligned`, which every E-step and M-step input goes through."""
-    from voicepuppet.hmm.gaussian import aligned
-
     return aligned(a)
 
 
@@ -287,8 +286,6 @@ class DaskEStep:
 
     def __init__(self, client, X, lengths=None, covariance: str = "full",
                  chunk_frames: int = DEFAULT_CHUNK_FRAMES):
-        from voicepuppet.hmm.gaussian import check_sequences
-
         if covariance not in ("full", "diag"):
             raise ValueError(f"covariance must be 'full' or 'diag', got {covariance!r}")
         X, lengths = check_sequences(X, lengths)

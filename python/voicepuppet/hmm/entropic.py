@@ -19,7 +19,9 @@ See ``docs/entropic.md`` for the method and the state-trimming rule.
 from __future__ import annotations
 
 import math
+
 import numpy as np
+from tqdm.auto import tqdm
 
 from voicepuppet import _core
 from voicepuppet.hmm.gaussian import GaussianHMM, aligned, check_sequences
@@ -364,8 +366,6 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
     history: list[dict] = []
     bar = None
     if model.progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=n_iter, desc="entropic EM", unit="it")
     previous, previous_z = -np.inf, None
     try:

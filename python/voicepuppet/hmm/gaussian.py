@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from voicepuppet import _core
 
@@ -366,8 +367,6 @@ class GaussianHMM:
         previous = -np.inf
         bar = None
         if self.progress:
-            from tqdm.auto import tqdm
-
             bar = tqdm(total=self.n_iter, desc="EM", unit="it")
         try:
             for it in range(self.n_iter):

@@ -43,9 +43,12 @@ from pathlib import Path
 import numpy as np
 
 from voicepuppet import _core
-from voicepuppet.blas import limited
-from voicepuppet.animation import Animation
+from voicepuppet import audio as vaudio
 from voicepuppet._files import check_output_path
+from voicepuppet.animation import Animation
+from voicepuppet.audio import AudioWarning, FeatureSet
+from voicepuppet.audio.loading import DEFAULT_RATE
+from voicepuppet.blas import limited
 from voicepuppet.face import FaceSpace
 from voicepuppet.puppet import training
 from voicepuppet.puppet.training import TrainOptions
@@ -107,8 +110,6 @@ class Puppet:
 
     @property
     def feature_set(self):
-        from voicepuppet.audio import FeatureSet
-
         return FeatureSet.from_json(self.metadata["feature_set"])
 
     @property
@@ -144,9 +145,6 @@ class Puppet:
         mid-word does not make its first, open-mouthed frame the photo's closed mouth. None for
         a puppet trained on given features (``features_list``): its silence is unknown."""
         if self._rest is None:
-            from voicepuppet import audio as vaudio
-            from voicepuppet.audio.loading import DEFAULT_RATE
-
             n = int(round(self.REST_SECONDS * DEFAULT_RATE))
             silence = vaudio.Audio(np.zeros(n), DEFAULT_RATE, DEFAULT_RATE, 1, "silence")
             with warnings.catch_warnings():
@@ -254,8 +252,6 @@ class Puppet:
         :class:`voicepuppet.audio.Audio`): its feature set at its rate. Audio of a narrower band
         than the puppet analyses (8 kHz telephone audio for a puppet trained on wider-band sound)
         is warned about (``AudioWarning``, :meth:`check_band`)."""
-        from voicepuppet import audio as vaudio
-
         audio = audio if isinstance(audio, vaudio.Audio) else vaudio.load_audio(audio)
         self.check_band(audio.source_rate, f"audio {audio.path!r}" if audio.path else "audio", stacklevel=stacklevel)
         return vaudio.extract(audio, fps=self.fps, features=self.feature_set, n_out=n_out, progress=progress)
@@ -264,15 +260,11 @@ class Puppet:
     def band_hz(self) -> float:
         """The band (Hz) the puppet analyses audio in: its feature set's ``band_hz``, else the
         whole band of the 16 kHz analysis."""
-        from voicepuppet.audio.loading import DEFAULT_RATE
-
         return float(self.feature_set.settings()["band_hz"] or 0.5 * DEFAULT_RATE)
 
     def check_band(self, source_rate: int, what: str = "audio", stacklevel: int = 2) -> None:
         """Warn (``AudioWarning``) when audio sampled at ``source_rate`` Hz is of a narrower band
         than the puppet learned (8 kHz telephone audio for a puppet of wider-band sound)."""
-        from voicepuppet.audio import AudioWarning
-
         edge = 0.5 * source_rate
         if edge < self.band_hz * (1 - 1e-9):
             warnings.warn(f"{what} is sampled at {source_rate} Hz, so its sound stops at {edge:g} Hz, and "
