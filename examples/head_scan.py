@@ -14,7 +14,7 @@ import numpy as np
 from PIL import Image
 
 from voicepuppet.render import head
-from voicepuppet.render import mesh as render
+from voicepuppet import render
 from voicepuppet.animation import load_animation
 
 

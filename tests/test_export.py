@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from voicepuppet.render import export as E
-from voicepuppet.render import mesh as R
+from voicepuppet import render as R
 from voicepuppet.animation import Animation, load_animation, neutral_landmarks, procedural_animation, save_animation
 
 pytest.importorskip("pyvista")
@@ -49,7 +49,7 @@ def test_glb_round_trips_and_morph_weights_reproduce_the_mesh(tmp_path, mode):
     np.testing.assert_array_equal(idx, face.faces[face.flat])
     colours = _accessor(gltf, blob, inside.attributes.COLOR_0)
     np.testing.assert_allclose(colours[idx[:, 0]] * 255, face.colours[face.flat], atol=1e-3)
-    below = R._depth(face.vertices[:, :2], face.landmarks) - face.vertices[:, 2]
+    below = R.skin_depth(face.vertices[:, :2], face.landmarks) - face.vertices[:, 2]
     own = np.setdiff1d(idx, face.faces[~face.flat])  # the interior's own vertices, not the inner lips
     assert len(own) == 114 and below[own].min() > 0  # (the positions are the mesh's: `got` below)
     sampler = gltf.animations[0].samplers[0]

@@ -13,7 +13,9 @@ import pytest
 
 from voicepuppet import layout as face_layout
 from voicepuppet.render import head as Hd
-from voicepuppet.render import mesh as R
+from voicepuppet import render as R
+from voicepuppet.cli import render as cli_render
+from voicepuppet.render.mesh import MOUTH_COLOUR
 from voicepuppet.animation import Animation, neutral_landmarks, procedural_animation, save_animation
 
 pytest.importorskip("pyvista")
@@ -169,7 +171,7 @@ def test_an_opened_jaw_parts_the_lips_and_shows_the_mouth(dome):
     with R.FaceRenderer(dome) as r:
         for v in verts:
             img = r.frame(v).astype(int)
-            shown.append(int(np.sum(np.abs(img - np.asarray(R._MOUTH_COLOUR)).sum(axis=2) < 40)))
+            shown.append(int(np.sum(np.abs(img - np.asarray(MOUTH_COLOUR)).sum(axis=2) < 40)))
     assert shown[0] == 0 < shown[1] < shown[2]
 
 
@@ -357,5 +359,5 @@ def test_a_turned_view_turns_the_face_the_way_it_says(dome):
     with pytest.raises(ValueError, match="turn"):
         R.FaceRenderer(dome, size=(300, 288), turn=(120.0, 0.0))
     with pytest.raises(ValueError, match="--turn"):
-        R._turn("left")
-    assert R._turn("30") == (30.0, 0.0) and R._turn("-20,10") == (-20.0, 10.0)
+        cli_render._turn("left")
+    assert cli_render._turn("30") == (30.0, 0.0) and cli_render._turn("-20,10") == (-20.0, 10.0)

@@ -495,7 +495,7 @@ def test_viewer_draws_the_textured_face_as_render_does(puppet, speech, tmp_path)
     from PIL import Image
     from selenium.webdriver.support.ui import WebDriverWait
 
-    from voicepuppet.render import mesh as render
+    from voicepuppet import render
     from voicepuppet.animation import Animation
 
     p, path = puppet
@@ -574,7 +574,7 @@ def test_face_options_are_checked_before_the_stream(puppet, speech, tmp_path, ca
     import soundfile
     from PIL import Image
 
-    from voicepuppet.render import mesh as render
+    from voicepuppet import render
     from voicepuppet.cli.main import main
 
     _, path = puppet

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from voicepuppet import layout as face_layout
-from voicepuppet.render import mesh as R
+from voicepuppet import render as R
+from voicepuppet.render import video as V
 from voicepuppet.animation import Animation, load_animation, neutral_landmarks, procedural_animation, save_animation
 
 pytest.importorskip("pyvista")
@@ -145,7 +146,7 @@ def test_the_teeth_move_with_the_skull_and_the_jaw():
     # behind the skin, in layers under its depth surface (upper teeth, lower, tongue, cavity);
     # drawn back to front
     iod = np.linalg.norm(lm[45] - lm[36])
-    below = R._depth(face.vertices[:, :2], lm) - face.vertices[:, 2]
+    below = R.skin_depth(face.vertices[:, :2], lm) - face.vertices[:, 2]
     skin = np.unique(face.faces[~face.flat])
     np.testing.assert_allclose(below[skin[skin < 68 + 28]], 0.0, atol=1e-9)
     own = np.setdiff1d(interior, skin)  # the interior's own vertices (its wall meets the inner lips)
@@ -714,7 +715,7 @@ def test_chunked_rendering_matches_whole_animation_driving(face, monkeypatch):
     verts = R.mesh_animation(anim, face)["vertices"]
     with R.FaceRenderer(face) as r:
         direct = [r.frame(v) for v in verts]
-    monkeypatch.setattr(R, "_FRAME_CHUNK", 3)
+    monkeypatch.setattr(V, "_FRAME_CHUNK", 3)
     chunked = list(R.render_frames(anim, face=face))
     for a, b in zip(direct, chunked):
         np.testing.assert_array_equal(a, b)

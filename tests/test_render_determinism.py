@@ -231,7 +231,7 @@ def test_write_video_does_not_depend_on_the_cpus_or_the_heap(photo, tmp_path, mo
     # voicepuppet render's mp4 writer (imageio-ffmpeg's ffmpeg process): x264 chose 3 frame
     # threads on 2 cores and 1 under one CPU, and wrote another bitstream; and with B-frames the
     # bytes in its heap changed it (MALLOC_PERTURB_, inherited by ffmpeg). Measured, both.
-    from voicepuppet.render.mesh import write_video
+    from voicepuppet.render.video import write_video
 
     art = synth.articulate([], _hum(6.0), RATE, photo.points, fps=FPS, seed=SEED)
     warper = synth.FaceWarper(photo.image, photo.points)

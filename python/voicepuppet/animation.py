@@ -7,7 +7,8 @@ and export retarget from; a puppet's animation carries the face it makes in sile
 one row per frame: ``frame,time,x0,y0,x1,y1,...`` (frames only: read back, its rest is its first
 frame).
 
-Also here: :func:`exaggerate` and :func:`add_offset` (the animator's controls), and :func:`neutral_landmarks` / :func:`procedural_animation`, a parametric 68-point
+Also here: :func:`exaggerate`, :func:`add_offset` and :func:`apply_controls` (the animator's
+controls), and :func:`neutral_landmarks` / :func:`procedural_animation`, a parametric 68-point
 face with planted jaw, smile, pucker, brow and blink motion for demos, tests and benchmarks.
 """
 
@@ -23,7 +24,7 @@ from voicepuppet import layout as face_layout
 from voicepuppet._files import atomic_path, write_npz
 
 __all__ = ["Animation", "load_animation", "save_animation", "check_points",
-           "neutral_landmarks", "procedural_animation", "exaggerate", "add_offset"]
+           "neutral_landmarks", "procedural_animation", "exaggerate", "add_offset", "apply_controls"]
 
 
 def check_points(points, name: str = "points", n_points: Optional[int] = None) -> np.ndarray:
@@ -239,6 +240,51 @@ def add_offset(anim: Animation, offset, start: float = 0.0, end: Optional[float]
     if fade > 0:
         w *= np.clip(np.minimum(t - start, end - t) / fade, 0.0, 1.0)
     return Animation(anim.points + w[:, None, None] * off, anim.fps, anim.names, anim.confidence, anim.neutral)
+
+
+def apply_controls(anim: Animation, *, exaggeration: Optional[float] = None, offset=None, start: float = 0.0,
+                   end: Optional[float] = None, fade: float = 0.0) -> Animation:
+    """The animator's controls (Brand §6): :func:`exaggerate`, then :func:`add_offset`.
+
+    The result carries the rest face its outputs move from (:attr:`Animation.rest` before the
+    controls, scaled by the exaggeration, not moved by the offset, which so shows in every
+    output).
+
+    Parameters
+    ----------
+    anim : Animation
+        the animation to control.
+    exaggeration : float, optional
+        the factor of :func:`exaggerate` (1: as is); None leaves the motion alone.
+    offset : ndarray, shape (P, 2), optional
+        a whole-face expression at full strength (e.g.
+        :func:`voicepuppet.render.retargeting.expression_offset` of the rest face), added after
+        the exaggeration; None adds nothing. An offset made on the exaggerated rest face, as the
+        command line's ``--expression`` is, needs two calls: the exaggeration first, then the
+        offset made on the result's :attr:`Animation.rest`.
+    start, end : float
+        seconds of the offset (``end`` default: the end).
+    fade : float
+        seconds of linear ramp inside the range at each end.
+
+    Returns
+    -------
+    Animation
+        with ``neutral`` set.
+
+    Raises
+    ------
+    ValueError
+        a negative or non-finite exaggeration, an offset of another shape, ``end < start`` or a
+        negative fade.
+    """
+    if anim.neutral is None:
+        anim = Animation(anim.points, anim.fps, anim.names, anim.confidence, anim.rest)
+    if exaggeration is not None:
+        anim = exaggerate(anim, exaggeration)
+    if offset is not None:
+        anim = add_offset(anim, offset, start, end, fade)
+    return anim
 
 
 # ------------------------------------------------------------------ a parametric 68-point face

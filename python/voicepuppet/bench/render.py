@@ -19,7 +19,7 @@ def run(quick: bool = False, repeats: int = 1) -> list[dict]:
     import soundfile as sf
 
     from voicepuppet.render import export
-    from voicepuppet.render import mesh as render
+    from voicepuppet import render
     from voicepuppet.animation import procedural_animation
 
     fps, seconds, (w, h) = 30000 / 1001, (3.0 if quick else 30.0), (640, 480)

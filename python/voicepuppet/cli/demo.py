@@ -136,7 +136,7 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
     if render_video:
         t = time.perf_counter()
         log(f"[5/5] rendering {out / 'demo.mp4'} (prediction | ground truth) with the sound")
-        from voicepuppet.render import mesh as render
+        from voicepuppet import render
         from voicepuppet.tracking import video
 
         photo = video.frame_at(train.video, rest, grey=False)[..., ::-1]

@@ -446,13 +446,13 @@ class _WebSocketOut:
 
 class _FaceDriver:
     """The viewer's textured face (``live --face``): the face mesh of a photo or video
-    (:func:`voicepuppet.render.mesh.load_face`) and, per frame, its vertices as ``render`` drives
-    them (:func:`voicepuppet.render.mesh.mesh_animation`, mode "vertex"), retargeted from ``rest``,
+    (:func:`voicepuppet.render.faces.load_face`) and, per frame, its vertices as ``render`` drives
+    them (:func:`voicepuppet.render.retargeting.mesh_animation`, mode "vertex"), retargeted from ``rest``,
     the face the puppet makes in silence (``Puppet.rest_face``, which ``render`` takes from the
     animation), or without it from the stream's first frame."""
 
     def __init__(self, face: str, points: str | None, n_points: int, rest: np.ndarray | None = None):
-        from voicepuppet.render import mesh as render
+        from voicepuppet import render
         from voicepuppet.render.head import HEAD_SUFFIXES
 
         if os.path.splitext(face)[1].lower() in HEAD_SUFFIXES:

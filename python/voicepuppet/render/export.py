@@ -9,19 +9,21 @@ so a failed export leaves nothing behind.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import tempfile
+from io import BytesIO
 from pathlib import Path
 from typing import Optional
 
 import numpy as np
 
 from voicepuppet import layout as face_layout
-from voicepuppet.animation import Animation, save_animation
 from voicepuppet._files import atomic_path, check_output_path, publish
-from voicepuppet.render.mesh import (ACTION_UNITS, FaceMesh, action_unit_basis, build_face_mesh, fit_activations,
-                                mesh_animation, portrait_image)
+from voicepuppet.animation import Animation, save_animation
+from voicepuppet.render._backend import import_pyvista
+from voicepuppet.render.mesh import FaceMesh
+from voicepuppet.render.photo import build_face_mesh, portrait_image
+from voicepuppet.render.retargeting import ACTION_UNITS, action_unit_basis, fit_activations, mesh_animation
 
 __all__ = ["FORMATS", "ARKIT_NAMES", "arkit_weights", "mouth_cues", "write_arkit", "write_rhubarb",
            "write_pvd", "write_glb", "export", "default_face"]
@@ -84,7 +86,24 @@ def arkit_weights(anim: Animation, neutral=None) -> tuple[np.ndarray, np.ndarray
     labiodental tuck of /f v/, :func:`mouth_measures`); the other shapes the basis cannot
     express stay zero.
 
-    Returns ``(weights (T, 52) in [0, 1], rms_error (T,))``, the error in inter-ocular distances.
+    Parameters
+    ----------
+    anim : Animation
+        68 points per frame.
+    neutral : ndarray, shape (68, 2), optional
+        the rest face the motion is measured from (default: :attr:`Animation.rest`).
+
+    Returns
+    -------
+    weights : ndarray, shape (T, 52)
+        in [0, 1], columns in the order of :data:`ARKIT_NAMES`.
+    rms_error : ndarray, shape (T,)
+        the landmark motion the units do not explain, in inter-ocular distances.
+
+    Raises
+    ------
+    ValueError
+        the animation is not in the 68-point layout, or ``neutral`` has another shape.
     """
     _require_68(anim, "ARKit weights")
     ref = _rest(anim, neutral)
@@ -107,8 +126,28 @@ def arkit_weights(anim: Animation, neutral=None) -> tuple[np.ndarray, np.ndarray
 
 
 def write_arkit(anim: Animation, path, neutral=None) -> Path:
-    """Writes ARKit weights as ``.csv`` (``frame,time,<52 names>``) or ``.json``
-    (``{"fps", "names", "frames": [{"time", "weights": {name: w}}]}``)."""
+    """Writes ARKit weights (:func:`arkit_weights`) as ``.csv`` (``frame,time,<52 names>``) or
+    ``.json`` (``{"fps", "names", "frames": [{"time", "weights": {name: w}}]}``), atomically.
+
+    Parameters
+    ----------
+    anim : Animation
+        68 points per frame.
+    path : str or path-like
+        ``.csv`` or ``.json``.
+    neutral : ndarray, shape (68, 2), optional
+        the rest face the motion is measured from (default: :attr:`Animation.rest`).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        another suffix, or the errors of :func:`arkit_weights`.
+    """
     W, _ = arkit_weights(anim, neutral)
     with atomic_path(path, (".csv", ".json"), "ARKit weights file") as tmp:
         if tmp.suffix == ".csv":
@@ -134,7 +173,25 @@ def _lower_lip_height(points: np.ndarray) -> np.ndarray:
 def mouth_measures(anim: Animation, neutral=None) -> dict:
     """Per-frame mouth opening (inner lip gap), width (inner corners) and their ratio to the
     neutral width, and the change of the lower lip's height (its middle, 66 to 57) from the
-    neutral's, in inter-ocular distances of the neutral face. Returns a dict of (T,) arrays."""
+    neutral's, in inter-ocular distances of the neutral face.
+
+    Parameters
+    ----------
+    anim : Animation
+        68 points per frame.
+    neutral : ndarray, shape (68, 2), optional
+        the rest face the motion is measured from (default: :attr:`Animation.rest`).
+
+    Returns
+    -------
+    dict
+        ``opening``, ``width``, ``width_ratio``, ``lower_lip``: (T,) arrays.
+
+    Raises
+    ------
+    ValueError
+        the animation is not in the 68-point layout, or ``neutral`` has another shape.
+    """
     _require_68(anim, "mouth measures")
     ref = _rest(anim, neutral)
     iod = float(face_layout.inter_ocular_distance(ref))
@@ -160,8 +217,30 @@ def mouth_cues(anim: Animation, neutral=None, *, closed: float = 0.04, slight: f
     tongue) is not visible in lip landmarks and is never emitted (Rhubarb's extended shapes are
     optional).
 
-    Returns a list of ``{"start", "end", "value"}`` in seconds, consecutive, covering the
-    animation.
+    Parameters
+    ----------
+    anim : Animation
+        68 points per frame.
+    neutral : ndarray, shape (68, 2), optional
+        the rest face the motion is measured from (default: :attr:`Animation.rest`).
+    closed, slight, open_ : float
+        opening thresholds, inter-ocular distances.
+    rounded : float
+        width ratio below which the lips are rounded.
+    tucked : float
+        lower-lip height change (inter-ocular distances) below which the lip is tucked.
+    rest_seconds : float
+        a closure at least this long is rest (X).
+
+    Returns
+    -------
+    list of dict
+        ``{"start", "end", "value"}`` in seconds, consecutive, covering the animation.
+
+    Raises
+    ------
+    ValueError
+        the animation is not in the 68-point layout, or ``neutral`` has another shape.
     """
     m = mouth_measures(anim, neutral)
     o, r, h = m["opening"], m["width_ratio"], m["lower_lip"]
@@ -188,8 +267,31 @@ def mouth_cues(anim: Animation, neutral=None, *, closed: float = 0.04, slight: f
 
 
 def write_rhubarb(anim: Animation, path, neutral=None, sound_file: str = "") -> Path:
-    """Writes mouth cues as Rhubarb's ``.json`` (``{"metadata": {"soundFile", "duration"},
-    "mouthCues": [...]}``) or ``.tsv`` (``start<TAB>shape`` lines, the last one the end)."""
+    """Writes mouth cues (:func:`mouth_cues`) as Rhubarb's ``.json`` (``{"metadata": {"soundFile",
+    "duration"}, "mouthCues": [...]}``) or ``.tsv`` (``start<TAB>shape`` lines, the last one the
+    end), atomically.
+
+    Parameters
+    ----------
+    anim : Animation
+        68 points per frame.
+    path : str or path-like
+        ``.json`` or ``.tsv``.
+    neutral : ndarray, shape (68, 2), optional
+        the rest face the motion is measured from (default: :attr:`Animation.rest`).
+    sound_file : str
+        the sound's name recorded in the ``.json``'s metadata.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        another suffix, or the errors of :func:`mouth_cues`.
+    """
     cues = mouth_cues(anim, neutral)
     with atomic_path(path, (".json", ".tsv"), "mouth cues file") as tmp:
         if tmp.suffix == ".json":
@@ -205,7 +307,25 @@ def write_rhubarb(anim: Animation, path, neutral=None, sound_file: str = "") -> 
 # --------------------------------------------------------------------------- meshes
 
 def default_face(anim: Animation, neutral=None) -> FaceMesh:
-    """The drawn-portrait face mesh on the animation's neutral frame (68-point layout)."""
+    """The drawn-portrait face mesh on the animation's neutral frame (68-point layout).
+
+    Parameters
+    ----------
+    anim : Animation
+        68 points per frame.
+    neutral : ndarray, shape (68, 2), optional
+        the rest face the motion is measured from (default: :attr:`Animation.rest`).
+
+    Returns
+    -------
+    FaceMesh
+        a mesh on :func:`voicepuppet.render.photo.portrait_image`.
+
+    Raises
+    ------
+    ValueError
+        the animation is not in the 68-point layout.
+    """
     _require_68(anim, "a face mesh without a photo")
     first = _rest(anim, neutral)
     lo, hi = first.min(axis=0), first.max(axis=0)
@@ -220,12 +340,33 @@ def write_pvd(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     (the mesh per frame, with texture coordinates, ``mouth`` and ``teeth`` cell flags and the
     flat ``colour`` of those cells, RGB; times in seconds)
     and the photo as ``NAME_frames/texture.png``. Both the folder and the collection are
-    written to temporary names and renamed into place."""
-    import pyvista as pv
+    written to temporary names and renamed into place.
 
-    from voicepuppet.render.mesh import _pyvista
+    Parameters
+    ----------
+    anim : Animation
+        the animation to export.
+    path : str or path-like
+        ``NAME.pvd``.
+    face : FaceMesh, optional
+        the face to drive (default: :func:`default_face`).
+    mode : {"vertex", "au"}
+        how landmark motion drives the mesh (:func:`voicepuppet.render.retargeting.mesh_animation`).
+    neutral : ndarray, shape (P, 2), optional
+        the rest face the motion is measured from (default: :attr:`Animation.rest`).
 
-    _pyvista()
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        the output or its frames' folder exists, pyvista is missing, or the errors of
+        :func:`voicepuppet.render.retargeting.mesh_animation`.
+    """
+    pv = import_pyvista()
     p = check_output_path(path, (".pvd",), "VTK series")
     face = default_face(anim, neutral) if face is None else face
     verts = mesh_animation(anim, face, mode=mode, neutral=neutral)["vertices"]
@@ -281,7 +422,7 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     """An animated glTF 2.0 binary: the face mesh with morph targets and one animation of their
     weights (linear interpolation, one key per frame, times ``t / fps``).
 
-    ``mode="au"``: the morph targets are the action units (:data:`~voicepuppet.render.mesh.ACTION_UNITS`,
+    ``mode="au"``: the morph targets are the action units (:data:`~voicepuppet.render.retargeting.ACTION_UNITS`,
     named in the mesh's ``extras.targetNames``) and the weights their least-squares activations.
     ``mode="vertex"``: the targets are the principal components of the per-frame vertex
     displacements (at most ``max_targets``), so the vertex motion is reproduced up to that rank.
@@ -289,17 +430,42 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
     embedded as the (unlit) base colour texture; the mouth's interior behind the lips (cavity,
     tongue, teeth) is a second primitive in vertex colours.
 
-    Returns a summary dict (``targets``, ``frames``, ``duration``, ``max_error_m``: the largest
-    difference between the morph-target reconstruction and the driven mesh, in metres; with
-    ``mode="au"`` also ``au_rms_error_iod``: the landmark motion the basis cannot express, mean
-    RMS per coordinate in inter-ocular distances).
+    Parameters
+    ----------
+    anim : Animation
+        the animation to export.
+    path : str or path-like
+        ``.glb``.
+    face : FaceMesh, optional
+        the face to drive (default: :func:`default_face`).
+    mode : {"au", "vertex"}
+        the morph targets: action units or principal components.
+    neutral : ndarray, shape (P, 2), optional
+        the rest face the motion is measured from (default: :attr:`Animation.rest`).
+    max_targets : int
+        at most this many principal components (``mode="vertex"``).
+    face_width_m : float
+        the inter-ocular distance in metres.
+
+    Returns
+    -------
+    dict
+        ``targets``, ``frames``, ``duration``, ``max_error_m`` (the largest difference between
+        the morph-target reconstruction and the driven mesh, in metres); with ``mode="au"`` also
+        ``au_rms_error_iod`` (the landmark motion the basis cannot express, mean RMS per
+        coordinate in inter-ocular distances).
+
+    Raises
+    ------
+    ValueError
+        pygltflib is missing, the output exists or is not ``.glb``, an unknown ``mode``, an
+        animation that does not move (``mode="vertex"``), or the errors of
+        :func:`voicepuppet.render.retargeting.mesh_animation`.
     """
     try:
         import pygltflib as g
     except ImportError:
         raise ValueError("writing .glb needs pygltflib: pip install pygltflib") from None
-    from io import BytesIO
-
     from PIL import Image
 
     check_output_path(path, (".glb",), "glTF file")
@@ -410,9 +576,38 @@ def write_glb(anim: Animation, path, face: Optional[FaceMesh] = None, mode: str 
 
 def export(anim: Animation, path, fmt: Optional[str] = None, *, face: Optional[FaceMesh] = None,
            mode: Optional[str] = None, neutral=None, sound_file: str = "", report=None) -> Path:
-    """Writes ``anim`` in format ``fmt`` (a key of :data:`FORMATS`; default: from the suffix,
-    ``.json`` meaning Rhubarb cues and ``.csv`` landmarks). ``report``, if given, is called with
-    the summary of :func:`write_glb` for the glTF format."""
+    """Writes ``anim`` in one of the formats of :data:`FORMATS`.
+
+    Parameters
+    ----------
+    anim : Animation
+        the animation to export.
+    path : str or path-like
+        the output; its suffix must be the format's.
+    fmt : str, optional
+        a key of :data:`FORMATS`; default: from the suffix, ``.json`` meaning Rhubarb cues and
+        ``.csv`` landmarks.
+    face : FaceMesh, optional
+        the face of ``pvd`` and ``gltf`` (default: :func:`default_face`).
+    mode : {"vertex", "au"}, optional
+        mesh driving (default: ``vertex`` for ``pvd``, ``au`` for ``gltf``).
+    neutral : ndarray, shape (P, 2), optional
+        the rest face the motion is measured from (default: :attr:`Animation.rest`).
+    sound_file : str
+        the sound's name recorded in Rhubarb ``.json`` metadata.
+    report : callable, optional
+        called with the summary of :func:`write_glb` for the glTF format.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        an unknown format, a format the suffix does not match, or the writer's errors.
+    """
     p = Path(path)
     if fmt is None:
         by_suffix = {".csv": "csv", ".npz": "npz", ".pvd": "pvd", ".glb": "gltf", ".json": "rhubarb",
@@ -437,54 +632,3 @@ def export(anim: Animation, path, fmt: Optional[str] = None, *, face: Optional[F
     if report is not None:
         report(summary)
     return p
-
-
-
-# --------------------------------------------------------------------------- CLI
-
-def _print_summary(summary: dict) -> None:
-    if "au_rms_error_iod" in summary:
-        print(f"action-unit projection: {summary['targets']} units, landmark error "
-              f"{summary['au_rms_error_iod']:.4f} IOD (RMS per coordinate, mean over frames)")
-    else:
-        print(f"{summary['targets']} morph targets reproduce the vertex motion within "
-              f"{summary['max_error_m'] * 1000:.3f} mm")
-
-
-def _cli(args) -> int:
-    from voicepuppet.animation import load_animation
-    from voicepuppet.render.mesh import apply_controls, resolve_face
-
-    original = load_animation(args.animation)
-    anim = apply_controls(original, args)
-    fmt = args.format
-    out = args.output
-    if out is None:
-        if fmt is None:
-            raise ValueError("give --format or -o with a suffix")
-        out = str(Path(args.animation).with_suffix("")) + ("_arkit" if fmt.startswith("arkit") else "") + \
-            ("_cues" if fmt.startswith("rhubarb") else "") + FORMATS[fmt]
-    face = resolve_face(args.face, args.face_points, args.palette, original.rest) if args.face else None
-    export(anim, out, fmt, face=face, mode=args.mode, sound_file=args.sound_file or "", report=_print_summary)
-    print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {out}")
-    return 0
-
-
-def add_parser(sub) -> None:
-    p = sub.add_parser("export", help="landmarks, VTK series, glTF, ARKit weights, Rhubarb mouth cues",
-                       description="Export a landmark animation: csv/npz landmarks, pvd (VTK time series for "
-                                   "ParaView), gltf (animated .glb with morph targets), arkit / arkit-json "
-                                   "(ARKit 52 blendshape weights), rhubarb / rhubarb-tsv (mouth cues A-F, X).")
-    p.add_argument("animation", help="landmark animation (.npz or .csv)")
-    p.add_argument("--format", choices=sorted(FORMATS), help="output format (default: from the -o suffix)")
-    p.add_argument("-o", "--output", help="output file (default: next to the animation)")
-    p.add_argument("--face", help="face photo, a textured 3-D head (.obj) or a name with --palette, for pvd/gltf "
-                                  "(default: a drawn portrait)")
-    p.add_argument("--palette", help="folder of faces (NAME.png + NAME.json points) to pick --face from")
-    p.add_argument("--face-points", help="the photo's points (JSON, CSV or .npz; an .obj head's in 3-D: JSON or .ljson)")
-    p.add_argument("--mode", choices=["vertex", "au"], help="mesh driving: vertex (pvd default) or au (gltf default)")
-    p.add_argument("--sound-file", help="sound file name recorded in Rhubarb json metadata")
-    from voicepuppet.render.mesh import add_control_arguments
-
-    add_control_arguments(p)
-    p.set_defaults(func=_cli)

@@ -19,7 +19,7 @@ seen from the front, so ``render`` and ``export`` drive it as they drive a photo
   texture are unchanged); where the cut ends inside a triangle, that triangle is split at the
   crossing without a gap. Behind the cut lie a membrane (``FaceMesh.mouth``) on copies of its
   vertices, 0.18 inter-ocular distances deep and walled to its edges (of zero area from the
-  front at rest), and the photo mesh's tongue and teeth (:func:`voicepuppet.render.mesh._interior`)
+  front at rest), and the photo mesh's tongue and teeth (:func:`voicepuppet.render.interior.mouth_interior`)
   at the lip line's depth across the mouth.
 * **Driving.** Landmark displacements in the frontal plane move the vertices by a thin-plate
   spline over the 68 landmarks in 3-D (scipy's ``RBFInterpolator``), evaluated where the lips
@@ -38,11 +38,19 @@ from __future__ import annotations
 import json
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from voicepuppet import layout as face_layout
+from voicepuppet.data import cache_dir, fetch_sdist
+from voicepuppet.render._backend import import_pyvista
+from voicepuppet.render.interior import INTERIOR_DEPTH, mouth_interior, pixel_tones, tone
+from voicepuppet.render.mesh import MOUTH_COLOUR, FaceMesh, skin_depth
+from voicepuppet.render.video import FaceRenderer
+from voicepuppet.tracking import NoFaceError, auto_init
+from voicepuppet.tracking.tracker import SURE_FACE_SCORE
 
 __all__ = ["HEAD_SUFFIXES", "load_head", "read_points_3d", "detect_points_3d", "frontal_frame", "sample_head"]
 
@@ -65,10 +73,24 @@ CUT_IOD = 0.6
 def read_points_3d(path) -> np.ndarray:
     """The 3-D landmarks of a head, (P, 3), in the 68-point iBUG order when they are 68.
 
-    ``path``: JSON ``{"points": [[x, y, z], ...]}`` in the animation's point order, or menpo's
-    ``.ljson`` (``groups.LJSON``: labelled groups ``chin``, two eyes, two brows, ``nose``,
-    ``mouth`` of 17, 6, 6, 5, 5, 9 and 20 points), whose groups are put in iBUG order (the eye and
-    brow of the image's left, the subject's right, first: told apart by the frontal x)."""
+    Parameters
+    ----------
+    path : str or path-like
+        JSON ``{"points": [[x, y, z], ...]}`` in the animation's point order, or menpo's
+        ``.ljson`` (``groups.LJSON``: labelled groups ``chin``, two eyes, two brows, ``nose``,
+        ``mouth`` of 17, 6, 6, 5, 5, 9 and 20 points), whose groups are put in iBUG order (the eye
+        and brow of the image's left, the subject's right, first: told apart by the frontal x).
+
+    Returns
+    -------
+    ndarray, shape (P, 3)
+
+    Raises
+    ------
+    ValueError
+        the file is missing, not JSON, holds no finite [x, y, z] points, or menpo groups of
+        other sizes.
+    """
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"head points {str(p)!r} do not exist; give the head's 68 landmarks in 3-D "
@@ -118,9 +140,26 @@ def _ibug_order(pts: np.ndarray, labels: list, path: Path) -> np.ndarray:
 
 
 def frontal_frame(points: np.ndarray) -> np.ndarray:
-    """(3, 3) rows x, y, z of the face's frontal frame from its 68 3-D landmarks (iBUG order):
-    x from the subject's right outer eye corner to the left one, y up from the chin to the eyes
-    (orthogonal to x), z = x × y towards the viewer."""
+    """The face's frontal frame from its 68 3-D landmarks (iBUG order): x from the subject's right
+    outer eye corner to the left one, y up from the chin to the eyes (orthogonal to x),
+    z = x × y towards the viewer.
+
+    Parameters
+    ----------
+    points : ndarray, shape (68, 3)
+        the head's landmarks in 3-D.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        the rows x, y, z.
+
+    Raises
+    ------
+    ValueError
+        the eye corners coincide, the chin lies between the eyes, or the nose tip is not in
+        front of the eyes (mirrored points, or not in iBUG order).
+    """
     L = np.asarray(points, dtype=np.float64)
     right, left = L[face_layout.OUTER_EYE_CORNERS[0]], L[face_layout.OUTER_EYE_CORNERS[1]]
     x = left - right
@@ -153,8 +192,6 @@ def _texture(mesh_path: Path) -> np.ndarray:
                         candidates.append(mtl.parent / m.strip().split()[-1])
     named = list(dict.fromkeys(candidates))
     if len(named) > 1:
-        import warnings
-
         warnings.warn(f"head mesh {str(mesh_path)!r} has {len(named)} textures ({', '.join(n.name for n in named)}); "
                       f"only one is drawn: {named[0].name} textures every face, so parts made for the others "
                       "show the wrong picture; bake them into one texture", stacklevel=3)
@@ -170,9 +207,7 @@ def _texture(mesh_path: Path) -> np.ndarray:
 def _read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(vertices (V, 3), triangles (F, 3), uv (V, 2)) of a textured mesh file, one vertex per
     distinct position and texture coordinate."""
-    from voicepuppet.render.mesh import _pyvista
-
-    pv = _pyvista()
+    pv = import_pyvista()
     try:
         poly = pv.read(str(path))
     except Exception as exc:  # VTK's readers raise many kinds
@@ -252,29 +287,39 @@ def _cut_mouth(verts, faces, uv, f, cut):
             np.asarray(segments, np.int64).reshape(-1, 4), side)
 
 
-def load_head(mesh_path, points_path=None, *, height: int = 720, progress: bool = False):
+def load_head(mesh_path, points_path=None, *, height: int = 720, progress: bool = False) -> FaceMesh:
     """A :class:`voicepuppet.render.mesh.FaceMesh` of a textured 3-D head scan, seen from the front.
 
     Parameters
     ----------
-    mesh_path : path of a textured ``.obj`` (its texture from the material file's ``map_Kd``,
-        else ``STEM.png`` / ``.jpg`` beside it)
-    points_path : the head's 68 landmarks in 3-D, in the mesh's units (:func:`read_points_3d`);
-        None: found on the head's front view (:func:`detect_points_3d`)
-    height : the canvas height in pixels (its width follows the face's proportions)
-    progress : say on stderr what is being done (finding the points takes a few seconds)
+    mesh_path : str or path-like
+        a textured ``.obj`` (its texture from the material file's ``map_Kd``, else
+        ``STEM.png`` / ``.jpg`` beside it).
+    points_path : str or path-like, optional
+        the head's 68 landmarks in 3-D, in the mesh's units (:func:`read_points_3d`); None:
+        found on the head's front view (:func:`detect_points_3d`).
+    height : int
+        the canvas height in pixels (its width follows the face's proportions).
+    progress : bool
+        say on stderr what is being done (finding the points takes a few seconds).
 
     Returns
     -------
-    FaceMesh whose first 68 vertices are the landmarks (in no face), ``canvas`` the frontal
-    view's size, ``mouth`` the cut's cavity (a membrane deep behind it, walled to its edges) and
-    the tongue, ``teeth`` the teeth (both as the photo mesh's, :func:`voicepuppet.render.mesh._interior`,
-    at the lip line's depth), and its interpolation matrix (module docstring).
+    FaceMesh
+        its first 68 vertices the landmarks (in no face), ``canvas`` the frontal view's size,
+        ``mouth`` the cut's cavity (a membrane deep behind it, walled to its edges) and the
+        tongue, ``teeth`` the teeth (both as the photo mesh's,
+        :func:`voicepuppet.render.interior.mouth_interior`, at the lip line's depth), and its
+        interpolation matrix (module docstring).
+
+    Raises
+    ------
+    ValueError
+        the mesh is missing, unreadable, untextured or not an ``.obj``; the points are not 68,
+        not on the mesh, mirrored, or cannot be found.
     """
     from scipy.interpolate import RBFInterpolator
     from scipy.spatial import cKDTree
-
-    from voicepuppet.render.mesh import _INTERIOR_DEPTH, _MOUTH_COLOUR, FaceMesh, _depth, _interior, _tone
 
     mp = Path(mesh_path)
     if not mp.is_file():
@@ -353,8 +398,8 @@ def load_head(mesh_path, points_path=None, *, height: int = 720, progress: bool 
     M *= (fade * fade * (3.0 - 2.0 * fade))[:, None]  # smoothstep
 
     # the mouth's interior: a membrane deep behind the cut (its own copies of the cut's vertices,
-    # walled to them, edge-on from the front), and the photo mesh's tongue and teeth (render's
-    # _interior) at the lip line's depth across the mouth
+    # walled to them, edge-on from the front), and the photo mesh's tongue and teeth
+    # (mouth_interior) at the lip line's depth across the mouth
     tones = _texture_tones(image, uv[d < 0.1])
     ends = np.unique(segments)
     deep = np.searchsorted(ends, segments) + len(V)
@@ -363,9 +408,9 @@ def load_head(mesh_path, points_path=None, *, height: int = 720, progress: bool 
     cavity = np.vstack([np.column_stack(c) for c in (
         (du1, dl1, dl2), (du1, dl2, du2),            # the membrane
         (u1, u2, du2), (u1, du2, du1), (l1, dl2, l2), (l1, dl1, dl2))])  # the walls
-    deep_v = V[ends] + [0.0, 0.0, _INTERIOR_DEPTH["cavity"] * iod]
-    iv, ifaces, iteeth, icolours, icarry = _interior(L[:, :2], tones, cavity=False)  # the membrane is ours
-    iv[:, 2] += np.interp(iv[:, 0], line[:, 0], line[:, 2]) - _depth(iv[:, :2], L[:, :2])
+    deep_v = V[ends] + [0.0, 0.0, INTERIOR_DEPTH["cavity"] * iod]
+    iv, ifaces, iteeth, icolours, icarry = mouth_interior(L[:, :2], tones, cavity=False)  # the membrane is ours
+    iv[:, 2] += np.interp(iv[:, 0], line[:, 0], line[:, 2]) - skin_depth(iv[:, :2], L[:, :2])
 
     n_skin, n_deep = len(V), len(ends)
     vertices = np.vstack([L, V, deep_v, iv])
@@ -374,7 +419,7 @@ def load_head(mesh_path, points_path=None, *, height: int = 720, progress: bool 
     mouth = np.r_[np.zeros(F_skin, bool), np.ones(F_cav, bool), ~iteeth]
     teeth = np.r_[np.zeros(F_skin + F_cav, bool), iteeth]
     colours = np.zeros((len(all_faces), 3), np.uint8)
-    colours[F_skin:F_skin + F_cav] = _tone(_MOUTH_COLOUR, None, tones[1])
+    colours[F_skin:F_skin + F_cav] = tone(MOUTH_COLOUR, None, tones[1])
     colours[F_skin + F_cav:] = icolours
     carried = np.zeros((len(vertices), P))
     carried[P + n_skin + n_deep:] = icarry
@@ -387,14 +432,12 @@ def load_head(mesh_path, points_path=None, *, height: int = 720, progress: bool 
 
 
 def _texture_tones(image: np.ndarray, uv: np.ndarray) -> tuple[float, bool]:
-    """The tones (:func:`voicepuppet.render.mesh._pixel_tones`) of the texture at ``uv`` (the face's
-    vertices), as :func:`voicepuppet.render.mesh._photo_tones` gives a photo's."""
-    from voicepuppet.render.mesh import _pixel_tones
-
+    """The tones (:func:`voicepuppet.render.interior.pixel_tones`) of the texture at ``uv`` (the face's
+    vertices), as :func:`voicepuppet.render.interior.photo_tones` gives a photo's."""
     H, W = image.shape[:2]
     cols = np.clip(np.round(uv[:, 0] * (W - 1)), 0, W - 1).astype(int)
     rows = np.clip(np.round((1.0 - uv[:, 1]) * (H - 1)), 0, H - 1).astype(int)
-    return _pixel_tones(image[rows, cols])
+    return pixel_tones(image[rows, cols])
 
 
 #: the height in pixels of the front view the landmarks are detected on
@@ -416,8 +459,31 @@ def detect_points_3d(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, im
     SURE_FACE_SCORE`) that is not mirrored (a face mask seen from behind: :func:`frontal_frame`
     refuses its points); each point is lifted to the surface it
     lies on (the nearest in front along the view), and an inner lip pair with the surface
-    between them at their depth (a closed mouth) becomes one point, their middle. Returns
-    (68, 3) in the model's units; raises ``ValueError`` naming ``name`` when no view shows a face."""
+    between them at their depth (a closed mouth) becomes one point, their middle.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        the head's vertices in the model's units.
+    faces : ndarray, shape (F, 3), int
+        its triangles.
+    uv : ndarray, shape (V, 2)
+        texture coordinates into ``image``.
+    image : ndarray, shape (H, W, 3), uint8
+        the texture.
+    name : str
+        the head's name in the error message.
+
+    Returns
+    -------
+    ndarray, shape (68, 3)
+        the landmarks in the model's units.
+
+    Raises
+    ------
+    ValueError
+        naming ``name``, when no view shows a face.
+    """
     for turn in DETECT_TURNS:
         a = np.radians(turn)
         Ry = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
@@ -436,10 +502,6 @@ def detect_points_3d(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, im
 def _detect_facing(vertices, faces, uv, image) -> np.ndarray | None:
     """:func:`detect_points_3d` on the head as seen from +z (y up), or None without a face there."""
     import cv2
-    import pyvista as pv
-
-    from voicepuppet.render.mesh import FaceMesh, FaceRenderer
-    from voicepuppet.tracking.tracker import SURE_FACE_SCORE, NoFaceError, auto_init
 
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     scale = DETECT_HEIGHT / max(float(hi[1] - lo[1]), 1e-12)
@@ -455,7 +517,7 @@ def _detect_facing(vertices, faces, uv, image) -> np.ndarray | None:
                        min_score=SURE_FACE_SCORE)
     except NoFaceError:
         return None
-    surface = pv.PolyData(front, np.hstack([np.full((len(faces), 1), 3), faces]))
+    surface = import_pyvista().PolyData(front, np.hstack([np.full((len(faces), 1), 3), faces]))
 
     def lift(x, y):
         hits, _ = surface.ray_trace([x, y, 1.0], [x, y, -(hi[2] - lo[2]) * scale - 1.0], first_point=True)
@@ -478,9 +540,15 @@ def _detect_facing(vertices, faces, uv, image) -> np.ndarray | None:
 def sample_head() -> tuple[Path, Path]:
     """(mesh, points) of a real textured head scan with 68 3-D landmarks: ``james.obj`` (+ its
     material and ``james.jpg``) and ``james.ljson`` from the menpo3d 0.8.6 source archive,
-    fetched once from PyPI into the cache folder."""
-    from voicepuppet.data import fetch_sdist, cache_dir
+    fetched once from PyPI into the cache folder.
 
+    Returns
+    -------
+    mesh : Path
+        ``james.obj``.
+    points : Path
+        ``james.ljson``.
+    """
     dest = os.path.join(cache_dir(), f"menpo3d-{MENPO3D_VERSION}")
     names = ["james.obj", "james.obj.mtl", "james.jpg", "james.ljson"]
     if not all(os.path.exists(os.path.join(dest, n)) for n in names):

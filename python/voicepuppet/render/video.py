@@ -1,0 +1,487 @@
+"""Rendering a driven face mesh off screen and writing it as video (Brand §4.6).
+
+Rendering uses pyvista off screen (headless EGL with Mesa, :mod:`voicepuppet.render._backend`)
+with a parallel camera over the image, so the neutral frame reproduces the photo
+(:class:`FaceRenderer`). Outputs (:func:`render`, :func:`write_video`): ``.mp4`` (H.264 through
+imageio-ffmpeg, the audio muxed in from the start, cut to the animation's duration), ``.gif``, a
+folder of ``.png`` frames; a side-by-side comparison (prediction | ground truth); a fast 2-D
+landmark drawing instead of the mesh (``renderer="2d"``, :func:`draw_landmarks_2d`).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from fractions import Fraction
+from pathlib import Path
+from typing import Iterable, Iterator, Optional
+
+import numpy as np
+from tqdm import tqdm
+
+from voicepuppet import layout as face_layout
+from voicepuppet._files import atomic_path, check_output_path, publish
+from voicepuppet.animation import Animation
+from voicepuppet.face import shape_distance
+from voicepuppet.render._backend import import_pyvista
+from voicepuppet.render.mesh import FaceMesh
+from voicepuppet.render.photo import build_face_mesh, portrait_image
+from voicepuppet.render.retargeting import mesh_animation
+
+__all__ = ["VIDEO_SUFFIXES", "DEFAULT_MAX_SIZE", "default_size", "even", "FaceRenderer", "draw_landmarks_2d",
+           "render_frames", "write_video", "render"]
+
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+_FRAME_CHUNK = 512  # frames of vertices computed at once while rendering
+
+
+def even(n: int) -> int:
+    """``n`` rounded up to an even number (H.264's yuv420p needs even sizes).
+
+    Parameters
+    ----------
+    n : int
+        a size in pixels.
+
+    Returns
+    -------
+    int
+    """
+    return int(n) + (int(n) % 2)
+
+
+#: Without ``size``, a face image larger than this (long side, short side) renders scaled down to
+#: fit it, its aspect kept: a 12-megapixel phone photo (4000x3000) renders at 1440x1080 instead of
+#: 4000x3000 (a 3000x3000 photo rendered 4.9 frames/s, at 1080x1080 22.5 on the 2-core machine).
+DEFAULT_MAX_SIZE = (1920, 1080)
+
+
+def default_size(width: int, height: int) -> tuple[int, int]:
+    """The output size for a ``width`` x ``height`` face image when none is given: the image's,
+    scaled down (never up) to fit :data:`DEFAULT_MAX_SIZE` in its orientation, even numbers.
+
+    Parameters
+    ----------
+    width, height : int
+        the face image's size in pixels.
+
+    Returns
+    -------
+    (int, int)
+        the output's width and height.
+    """
+    long_side, short_side = DEFAULT_MAX_SIZE
+    f = min(1.0, long_side / max(width, height), short_side / min(width, height))
+    return even(int(round(width * f))), even(int(round(height * f)))
+
+
+class FaceRenderer:
+    """Off-screen pyvista renderer of a :class:`FaceMesh`; ``frame(vertices)`` returns RGB.
+
+    Parameters
+    ----------
+    mesh : FaceMesh
+        the face to draw.
+    size : (width, height), optional
+        output size in pixels (default: the photo's, scaled down to fit
+        :data:`DEFAULT_MAX_SIZE` by :func:`default_size`; even numbers for H.264).
+    shading : bool
+        light the mesh (shows the depth); off by default so the neutral frame is the photo.
+    turn : (yaw, pitch), optional
+        degrees to turn the face from the front: yaw about its vertical axis (positive: to its
+        left, the nose towards the viewer's right, its right cheek showing), then pitch about the
+        horizontal (positive: the chin up); the camera orbits the view's centre at the depth of
+        the face's landmarks, its projection still parallel.
+
+    Raises
+    ------
+    ValueError
+        pyvista is missing, or ``turn`` is not two finite angles within [-90, 90] degrees.
+    """
+
+    def __init__(self, mesh: FaceMesh, size: Optional[tuple[int, int]] = None, shading: bool = False,
+                 turn: Optional[tuple[float, float]] = None):
+        pv = import_pyvista()
+        W, H = mesh.size
+        self.size = default_size(W, H) if size is None else (even(size[0]), even(size[1]))
+        self.mesh = mesh
+        # no multisampling: llvmpipe renders 8x MSAA (pyvista's default) at a third of the speed,
+        # and the texture already carries the photo's own anti-aliasing
+        theme = pv.themes.DocumentTheme()
+        theme.multi_samples = 0
+        theme.anti_aliasing = None
+        self._plotter = pv.Plotter(off_screen=True, window_size=list(self.size), theme=theme)
+        self._plotter.set_background((0.0, 0.0, 0.0))
+        skin_faces = mesh.faces[~mesh.flat]
+        self._skin = pv.PolyData(self._world(mesh.vertices), np.hstack([np.full((len(skin_faces), 1), 3), skin_faces]))
+        self._skin.active_texture_coordinates = mesh.uv.astype(np.float32)
+        texture = pv.Texture(mesh.image)
+        kw = {} if shading else {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0}
+        self._plotter.add_mesh(self._skin, texture=texture, lighting=shading, **kw)
+        self._interior = None
+        if mesh.flat.any():  # the mouth's interior, behind the skin: the depth buffer shows it
+            flat_faces = mesh.faces[mesh.flat]
+            self._interior = pv.PolyData(self._world(mesh.vertices),
+                                         np.hstack([np.full((len(flat_faces), 1), 3), flat_faces]))
+            self._interior.cell_data["colour"] = mesh.colours[mesh.flat]
+            self._plotter.add_mesh(self._interior, scalars="colour", rgb=True, lighting=False)
+        cam = self._plotter.camera
+        cam.parallel_projection = True
+        cx, cy = (W - 1) / 2.0, (H - 1) / 2.0
+        cam.focal_point = (cx, -cy, 0.0)
+        cam.position = (cx, -cy, 10.0 * max(W, H))
+        cam.up = (0.0, 1.0, 0.0)
+        # fit the photo in the window keeping its aspect ratio
+        aspect_win = self.size[0] / self.size[1]
+        cam.parallel_scale = max(H / 2.0, W / 2.0 / aspect_win)
+        cam.clipping_range = (1.0, 20.0 * max(W, H))
+        if turn is not None:
+            yaw, pitch = (float(a) for a in turn)
+            if not (np.isfinite(yaw) and np.isfinite(pitch) and abs(yaw) <= 90 and abs(pitch) <= 90):
+                raise ValueError(f"turn must be yaw, pitch in degrees within [-90, 90], got {turn!r}")
+            # the face turning one way is the camera orbiting the other way round its centre
+            depth = float(np.mean(mesh.vertices[: mesh.n_landmarks, 2])) if mesh.n_landmarks else 0.0
+            cam.focal_point = (cx, -cy, depth)
+            cam.Azimuth(-yaw)
+            cam.Elevation(-pitch)
+            cam.OrthogonalizeViewUp()
+            cam.clipping_range = (1.0, 20.0 * max(W, H))
+
+    @staticmethod
+    def _world(vertices: np.ndarray) -> np.ndarray:
+        v = np.asarray(vertices, dtype=np.float64).copy()
+        v[:, 1] = -v[:, 1]
+        return v
+
+    def frame(self, vertices: np.ndarray) -> np.ndarray:
+        """Renders one frame.
+
+        Parameters
+        ----------
+        vertices : ndarray, shape (V, 3)
+            the mesh's vertex positions in image coordinates (x, y down, z).
+
+        Returns
+        -------
+        ndarray, shape (height, width, 3), uint8
+        """
+        world = self._world(vertices)
+        self._skin.points = world
+        if self._interior is not None:
+            self._interior.points = world
+        self._plotter.render()
+        return np.asarray(self._plotter.screenshot(return_img=True))[:, :, :3]
+
+    def close(self) -> None:
+        """Releases the off-screen window."""
+        self._plotter.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def draw_landmarks_2d(points: np.ndarray, size: tuple[int, int], background=(255, 255, 255)) -> np.ndarray:
+    """The fast fallback: one frame of landmarks drawn as contours (68-point layout) or dots.
+
+    Parameters
+    ----------
+    points : ndarray, shape (P, 2)
+        the landmarks in pixels.
+    size : (width, height)
+        the picture's size in pixels.
+    background : (int, int, int)
+        RGB.
+
+    Returns
+    -------
+    ndarray, shape (height, width, 3), uint8
+    """
+    from PIL import Image, ImageDraw
+
+    im = Image.new("RGB", (int(size[0]), int(size[1])), tuple(background))
+    d = ImageDraw.Draw(im)
+    pts = np.asarray(points, dtype=np.float64)
+    r = max(1.5, size[0] / 200.0)
+    if len(pts) == face_layout.N_POINTS:
+        closed = {"right_eye", "left_eye", "outer_lip", "inner_lip"}
+        for g, idx in face_layout.GROUPS.items():
+            seg = [tuple(p) for p in pts[list(idx)]]
+            if g in closed:
+                seg.append(seg[0])
+            d.line(seg, fill=(200, 40, 60) if "lip" in g else (40, 60, 90), width=max(1, int(r)))
+    for x, y in pts:
+        d.ellipse([x - r, y - r, x + r, y + r], fill=(20, 20, 20))
+    return np.asarray(im)
+
+
+def _label(img: np.ndarray, text: str) -> np.ndarray:
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(img)
+    ImageDraw.Draw(im).text((6, 4), text, fill=(255, 255, 0))
+    return np.asarray(im)
+
+
+def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str = "vertex",
+                  truth: Optional[Animation] = None, renderer: str = "mesh",
+                  size: Optional[tuple[int, int]] = None, shading: bool = False,
+                  turn: Optional[tuple[float, float]] = None,
+                  neutral: Optional[np.ndarray] = None, progress: bool = False) -> Iterator[np.ndarray]:
+    """Yields the frames (H, W, 3) uint8 of ``anim``; with ``truth``, side by side
+    (prediction left, ground truth right, same face and frame count).
+
+    ``face`` defaults to a drawn portrait (:func:`portrait_image`) on the animation's rest face
+    (``neutral``, else :attr:`Animation.rest`; 68-point layout). Both sides move from
+    ``neutral`` when it is given, else each from its own rest, a truth without a ``neutral``
+    from its frame nearest the animation's (:func:`voicepuppet.face.shape_distance`).
+    ``renderer="2d"`` draws the landmarks instead of the mesh; ``turn`` (yaw, pitch) views the
+    mesh from an angle (:class:`FaceRenderer`).
+
+    Parameters
+    ----------
+    anim : Animation
+        the animation, P points per frame.
+    face : FaceMesh, optional
+        the face to drive (its landmarks in the animation's layout).
+    mode : {"vertex", "au"}
+        how landmark motion drives the mesh (:func:`voicepuppet.render.retargeting.mesh_animation`).
+    truth : Animation, optional
+        ground truth to show on the right, as many frames and points as ``anim``.
+    renderer : {"mesh", "2d"}
+        the textured mesh, or the landmarks drawn in 2-D.
+    size : (width, height), optional
+        output size of one side in pixels (default: :func:`default_size` of the face's, or for
+        ``"2d"`` the landmarks' extent with a margin).
+    shading : bool
+        light the mesh.
+    turn : (yaw, pitch), optional
+        degrees to turn the face from the front.
+    neutral : ndarray, shape (P, 2), optional
+        the rest face both sides move from.
+    progress : bool
+        show a progress bar.
+
+    Yields
+    ------
+    ndarray, shape (H, W, 3), uint8
+        one frame (W twice one side's width with ``truth``).
+
+    Raises
+    ------
+    ValueError
+        ``truth`` differs from ``anim`` in points or frames, an unknown ``renderer``, no face
+        without the 68-point layout, or pyvista is missing.
+    """
+    if truth is not None:
+        if truth.n_points != anim.n_points:
+            raise ValueError(f"ground truth has {truth.n_points} points per frame, the prediction {anim.n_points}; "
+                             "compare animations in the same layout")
+        if truth.n_frames != anim.n_frames:
+            raise ValueError(f"ground truth has {truth.n_frames} frames, the prediction {anim.n_frames}; "
+                             "resample one of them to the other's frame rate and length")
+    frames = range(anim.n_frames)
+    if progress:
+        frames = tqdm(frames, desc="render", unit="frame")
+    if renderer == "2d":
+        pts = anim.points
+        lo, hi = pts.reshape(-1, 2).min(axis=0), pts.reshape(-1, 2).max(axis=0)
+        if truth is not None:
+            tp = truth.points.reshape(-1, 2)
+            lo, hi = np.minimum(lo, tp.min(axis=0)), np.maximum(hi, tp.max(axis=0))
+        margin = 0.1 * (hi - lo).max() + 4.0
+        box = (even(int(np.ceil(hi[0] - lo[0] + 2 * margin))), even(int(np.ceil(hi[1] - lo[1] + 2 * margin))))
+        if size is not None:
+            box = (even(size[0]), even(size[1]))
+        shift = lo - margin
+        for t in frames:
+            img = draw_landmarks_2d(pts[t] - shift, box)
+            if truth is not None:
+                img = np.hstack([_label(img, "prediction"),
+                                 _label(draw_landmarks_2d(truth.points[t] - shift, box), "ground truth")])
+            yield img
+        return
+    if renderer != "mesh":
+        raise ValueError(f"renderer must be 'mesh' or '2d', got {renderer!r}")
+    ref = None if neutral is None else np.asarray(neutral, dtype=np.float64)
+    pred_ref = anim.rest if ref is None else ref
+    truth_ref = None if truth is None else (truth.rest if ref is None else ref)
+    if ref is None and truth is not None and truth.neutral is None and anim.neutral is not None:
+        # a truth of frames only (tracked, say) rests where it is nearest the prediction's rest,
+        # not on its first frame, which may be mid-word
+        truth_ref = truth.points[int(np.argmin(shape_distance(truth.points, anim.neutral)))]
+    if face is None:
+        if anim.n_points != face_layout.N_POINTS:
+            raise ValueError(f"without a face photo the animation must use the 68-point layout "
+                             f"(a drawn portrait is used), got {anim.n_points} points; "
+                             "pass a face image and its points")
+        lo, hi = pred_ref.min(axis=0), pred_ref.max(axis=0)
+        margin = 0.45 * (hi - lo).max()
+        shift = lo - margin
+        W, H = even(int(hi[0] - lo[0] + 2 * margin)), even(int(hi[1] - lo[1] + 2 * margin))
+        face = build_face_mesh(portrait_image(pred_ref - shift, W, H), pred_ref - shift)
+    # vertices in chunks of frames: memory stays bounded for hour-long animations
+    chunk = _FRAME_CHUNK
+    pred = gt = None
+    with FaceRenderer(face, size=size, shading=shading, turn=turn) as r:
+        for t in frames:
+            if t % chunk == 0:
+                part = slice(t, t + chunk)
+                pred = mesh_animation(Animation(anim.points[part], anim.fps), face, mode=mode,
+                                      neutral=pred_ref)["vertices"]
+                if truth is not None:
+                    gt = mesh_animation(Animation(truth.points[part], truth.fps), face, mode=mode,
+                                        neutral=truth_ref)["vertices"]
+            img = r.frame(pred[t % chunk])
+            if gt is not None:
+                img = np.hstack([_label(img, "prediction"), _label(r.frame(gt[t % chunk]), "ground truth")])
+            yield img
+
+
+def write_video(frames: Iterable[np.ndarray], path, fps: float, *, audio=None, n_frames: Optional[int] = None) -> Path:
+    """Writes frames (H, W, 3) uint8 to ``.mp4`` (H.264, yuv420p, audio muxed as AAC and cut to
+    the video's duration ``n_frames / fps``), ``.gif`` or a folder of ``frame_000000.png``
+    (any other path without a suffix), atomically: nothing appears at ``path`` unless all frames
+    were written.
+
+    Parameters
+    ----------
+    frames : iterable of ndarray, shape (H, W, 3), uint8
+        the frames, RGB.
+    path : str or path-like
+        ``.mp4``, ``.gif``, or a new (or empty) folder's name.
+    fps : float
+        frames per second.
+    audio : str or path-like, optional
+        sound to mux into an ``.mp4``.
+    n_frames : int, optional
+        the frame count, to cut the audio to the video's duration.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        the audio file is missing or the output is not an ``.mp4`` with audio, the output exists
+        or its folder is not writable, there are no frames, or the encoder is missing.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if audio is not None:
+        audio = Path(audio)
+        if not audio.is_file():
+            raise ValueError(f"audio file {str(audio)!r} does not exist")
+        if suffix != ".mp4":
+            raise ValueError(f"audio can only be muxed into .mp4, not {suffix or 'a folder of frames'}; drop the audio "
+                             "or write an .mp4")
+    if suffix == "":
+        parent = p.parent if str(p.parent) else Path(".")
+        if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+            raise ValueError(f"output folder {str(parent)!r} must exist and be writable")
+        if p.exists() and (not p.is_dir() or any(p.iterdir())):
+            raise ValueError(f"output {str(p)!r} already exists and is not an empty folder; choose a new folder name")
+        tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".partial", dir=parent))
+        try:
+            from PIL import Image
+
+            for t, img in enumerate(frames):
+                Image.fromarray(img).save(tmp / f"frame_{t:06d}.png")
+            if p.exists():
+                p.rmdir()
+            publish(tmp, p)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp)
+        return p
+    check_output_path(p, VIDEO_SUFFIXES + ("",), "video")
+    with atomic_path(p, VIDEO_SUFFIXES, "video") as tmp:
+        if suffix == ".gif":
+            from PIL import Image
+
+            images = [Image.fromarray(f) for f in frames]
+            if not images:
+                raise ValueError("no frames to write")
+            images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
+                           duration=max(20, int(round(1000.0 / fps / 10.0)) * 10), loop=0)
+        else:
+            _write_mp4(frames, tmp, fps, audio, n_frames)
+    return p
+
+
+def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: Optional[int]) -> None:
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        raise ValueError("writing .mp4 needs imageio-ffmpeg: pip install imageio-ffmpeg") from None
+
+    it = iter(frames)
+    try:
+        first = next(it)
+    except StopIteration:
+        raise ValueError("no frames to write") from None
+    h, w = first.shape[:2]
+    rate = Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-3 else Fraction(fps).limit_denominator(1001)
+    # the same frames give the same bytes: one encoder thread (x264's automatic count follows
+    # the CPUs the process may use: 3 frame threads on 2 cores, 1 under taskset) and no B-frames
+    # (with them x264's macroblock tree reads heap memory it has not written; see synth.video)
+    out_params = ["-movflags", "+faststart", "-preset", "veryfast", "-threads", "1", "-bf", "0"]
+    if audio is not None and n_frames is not None:
+        out_params += ["-t", f"{n_frames / float(rate):.6f}"]
+    writer = imageio_ffmpeg.write_frames(str(path), (w, h), fps=rate, codec="libx264", quality=7,
+                                         macro_block_size=2, ffmpeg_log_level="error", output_params=out_params,
+                                         audio_path=None if audio is None else str(audio),
+                                         audio_codec=None if audio is None else "aac")
+    writer.send(None)
+    try:
+        writer.send(np.ascontiguousarray(first))
+        for img in it:
+            writer.send(np.ascontiguousarray(img))
+    finally:
+        writer.close()
+
+
+def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None, mode: str = "vertex",
+           truth: Optional[Animation] = None, renderer: str = "mesh", size: Optional[tuple[int, int]] = None,
+           shading: bool = False, neutral: Optional[np.ndarray] = None, progress: bool = False,
+           turn: Optional[tuple[float, float]] = None) -> Path:
+    """Renders ``anim`` to ``path`` (``.mp4``, ``.gif`` or a folder of ``.png`` frames),
+    with ``audio`` muxed into an ``.mp4``.
+
+    Parameters
+    ----------
+    anim : Animation
+        the animation to render.
+    path : str or path-like
+        ``.mp4``, ``.gif``, or a folder's name for ``.png`` frames.
+    audio : str or path-like, optional
+        sound to mux into an ``.mp4``.
+    face, mode, truth, renderer, size, shading, neutral, progress, turn
+        as for :func:`render_frames`.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        an unknown output format, an existing output, or the errors of :func:`render_frames`
+        and :func:`write_video`.
+    """
+    p = Path(path)
+    if p.suffix.lower() not in VIDEO_SUFFIXES + ("",):
+        raise ValueError(f"render output {str(p)!r} has an unknown format {p.suffix!r}; use .mp4, .gif, or a folder "
+                         "name for .png frames (meshes and other formats: voicepuppet export)")
+    if p.suffix:
+        check_output_path(p, VIDEO_SUFFIXES, "render output")
+    frames = render_frames(anim, face=face, mode=mode, truth=truth, renderer=renderer, size=size,
+                           shading=shading, neutral=neutral, progress=progress, turn=turn)
+    return write_video(frames, p, anim.fps, audio=audio, n_frames=anim.n_frames)
