@@ -21,3 +21,16 @@ numpydoc_validation_checks = {"PR01", "PR02", "RT01"}
 templates_path = ["_templates"]
 html_theme = "alabaster"
 exclude_patterns = ["_build", "_generated/*.rst.tmp"]
+
+
+def _foreign(app, what, name, obj, skip, options):
+    """Skip what a module merely imports (e.g. ``dataclass``, ``Path``): the reference documents
+    the package's own objects."""
+    module = getattr(obj, "__module__", None)
+    if what == "module" and isinstance(module, str) and not module.startswith("voicepuppet"):
+        return True
+    return None
+
+
+def setup(app):
+    app.connect("autodoc-skip-member", _foreign)

@@ -23,6 +23,27 @@ def check_output_path(path, suffixes: tuple[str, ...] | None = None, what: str =
     """Checks that ``path`` can be written: known suffix, existing writable folder.
 
     Raises ``ValueError`` saying what to do otherwise. Returns ``Path(path)``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file.
+    suffixes : tuple of str, optional
+        Accepted suffixes in lower case, with the dot (e.g. ``(".npz", ".csv")``); the
+        comparison ignores case. None (the default) accepts any.
+    what : str
+        What the file is, for the messages (default ``"output"``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``Path(path)``.
+
+    Raises
+    ------
+    ValueError
+        An unknown suffix, a folder that does not exist or is not writable, or a ``path``
+        that is a folder.
     """
     p = Path(path)
     if suffixes is not None and p.suffix.lower() not in suffixes:
@@ -51,7 +72,15 @@ _UMASK = _umask()
 def publish(tmp, path) -> None:
     """Renames the finished temporary file or folder ``tmp`` onto ``path``, first giving it the
     permissions a plainly created one would have (``tempfile.mkstemp`` / ``mkdtemp`` make them
-    owner-only)."""
+    owner-only).
+
+    Parameters
+    ----------
+    tmp : str or os.PathLike
+        The finished temporary file or folder, beside ``path`` (same file system).
+    path : str or os.PathLike
+        Its final name (replaced if it exists, by ``os.replace``).
+    """
     os.chmod(tmp, (0o777 if os.path.isdir(tmp) else 0o666) & ~_UMASK)
     os.replace(tmp, path)
 
@@ -63,6 +92,25 @@ def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "outp
     On any exception the temporary file is removed and ``path`` is untouched, so a reader never
     sees a half-written file. The temporary name keeps the suffix (writers that dispatch on it
     still work).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file, checked by :func:`check_output_path`.
+    suffixes : tuple of str, optional
+        Accepted suffixes (lower case, with the dot); None (the default) accepts any.
+    what : str
+        What the file is, for the messages (default ``"output"``).
+
+    Yields
+    ------
+    pathlib.Path
+        The temporary path to write (an empty file exists there).
+
+    Raises
+    ------
+    ValueError
+        ``path`` cannot be written (see :func:`check_output_path`).
     """
     p = check_output_path(path, suffixes, what)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".partial{p.suffix}", dir=p.parent or ".")
@@ -79,7 +127,15 @@ def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "outp
 def write_npz(fh, arrays: dict) -> None:
     """``np.savez_compressed`` with fixed member timestamps, so equal arrays give equal bytes
     (numpy stamps the current time into each member, which makes re-runs differ byte for byte).
-    ``fh`` is a binary file object; members are ``NAME.npy`` in the given order."""
+    ``fh`` is a binary file object; members are ``NAME.npy`` in the given order.
+
+    Parameters
+    ----------
+    fh : file object
+        A binary file opened for writing.
+    arrays : dict
+        Name -> array_like; stored without pickling.
+    """
     with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for name, value in arrays.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))

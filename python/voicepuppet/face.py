@@ -34,7 +34,25 @@ IBUG68_PARTS = {"upper": tuple(range(17, 48)), "lower": tuple(range(0, 17)) + tu
 
 
 def check_landmarks(points, name: str = "points") -> np.ndarray:
-    """``points`` as float64 [T, P, 2], finite, with T >= 1 and P >= 3; ValueError otherwise."""
+    """``points`` as float64 [T, P, 2], finite, with T >= 1 and P >= 3; ValueError otherwise.
+
+    Parameters
+    ----------
+    points : array_like, shape (T, P, 2)
+        Landmarks, pixel coordinates (x, y).
+    name : str
+        What the points are, for the error messages (default ``"points"``).
+
+    Returns
+    -------
+    ndarray, shape (T, P, 2)
+        ``points`` as float64.
+
+    Raises
+    ------
+    ValueError
+        Not of shape (T, P, 2), fewer than 1 frame or 3 points, or NaN or infinite coordinates.
+    """
     arr = np.asarray(points, dtype=np.float64)
     if arr.ndim != 3 or arr.shape[2] != 2:
         raise ValueError(f"{name} must have shape (frames, points, 2) of pixel (x, y); got {arr.shape}")
@@ -48,7 +66,19 @@ def check_landmarks(points, name: str = "points") -> np.ndarray:
 
 
 def default_weights(n_points: int) -> np.ndarray:
-    """Procrustes weights per point (see the module notes)."""
+    """Procrustes weights per point (see the module notes).
+
+    Parameters
+    ----------
+    n_points : int
+        Number of landmarks P.
+
+    Returns
+    -------
+    ndarray, shape (P,)
+        For 68 points: 1 on :data:`voicepuppet.layout.RIGID` (nose, eye corners), 0.05
+        elsewhere; for any other layout all ones.
+    """
     if n_points == 68:
         w = np.full(68, 0.05)
         w[list(RIGID)] = 1.0
@@ -77,7 +107,26 @@ def _align(z: np.ndarray, ref: np.ndarray, w: np.ndarray):
 def shape_distance(shapes, rest) -> np.ndarray:
     """How far each shape of ``shapes`` (N, P, 2) is from ``rest`` (P, 2) once the best
     similarity (translation, scale, rotation; every point weighed alike) maps it onto ``rest``:
-    the residual's RMS over the points relative to ``rest``'s RMS radius, (N,)."""
+    the residual's RMS over the points relative to ``rest``'s RMS radius, (N,).
+
+    Parameters
+    ----------
+    shapes : array_like, shape (N, P, 2)
+        Shapes, pixel coordinates.
+    rest : array_like, shape (P, 2)
+        The reference shape.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Relative residual of each shape (0: a similar copy of ``rest``).
+
+    Raises
+    ------
+    ValueError
+        ``shapes`` not finite landmarks (see :func:`check_landmarks`), or a shape whose points
+        all coincide.
+    """
     S = check_landmarks(shapes, "shapes")
     r = np.asarray(rest, dtype=np.float64)
     w = r[:, 0] + 1j * r[:, 1]
@@ -90,23 +139,34 @@ def shape_distance(shapes, rest) -> np.ndarray:
 class FaceSpace:
     """Head-pose normalisation and a per-part principal-component basis of face shapes.
 
-    Build with :meth:`fit`. Attributes are plain arrays (a puppet file stores them).
+    Build with :meth:`fit` (or :meth:`from_arrays`). Attributes are plain arrays (a puppet
+    file stores them); each parameter is kept as the attribute of the same name.
 
-    Attributes
+    Parameters
     ----------
-    mean_shape : ndarray (P, 2)
+    mean_shape : ndarray, shape (P, 2)
         Normalised mean shape (weighted centroid at the origin, average training size).
-    weights : ndarray (P,)
+    weights : ndarray, shape (P,)
         Procrustes weights.
-    mean_pose : ndarray (4,)
+    mean_pose : ndarray, shape (4,)
         Average training pose ``(log s, θ, tx, ty)``, used when decoding without a pose.
     parts : list of ndarray
         Point indices of each part (a partition of ``range(P)``).
     part_names : list of str
-    bases : list of ndarray (K_p, 2 P_p)
+        A name per part.
+    bases : list of ndarray, shape (K_p, 2 P_p)
         Orthonormal rows: coordinates ``y = basis · (shape_p − mean_p)`` (x, y interleaved).
-    variances : list of ndarray (K_p,)
-        Training variance along each basis row.
+    variances : list of ndarray, shape (K_p,)
+        Training variance along each basis row (default empty).
+
+    Attributes
+    ----------
+    n_points : int
+        P.
+    n_dims : int
+        K: face coordinates per frame (all parts).
+    part_slices : list of slice
+        Column slice of each part within the face coordinates.
     """
 
     mean_shape: np.ndarray
@@ -138,7 +198,19 @@ class FaceSpace:
         weights : array (P,), optional
             Procrustes weights (default :func:`default_weights`).
         n_iter : int
-            Generalised Procrustes iterations.
+            Generalised Procrustes iterations (default 10).
+
+        Returns
+        -------
+        FaceSpace
+            The fitted face space.
+
+        Raises
+        ------
+        ValueError
+            No sequence or fewer than 2 frames in all, landmarks that are not finite (T, P, 2)
+            arrays, sequences with different P, invalid ``weights``, ``parts``,
+            ``n_components`` or ``max_components``, or a frame whose points all coincide.
         """
         if isinstance(points_list, np.ndarray) or not isinstance(points_list, (list, tuple)):
             points_list = [points_list]
@@ -195,6 +267,7 @@ class FaceSpace:
     # ---------------------------------------------------------------------------- properties
     @property
     def n_points(self) -> int:
+        """P: landmarks per frame."""
         return int(self.mean_shape.shape[0])
 
     @property
@@ -213,7 +286,26 @@ class FaceSpace:
 
     # ----------------------------------------------------------------------------- mappings
     def normalize(self, points):
-        """Remove the head pose: ``(shapes [T, P, 2], pose [T, 4])``."""
+        """Remove the head pose.
+
+        Parameters
+        ----------
+        points : array_like, shape (T, P, 2)
+            Pixel landmarks in the layout the space was fitted on.
+
+        Returns
+        -------
+        shapes : ndarray, shape (T, P, 2)
+            Normalised shapes (fitted onto :attr:`mean_shape`).
+        pose : ndarray, shape (T, 4)
+            Pose per frame, ``(log s, θ, tx, ty)``.
+
+        Raises
+        ------
+        ValueError
+            Landmarks that are not finite (T, P, 2) with this space's P, or a frame whose points
+            all coincide.
+        """
         pts = self._check(points)
         z = pts[..., 0] + 1j * pts[..., 1]
         ref = self.mean_shape[:, 0] + 1j * self.mean_shape[:, 1]
@@ -223,14 +315,48 @@ class FaceSpace:
         return np.stack([aligned.real, aligned.imag], axis=2), pose
 
     def encode(self, points):
-        """Face coordinates and pose: ``(Y [T, K], pose [T, 4])``."""
+        """Face coordinates and pose.
+
+        Parameters
+        ----------
+        points : array_like, shape (T, P, 2)
+            Pixel landmarks in the layout the space was fitted on.
+
+        Returns
+        -------
+        Y : ndarray, shape (T, K)
+            Face coordinates (the parts' coordinates side by side, :attr:`part_slices`).
+        pose : ndarray, shape (T, 4)
+            Pose per frame, ``(log s, θ, tx, ty)``.
+
+        Raises
+        ------
+        ValueError
+            As for :meth:`normalize`.
+        """
         shapes, pose = self.normalize(points)
         cols = [(shapes[:, idx, :].reshape(len(shapes), -1) - self.mean_shape[idx].reshape(-1)) @ b.T
                 for idx, b in zip(self.parts, self.bases)]
         return np.concatenate(cols, axis=1), pose
 
     def shapes(self, Y) -> np.ndarray:
-        """Normalised shapes [T, P, 2] from face coordinates Y [T, K]."""
+        """Normalised shapes from face coordinates.
+
+        Parameters
+        ----------
+        Y : array_like, shape (T, K)
+            Face coordinates.
+
+        Returns
+        -------
+        ndarray, shape (T, P, 2)
+            Normalised shapes (no pose).
+
+        Raises
+        ------
+        ValueError
+            ``Y`` not of shape (T, K).
+        """
         Y = np.asarray(Y, dtype=np.float64)
         if Y.ndim != 2 or Y.shape[1] != self.n_dims:
             raise ValueError(f"face coordinates must have shape (frames, {self.n_dims}); got {Y.shape}")
@@ -240,8 +366,26 @@ class FaceSpace:
         return out
 
     def decode(self, Y, pose=None) -> np.ndarray:
-        """Pixel landmarks [T, P, 2] from face coordinates, at ``pose`` [T, 4] or [4] (default:
-        the mean training pose)."""
+        """Pixel landmarks from face coordinates, at a pose.
+
+        Parameters
+        ----------
+        Y : array_like, shape (T, K)
+            Face coordinates.
+        pose : array_like, shape (T, 4) or (4,), optional
+            Pose ``(log s, θ, tx, ty)`` per frame or for all frames (default: the mean training
+            pose, :attr:`mean_pose`).
+
+        Returns
+        -------
+        ndarray, shape (T, P, 2)
+            Pixel landmarks.
+
+        Raises
+        ------
+        ValueError
+            ``Y`` not of shape (T, K), or ``pose`` not finite of shape (4,) or (T, 4).
+        """
         s = self.shapes(Y)
         pose = self.mean_pose if pose is None else np.asarray(pose, dtype=np.float64)
         pose = np.broadcast_to(pose, (len(s), 4)) if pose.ndim == 1 else pose
@@ -260,7 +404,21 @@ class FaceSpace:
 
     # ---------------------------------------------------------------------------- storage
     def to_arrays(self, prefix: str = "face/") -> dict:
-        """Plain arrays for a puppet file (see :meth:`from_arrays`)."""
+        """Plain arrays for a puppet file (see :meth:`from_arrays`).
+
+        Parameters
+        ----------
+        prefix : str
+            Prefix of every key (default ``"face/"``).
+
+        Returns
+        -------
+        dict
+            Keys ``{prefix}mean_shape``, ``{prefix}weights``, ``{prefix}mean_pose`` and, for
+            each part k, ``{prefix}part{k}/points``, ``{prefix}part{k}/basis`` and
+            ``{prefix}part{k}/variances``. The part names are not included:
+            :meth:`from_arrays` takes them separately.
+        """
         out = {prefix + "mean_shape": self.mean_shape, prefix + "weights": self.weights,
                prefix + "mean_pose": self.mean_pose}
         for k, (idx, b, v) in enumerate(zip(self.parts, self.bases, self.variances)):
@@ -271,6 +429,22 @@ class FaceSpace:
 
     @classmethod
     def from_arrays(cls, arrays: dict, part_names, prefix: str = "face/") -> "FaceSpace":
+        """The face space stored by :meth:`to_arrays`.
+
+        Parameters
+        ----------
+        arrays : mapping
+            The arrays (e.g. an open puppet ``.npz``).
+        part_names : list of str
+            The parts' names, in order (one per stored part).
+        prefix : str
+            Prefix of every key (default ``"face/"``).
+
+        Returns
+        -------
+        FaceSpace
+            The stored face space.
+        """
         parts, bases, variances = [], [], []
         for k in range(len(part_names)):
             parts.append(np.asarray(arrays[f"{prefix}part{k}/points"], dtype=np.int64))
@@ -334,6 +508,24 @@ def observations(Y, lengths=None) -> np.ndarray:
 
     The first frame of each sequence has no predecessor; it takes the velocity of the
     sequence's second frame (zero for a one-frame sequence).
+
+    Parameters
+    ----------
+    Y : array_like, shape (T, K)
+        Face coordinates of one or more sequences, concatenated.
+    lengths : array_like of int, optional
+        Frames of each sequence (default one sequence of T frames); velocities do not cross
+        sequence boundaries.
+
+    Returns
+    -------
+    ndarray, shape (T, 2K)
+        ``[Y, V]``: coordinates and velocities side by side.
+
+    Raises
+    ------
+    ValueError
+        ``Y`` not 2-D with at least one frame, or ``lengths`` not positive or not summing to T.
     """
     Y = np.asarray(Y, dtype=np.float64)
     if Y.ndim != 2 or Y.shape[0] == 0:

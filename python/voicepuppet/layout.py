@@ -50,10 +50,12 @@ def inter_ocular_distance(points: np.ndarray) -> np.ndarray:
     Parameters
     ----------
     points : ndarray, shape (..., 68, 2)
+        68-point faces, pixel coordinates (x, y).
 
     Returns
     -------
     ndarray, shape (...)
+        Distance between points 36 and 45 (``OUTER_EYE_CORNERS``) of each face, in pixels.
 
     Raises
     ------

@@ -62,6 +62,12 @@ def velocity_scale(model_fps: float, out_fps: float) -> float:
     Returns
     -------
     float
+        ``model_fps / out_fps``.
+
+    Raises
+    ------
+    ValueError
+        A rate that is not positive and finite.
     """
     return _check_rate(model_fps, "model_fps") / _check_rate(out_fps, "out_fps")
 
@@ -81,8 +87,10 @@ def make_model(means, vel_means, covars, covariance_type: str = "full",
         ``"full"``: shape (N, 2D, 2D) or (N*2D, 2D), the covariance of ``[pose, velocity]``;
         ``"diag"``: shape (N, 2D), the variances of ``[pose, velocity]``.
     covariance_type : {"full", "diag"}
+        Form of ``covars`` (default ``"full"``).
     velocity_scale : float
-        ``model_fps / out_fps`` (see :func:`velocity_scale`); 1 for the training rate.
+        ``model_fps / out_fps`` (see :func:`velocity_scale`); 1 (the default) for the training
+        rate.
 
     Returns
     -------
@@ -257,6 +265,15 @@ def solve_trajectory_weighted(weights, means, vel_means, covars, *, covariance_t
     Returns
     -------
     ndarray, shape (T_out, D)
+        ``T_out = ceil(T * out_fps / states_fps)`` (``T`` without resampling).
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, negative or non-finite weights, a row summing to zero, a covariance that
+        is not positive definite.
+    RuntimeError
+        The normal equations are numerically singular.
     """
     scale, fps_in, fps_out = _rates(model_fps, states_fps, out_fps)
     model = make_model(means, vel_means, covars, covariance_type, scale)
@@ -275,11 +292,20 @@ def resample_states(states, fps_in: float, fps_out: float) -> np.ndarray:
     Parameters
     ----------
     states : array_like of int, shape (T,)
+        State index per input frame (>= 0).
     fps_in, fps_out : float
+        Input and output frame rates.
 
     Returns
     -------
     ndarray of int64, shape (T_out,)
+        State index per output frame.
+
+    Raises
+    ------
+    ValueError
+        ``states`` not a non-empty 1-D sequence of non-negative integers, or a rate that is
+        not positive and finite.
     """
     s = _check_states(states, np.iinfo(np.int64).max)
     return _core.resample_states(s, _check_rate(fps_in, "fps_in"), _check_rate(fps_out, "fps_out"))
@@ -294,11 +320,20 @@ def resample_weights(weights, fps_in: float, fps_out: float) -> np.ndarray:
     Parameters
     ----------
     weights : array_like, shape (T, N)
+        Non-negative state weights per input frame, each row with a positive sum.
     fps_in, fps_out : float
+        Input and output frame rates.
 
     Returns
     -------
     ndarray, shape (T_out, N)
+        State weights per output frame.
+
+    Raises
+    ------
+    ValueError
+        ``weights`` not 2-D with at least one frame, negative or non-finite weights, a row
+        summing to zero, or a rate that is not positive and finite.
     """
     w = np.asarray(weights, dtype=np.float64)
     if w.ndim != 2:
@@ -328,6 +363,11 @@ class FixedLagTrajectory:
         W ``(D, D)`` of per-frame evidence (as :func:`solve_trajectory`): every push then takes
         the frames' targets, and frame t emitted is the value at t of the exact guided solve of
         frames 0 .. t + lag; :meth:`flush` gives the batch guided solve.
+
+    Raises
+    ------
+    ValueError
+        ``lag`` not a whole number >= 0, or a model that :func:`make_model` rejects.
     """
 
     def __init__(self, means, vel_means, covars, lag: int, *, covariance_type: str = "full",
@@ -363,7 +403,26 @@ class FixedLagTrajectory:
 
     def push_states(self, states, targets=None) -> np.ndarray:
         """Push state indices (shape (K,)) and, for a stream with evidence, their targets (K, D);
-        returns the frames emitted, shape (K', D)."""
+        returns the frames emitted, shape (K', D).
+
+        Parameters
+        ----------
+        states : array_like of int, shape (K,) or scalar
+            State index per new frame.
+        targets : array_like, shape (K, D), optional
+            Evidence targets of the new frames (for a stream built with
+            ``evidence_precision``).
+
+        Returns
+        -------
+        ndarray, shape (K', D)
+            The frames emitted by this push, in order.
+
+        Raises
+        ------
+        ValueError
+            States that are not integers in range.
+        """
         arr = _check_states(np.atleast_1d(np.asarray(states)), self._model.n_states)
         if targets is None:
             return self._stream.push_states(arr)
@@ -371,7 +430,26 @@ class FixedLagTrajectory:
 
     def push_weights(self, weights, targets=None) -> np.ndarray:
         """Push state weights (shape (K, N), or (N,) for one frame) and, for a stream with
-        evidence, their targets (K, D); returns the frames emitted."""
+        evidence, their targets (K, D); returns the frames emitted.
+
+        Parameters
+        ----------
+        weights : array_like, shape (K, N) or (N,)
+            Non-negative state weights per new frame, each row with a positive sum.
+        targets : array_like, shape (K, D), optional
+            Evidence targets of the new frames (for a stream built with
+            ``evidence_precision``).
+
+        Returns
+        -------
+        ndarray, shape (K', D)
+            The frames emitted by this push, in order.
+
+        Raises
+        ------
+        ValueError
+            Weights not of shape (K, N), negative or non-finite, or a row summing to zero.
+        """
         w = np.asarray(weights, dtype=np.float64)
         if w.ndim == 1:
             w = w[None, :]
@@ -381,5 +459,11 @@ class FixedLagTrajectory:
         return self._stream.push_weights(w, np.atleast_2d(_evidence(targets, None)[0]))
 
     def flush(self) -> np.ndarray:
-        """Emit the held-back frames (shape (K, D)) and reset the stream for a new utterance."""
+        """Emit the held-back frames and reset the stream for a new utterance.
+
+        Returns
+        -------
+        ndarray, shape (K, D)
+            The frames not yet emitted, from the full solve.
+        """
         return self._stream.flush()

@@ -49,6 +49,17 @@ def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = No
     -------
     Features
         ``values`` (T, D), all finite, ``T = n_out`` or ``ceil(duration * fps)``.
+
+    Raises
+    ------
+    ValueError
+        ``fps`` not positive and finite, ``n_out`` not a positive whole number, an unknown
+        feature, set or option, or audio that cannot be loaded (see :func:`load_audio`).
+
+    Warns
+    -----
+    AudioWarning
+        The audio is shorter than one frame (its one frame is analysed with silence after it).
     """
     return _extract(source, fps, features, n_out, progress, options, reference=False)
 
@@ -56,7 +67,31 @@ def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = No
 def reference_extract(source, fps: float = 29.97, features=None, *, n_out: int | None = None,
                       **options) -> Features:
     """:func:`extract` computed by the numpy definitions in :mod:`.spectral` and :mod:`.lpc`
-    (the test oracle of the C++ front end; no production path calls it). Same arguments."""
+    (the test oracle of the C++ front end; no production path calls it). Same arguments.
+
+    Parameters
+    ----------
+    source : Audio, str or os.PathLike
+        Prepared audio or a file to load, as for :func:`extract`.
+    fps : float
+        Output frame rate (default NTSC 29.97); frame ``k`` is centred at ``k / fps``.
+    features : FeatureSet, str or list of str, optional
+        A set (default ``"puppet"``), a set name, or feature names.
+    n_out : int, optional
+        Number of output frames (default ``ceil(duration * fps)``).
+    **options
+        Overrides of ``DEFAULT_OPTIONS`` for this call.
+
+    Returns
+    -------
+    Features
+        The same table as :func:`extract` gives (to rounding).
+
+    Raises
+    ------
+    ValueError
+        As for :func:`extract`.
+    """
     return _extract(source, fps, features, n_out, False, options, reference=True)
 
 

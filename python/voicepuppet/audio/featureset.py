@@ -76,7 +76,23 @@ DEFAULT_SET = "puppet"
 
 
 def check_level_db(level) -> float:
-    """The feature option ``level_db`` as a float: a speech level in dBFS in [-100, 0]."""
+    """The feature option ``level_db`` as a float: a speech level in dBFS in [-100, 0].
+
+    Parameters
+    ----------
+    level : float
+        The option's value.
+
+    Returns
+    -------
+    float
+        ``level`` as a float.
+
+    Raises
+    ------
+    ValueError
+        ``level`` is not a number (a bool is not one) in [-100, 0].
+    """
     if (isinstance(level, bool) or not isinstance(level, (int, float, np.integer, np.floating))
             or not -100.0 <= level <= 0.0):
         raise ValueError(f"feature option level_db must be a speech level in dBFS between -100 and 0 "
@@ -95,7 +111,14 @@ class FeatureSet:
     options : dict
         Overrides of ``DEFAULT_OPTIONS``.
     name : str
-        A label stored with the features (a named set, or "custom").
+        A label stored with the features (a named set, or "custom", the default).
+
+    Raises
+    ------
+    ValueError
+        No features, a name not in ``FEATURES``, a feature listed twice, an unknown option, or
+        an invalid ``band_hz`` (not a positive frequency) or ``level_db`` (see
+        :func:`check_level_db`).
     """
 
     features: tuple
@@ -128,7 +151,25 @@ class FeatureSet:
 
     @classmethod
     def named(cls, name: str, **overrides) -> "FeatureSet":
-        """One of ``FEATURE_SETS`` (``"puppet"``, ``"mfcc"``, ...) with optional overrides."""
+        """One of ``FEATURE_SETS`` (``"puppet"``, ``"mfcc"``, ...) with optional overrides.
+
+        Parameters
+        ----------
+        name : str
+            A key of ``FEATURE_SETS``.
+        **overrides
+            Options (keys of ``DEFAULT_OPTIONS``) that replace the set's own.
+
+        Returns
+        -------
+        FeatureSet
+            The named set's features, its options updated with ``overrides``, named ``name``.
+
+        Raises
+        ------
+        ValueError
+            An unknown set name or option.
+        """
         if name not in FEATURE_SETS:
             raise ValueError(f"unknown feature set {name!r}; choose from "
                              f"{', '.join(FEATURE_SETS)}")
@@ -136,22 +177,70 @@ class FeatureSet:
         return cls(spec["features"], {**spec["options"], **overrides}, name)
 
     def settings(self) -> dict:
-        """All options in force (defaults merged with this set's overrides)."""
+        """All options in force (defaults merged with this set's overrides).
+
+        Returns
+        -------
+        dict
+            ``DEFAULT_OPTIONS`` updated with :attr:`options` (a new dict).
+        """
         return {**DEFAULT_OPTIONS, **self.options}
 
     def to_json(self) -> str:
+        """The set as JSON (``name``, ``features``, ``options``), as a features file stores it.
+
+        Returns
+        -------
+        str
+            JSON text with sorted keys; :meth:`from_json` reads it back.
+        """
         return json.dumps({"name": self.name, "features": list(self.features),
                            "options": self.options}, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> "FeatureSet":
+        """The set written by :meth:`to_json`.
+
+        Parameters
+        ----------
+        text : str
+            JSON with ``features`` and optionally ``options`` (default none) and ``name``
+            (default ``"custom"``).
+
+        Returns
+        -------
+        FeatureSet
+            The set described by ``text``.
+
+        Raises
+        ------
+        ValueError
+            Text that is not JSON, or a set that is not valid (see :class:`FeatureSet`).
+        """
         d = json.loads(text)
         return cls(tuple(d["features"]), d.get("options", {}), d.get("name", "custom"))
 
 
 def as_feature_set(spec) -> FeatureSet:
     """A FeatureSet from a FeatureSet, a set name, or a list or comma-separated string of
-    feature names."""
+    feature names.
+
+    Parameters
+    ----------
+    spec : FeatureSet, str, iterable of str or None
+        A set (returned as it is), a key of ``FEATURE_SETS``, feature names as a list or a
+        comma-separated string (a set named "custom"), or None for ``DEFAULT_SET``.
+
+    Returns
+    -------
+    FeatureSet
+        The set ``spec`` describes.
+
+    Raises
+    ------
+    ValueError
+        An unknown feature name, or no feature at all.
+    """
     if isinstance(spec, FeatureSet):
         return spec
     if spec is None:
@@ -167,18 +256,30 @@ def as_feature_set(spec) -> FeatureSet:
 class Features:
     """Audio features at a video frame rate.
 
-    Attributes
+    Made by :func:`voicepuppet.audio.extract.extract` or read by :meth:`load`; each parameter is
+    kept as the (read-only) attribute of the same name. ``len(features)`` is the number of
+    frames T.
+
+    Parameters
     ----------
     values : ndarray, shape (T, D)
         One row per video frame (frame ``k`` centred at ``k / fps``), finite.
     names : tuple of str, length D
         Column names.
     fps : float
+        Frame rate of the rows.
     feature_set : FeatureSet
+        The set the columns were computed with.
     duration : float
         Seconds of audio analysed.
     voiced : ndarray of bool, shape (T,) or None
-        Frames called voiced by the F0 tracker (when ``f0`` or ``voicing`` was computed).
+        Frames called voiced by the F0 tracker (when ``f0`` or ``voicing`` was computed;
+        default None).
+
+    Attributes
+    ----------
+    times : ndarray, shape (T,)
+        Frame times ``k / fps`` in seconds.
     """
 
     values: np.ndarray
@@ -190,17 +291,50 @@ class Features:
 
     @property
     def times(self) -> np.ndarray:
+        """Frame times ``k / fps`` in seconds, shape (T,)."""
         return frame_times(self.values.shape[0], self.fps)
 
     def __len__(self) -> int:
         return self.values.shape[0]
 
     def column(self, name: str) -> np.ndarray:
-        """Values of one column, shape (T,)."""
+        """Values of one column.
+
+        Parameters
+        ----------
+        name : str
+            A column name (one of :attr:`names`, e.g. ``"mfcc3"``).
+
+        Returns
+        -------
+        ndarray, shape (T,)
+            The column's values.
+
+        Raises
+        ------
+        ValueError
+            No column has that name.
+        """
         return self.values[:, self._index(name)]
 
     def group(self, feature: str) -> np.ndarray:
-        """Columns of one feature (e.g. ``"mfcc"``), shape (T, d)."""
+        """Columns of one feature.
+
+        Parameters
+        ----------
+        feature : str
+            A feature name (e.g. ``"mfcc"``; see :func:`feature_of`).
+
+        Returns
+        -------
+        ndarray, shape (T, d)
+            The feature's d columns, in table order.
+
+        Raises
+        ------
+        ValueError
+            The table has no column of that feature.
+        """
         cols = [i for i, n in enumerate(self.names) if feature_of(n) == feature]
         if not cols:
             raise ValueError(f"feature {feature!r} not in this table; it has "
@@ -214,10 +348,23 @@ class Features:
             raise ValueError(f"no column {name!r}; columns are {', '.join(self.names)}") from None
 
     def save(self, path) -> None:
-        """Write ``.npz``: ``features`` (T, D), ``names``, ``times``, ``fps``, ``duration``,
+        """Write the table to a ``.npz`` or ``.csv`` file.
+
+        ``.npz``: ``features`` (T, D), ``names``, ``times``, ``fps``, ``duration``,
         ``feature_set`` (JSON), ``voiced`` (if known); or ``.csv``: a ``frame,time,<names>``
         header and a row per frame (what ``examples/cpp`` reads). Atomic (temporary file, then
-        rename)."""
+        rename).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Output file; its suffix (``.npz`` or ``.csv``) chooses the format.
+
+        Raises
+        ------
+        ValueError
+            Another suffix, or a folder that does not exist or is not writable.
+        """
         path = os.fspath(path)
         suffix = path[-4:].lower()
         if suffix not in (".npz", ".csv"):
@@ -237,6 +384,24 @@ class Features:
 
     @classmethod
     def load(cls, path) -> "Features":
+        """Read a table written by :meth:`save` as ``.npz``.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            A ``.npz`` features file.
+
+        Returns
+        -------
+        Features
+            The saved table (``voiced`` None if the file has none).
+
+        Raises
+        ------
+        ValueError
+            The file lacks the arrays of a features file (``features``, ``names``, ``fps``,
+            ``duration``, ``feature_set``).
+        """
         path = os.fspath(path)
         with np.load(path, allow_pickle=False) as z:
             missing = {"features", "names", "fps", "duration", "feature_set"} - set(z.files)
@@ -253,7 +418,19 @@ _PREFIX = {"lpc": "lpc", "lpcc": "lpc_cepstra", "rplp": "rasta_plp", "mfcc": "mf
 
 
 def feature_of(col: str) -> str:
-    """The feature a column belongs to (``"mfcc3"`` -> ``"mfcc"``)."""
+    """The feature a column belongs to (``"mfcc3"`` -> ``"mfcc"``).
+
+    Parameters
+    ----------
+    col : str
+        A column name of a :class:`Features` table.
+
+    Returns
+    -------
+    str
+        The feature's name: ``"formants"`` for ``f1`` .. ``f5``; otherwise the name without its
+        trailing digits, mapped through the column prefixes (``lpcc`` -> ``lpc_cepstra``, ...).
+    """
     if col in ("f1", "f2", "f3", "f4", "f5"):
         return "formants"
     if col in ("f0", "voicing", "log_energy"):
@@ -264,7 +441,20 @@ def feature_of(col: str) -> str:
 
 def analysis_window_s(opt: dict, fps: float) -> float:
     """Length (s) of the spectral and LPC analysis windows: ``window_s`` if set, else 25 ms or
-    one frame period, whichever is longer."""
+    one frame period, whichever is longer.
+
+    Parameters
+    ----------
+    opt : dict
+        Options in force (:meth:`FeatureSet.settings`); its ``window_s`` is read.
+    fps : float
+        Output frame rate.
+
+    Returns
+    -------
+    float
+        Window length in seconds.
+    """
     return float(opt["window_s"]) if opt["window_s"] else max(0.025, 1.0 / fps)
 
 
@@ -273,7 +463,23 @@ class Standardizer:
     """Per-column standardisation ``(x - mean) / std`` fitted on training features.
 
     Stored as plain arrays (``to_arrays`` / ``from_arrays``) so that a puppet file carries them
-    and novel audio is scaled exactly like the training audio.
+    and novel audio is scaled exactly like the training audio. Build with :meth:`fit` or
+    :meth:`from_arrays`; each parameter is kept as the (read-only) attribute of the same name.
+
+    Parameters
+    ----------
+    mean : ndarray, shape (D,)
+        Per-column mean.
+    std : ndarray, shape (D,)
+        Per-column standard deviation (floored, positive).
+    names : tuple of str
+        Column names of the features it was fitted on (default empty: fitted on an array, not
+        checked).
+
+    Attributes
+    ----------
+    REL_FLOOR : float
+        Floor on std relative to the largest column std (1e-6; also absolute 1e-12).
     """
 
     mean: np.ndarray
@@ -286,7 +492,25 @@ class Standardizer:
 
     @classmethod
     def fit(cls, features) -> "Standardizer":
-        """Fit on a :class:`Features` table, a list of them (pooled), or an array (T, D)."""
+        """Fit on a :class:`Features` table, a list of them (pooled), or an array (T, D).
+
+        Parameters
+        ----------
+        features : Features, list of Features or array_like, shape (T, D)
+            Training features; tables are stacked and must share their columns.
+
+        Returns
+        -------
+        Standardizer
+            Column means and standard deviations (floored at ``REL_FLOOR`` times the largest,
+            and 1e-12), with the tables' column names (empty for an array).
+
+        Raises
+        ------
+        ValueError
+            Tables with different columns, fewer than 2 frames, not of shape (T, D), or NaN or
+            infinite values.
+        """
         if isinstance(features, Features):
             features = [features]
         if isinstance(features, (list, tuple)) and features and isinstance(features[0], Features):
@@ -308,7 +532,23 @@ class Standardizer:
         return cls(mean, std, tuple(names))
 
     def transform(self, features) -> np.ndarray:
-        """Standardised values, shape (T, D)."""
+        """Standardised values ``(x - mean) / std``.
+
+        Parameters
+        ----------
+        features : Features or array_like, shape (T, D)
+            Features with the columns this was fitted on.
+
+        Returns
+        -------
+        ndarray, shape (T, D)
+            The standardised values.
+
+        Raises
+        ------
+        ValueError
+            A table whose column names differ from the fitted ones, or not D columns.
+        """
         if isinstance(features, Features):
             if self.names and features.names != self.names:
                 raise ValueError(f"standardizer: columns differ from the ones it was fitted on "
@@ -323,14 +563,53 @@ class Standardizer:
         return (X - self.mean) / self.std
 
     def inverse_transform(self, Z) -> np.ndarray:
+        """Undo :meth:`transform`: ``Z * std + mean``.
+
+        Parameters
+        ----------
+        Z : array_like, shape (T, D)
+            Standardised values.
+
+        Returns
+        -------
+        ndarray, shape (T, D)
+            Values in the features' units.
+        """
         return np.asarray(Z, dtype=np.float64) * self.std + self.mean
 
     def to_arrays(self) -> dict:
-        """``{"mean": (D,), "std": (D,), "names": (D,) str}`` plain numpy arrays."""
+        """The standardisation as plain numpy arrays (what a puppet file stores).
+
+        Returns
+        -------
+        dict
+            ``{"mean": (D,), "std": (D,), "names": (D,) str}`` (copies); :meth:`from_arrays`
+            reads them back.
+        """
         return {"mean": self.mean.copy(), "std": self.std.copy(), "names": np.array(self.names)}
 
     @classmethod
     def from_arrays(cls, mean, std, names=()) -> "Standardizer":
+        """A standardizer from the arrays of :meth:`to_arrays`.
+
+        Parameters
+        ----------
+        mean, std : array_like, shape (D,)
+            Per-column mean and standard deviation.
+        names : array_like of str, shape (D,) or empty
+            Column names (default none).
+
+        Returns
+        -------
+        Standardizer
+            The standardizer of those arrays.
+
+        Raises
+        ------
+        ValueError
+            ``mean`` and ``std`` not 1-D of equal length, a non-finite mean, a std that is not
+            finite and positive, or a number of names other than D.
+        """
         mean = np.asarray(mean, dtype=np.float64)
         std = np.asarray(std, dtype=np.float64)
         if mean.ndim != 1 or mean.shape != std.shape:

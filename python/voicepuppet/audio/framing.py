@@ -17,6 +17,23 @@ BLOCK_FRAMES = 2048
 
 
 def check_fps(fps) -> float:
+    """A frame rate checked and converted to float.
+
+    Parameters
+    ----------
+    fps : float
+        Frames per second (anything ``float()`` accepts).
+
+    Returns
+    -------
+    float
+        ``fps`` as a float.
+
+    Raises
+    ------
+    ValueError
+        ``fps`` is not a number, or is not positive and finite.
+    """
     try:
         value = float(fps)
     except (TypeError, ValueError):
@@ -27,18 +44,76 @@ def check_fps(fps) -> float:
 
 
 def n_frames(n_samples: int, rate: float, fps: float) -> int:
-    """Number of video frames whose time ``k / fps`` lies inside ``n_samples / rate`` seconds."""
+    """Number of video frames whose time ``k / fps`` lies inside ``n_samples / rate`` seconds.
+
+    Parameters
+    ----------
+    n_samples : int
+        Length of the recording in samples.
+    rate : float
+        Sample rate in Hz.
+    fps : float
+        Video frame rate.
+
+    Returns
+    -------
+    int
+        ``ceil(n_samples * fps / rate)``, at least 1.
+
+    Raises
+    ------
+    ValueError
+        ``fps`` is not a positive, finite number.
+    """
     fps = check_fps(fps)
     return max(1, int(math.ceil(n_samples * fps / rate - 1e-9)))
 
 
 def frame_times(n: int, fps: float) -> np.ndarray:
-    """Times ``k / fps`` in seconds of frames ``k = 0 .. n - 1``, shape (n,)."""
+    """Times ``k / fps`` in seconds of the frames ``0 <= k < n``.
+
+    Parameters
+    ----------
+    n : int
+        Number of frames.
+    fps : float
+        Video frame rate.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Frame times in seconds (float64).
+
+    Raises
+    ------
+    ValueError
+        ``fps`` is not a positive, finite number.
+    """
     return np.arange(n, dtype=np.float64) / check_fps(fps)
 
 
 def frame_centres(n: int, rate: float, fps: float) -> np.ndarray:
-    """Sample index nearest to each frame time, shape (n,) int64."""
+    """Sample index nearest to each frame time ``k / fps``.
+
+    Parameters
+    ----------
+    n : int
+        Number of frames.
+    rate : float
+        Sample rate in Hz.
+    fps : float
+        Video frame rate.
+
+    Returns
+    -------
+    ndarray of int64, shape (n,)
+        ``round(k * rate / fps)`` for ``0 <= k < n``.
+
+    Raises
+    ------
+    ValueError
+        ``fps`` is not a positive, finite number.
+    """
     return np.rint(np.arange(n, dtype=np.float64) * (rate / check_fps(fps))).astype(np.int64)
 
 
@@ -48,7 +123,29 @@ def iter_frames(x: np.ndarray, centres: np.ndarray, length: int, window: np.ndar
 
     Frame ``i`` holds ``y[c_i - length // 2 : c_i - length // 2 + length]`` (zeros outside ``x``)
     times ``window``, where ``y[n] = x[n] - preemph * x[n - 1]`` (pre-emphasis applied per frame,
-    equal to pre-emphasising the whole signal); ``frames`` has shape (len(block), length).
+    equal to pre-emphasising the whole signal).
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        Mono samples.
+    centres : ndarray of int, shape (F,)
+        Sample index of each frame's centre (e.g. :func:`frame_centres`).
+    length : int
+        Frame length in samples.
+    window : ndarray, shape (length,), optional
+        Window the frames are multiplied by (default none: rectangular).
+    block : int
+        Frames per yielded block (default ``BLOCK_FRAMES``, 2048): bounds memory.
+    preemph : float
+        Pre-emphasis coefficient (default 0: none).
+
+    Yields
+    ------
+    slice
+        The frames of this block within ``centres``.
+    frames : ndarray, shape (len(slice), length)
+        The block's windowed frames.
     """
     length = int(length)
     half = length // 2
@@ -70,26 +167,77 @@ def iter_frames(x: np.ndarray, centres: np.ndarray, length: int, window: np.ndar
 
 
 def fast_len(n: int) -> int:
-    """Smallest FFT length >= ``n`` that pocketfft handles fast (2, 3, 5 smooth)."""
+    """Smallest FFT length >= ``n`` that pocketfft handles fast (2, 3, 5 smooth).
+
+    Parameters
+    ----------
+    n : int
+        Minimum length.
+
+    Returns
+    -------
+    int
+        ``scipy.fft.next_fast_len(n, real=True)``.
+    """
     from scipy.fft import next_fast_len
 
     return int(next_fast_len(int(n), real=True))
 
 
 def hann(n: int) -> np.ndarray:
-    """Periodic Hann window of length ``n`` (the STFT convention of librosa and scipy)."""
+    """Periodic Hann window of length ``n`` (the STFT convention of librosa and scipy).
+
+    Parameters
+    ----------
+    n : int
+        Window length in samples.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``0.5 - 0.5 cos(2 pi k / n)``.
+    """
     return 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(n) / n)
 
 
 def hamming(n: int) -> np.ndarray:
-    """Symmetric Hamming window of length ``n`` (the LPC convention)."""
+    """Symmetric Hamming window of length ``n`` (the LPC convention).
+
+    Parameters
+    ----------
+    n : int
+        Window length in samples.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``0.54 - 0.46 cos(2 pi k / (n - 1))``; ``[1.0]`` for ``n = 1``.
+    """
     if n == 1:
         return np.ones(1)
     return 0.54 - 0.46 * np.cos(2.0 * np.pi * np.arange(n) / (n - 1))
 
 
 def centred_window(window: np.ndarray, n_fft: int) -> np.ndarray:
-    """Zero-pad ``window`` to ``n_fft`` samples, centred (librosa's ``pad_center``)."""
+    """Zero-pad ``window`` to ``n_fft`` samples, centred (librosa's ``pad_center``).
+
+    Parameters
+    ----------
+    window : ndarray, shape (n,)
+        The window.
+    n_fft : int
+        Output length (>= ``n``).
+
+    Returns
+    -------
+    ndarray, shape (n_fft,)
+        ``window`` starting at ``(n_fft - n) // 2``, zeros around it.
+
+    Raises
+    ------
+    ValueError
+        ``window`` is longer than ``n_fft``.
+    """
     if window.shape[0] > n_fft:
         raise ValueError(f"window length {window.shape[0]} exceeds n_fft {n_fft}")
     left = (n_fft - window.shape[0]) // 2

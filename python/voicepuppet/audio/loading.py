@@ -32,7 +32,10 @@ class AudioWarning(UserWarning):
 class Audio:
     """Mono audio ready for analysis.
 
-    Attributes
+    Made by :func:`prepare` and :func:`load_audio`; each parameter is kept as the (read-only)
+    attribute of the same name.
+
+    Parameters
     ----------
     samples : ndarray, shape (n,)
         float64 samples in [-1, 1] (full scale), mono, DC removed.
@@ -43,7 +46,12 @@ class Audio:
     channels : int
         Number of channels in the file before the mono mix.
     path : str or None
-        Where it came from.
+        Where it came from (default None).
+
+    Attributes
+    ----------
+    duration : float
+        Length in seconds, ``n / rate``.
     """
 
     samples: np.ndarray
@@ -161,14 +169,24 @@ def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc:
     rate : int
         Sample rate of ``samples`` in Hz (at least ``MIN_RATE``).
     target_rate : int or None
-        Resample to this rate (polyphase filter); None keeps ``rate``.
+        Resample to this rate (polyphase filter; default ``DEFAULT_RATE``, 16000); None keeps
+        ``rate``.
     remove_dc : bool
-        Subtract the mean (the DC offset of the recording).
+        Subtract the mean (the DC offset of the recording); default True.
+    path : str, optional
+        Where the samples came from: named in messages and kept in :attr:`Audio.path`.
+
+    Returns
+    -------
+    Audio
+        Mono (channels averaged) float64 samples at ``target_rate`` (or ``rate``).
 
     Raises
     ------
     ValueError
-        Empty input, NaN or infinite samples, a rate below ``MIN_RATE``.
+        Samples that are not numbers or not of shape (n,) or (n, channels), empty input, NaN or
+        infinite samples, a rate that is not a whole number of Hz, a rate or ``target_rate``
+        below ``MIN_RATE``.
 
     Warns
     -----

@@ -48,6 +48,16 @@ def levinson(r: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
         ``[1, a_1, ..., a_p]`` per frame.
     err : ndarray, shape (T,)
         Prediction-error power (> 0).
+
+    Raises
+    ------
+    ValueError
+        ``r`` is not 2-D with at least ``order + 1`` lags.
+
+    Notes
+    -----
+    Lag 0 gets the white-noise correction ``WHITE_NOISE_CORRECTION`` and the floor
+    ``ENERGY_FLOOR`` added, so silent frames give a flat model.
     """
     r = np.asarray(r, dtype=np.float64)
     if r.ndim != 2 or r.shape[1] < order + 1:
@@ -70,7 +80,20 @@ def levinson(r: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def autocorrelation(frames: np.ndarray, max_lag: int) -> np.ndarray:
-    """Autocorrelation ``r[:, 0 .. max_lag]`` of each row (zero-padded FFT, no wrap-around)."""
+    """Autocorrelation of each row up to lag ``max_lag`` (zero-padded FFT, no wrap-around).
+
+    Parameters
+    ----------
+    frames : ndarray, shape (T, n)
+        One frame per row.
+    max_lag : int
+        Highest lag computed.
+
+    Returns
+    -------
+    ndarray, shape (T, max_lag + 1)
+        ``r[:, k] = sum_n frames[:, n] frames[:, n + k]``, lag 0 first.
+    """
     from scipy.fft import irfft, rfft
 
     n_fft = fast_len(frames.shape[1] + max_lag + 1)
@@ -79,7 +102,20 @@ def autocorrelation(frames: np.ndarray, max_lag: int) -> np.ndarray:
 
 
 def pre_emphasis(x: np.ndarray, coef: float) -> np.ndarray:
-    """``y[n] = x[n] - coef * x[n - 1]`` (first sample kept)."""
+    """Pre-emphasis filter ``y[n] = x[n] - coef * x[n - 1]`` (first sample kept).
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        Samples.
+    coef : float
+        Pre-emphasis coefficient (e.g. 0.97).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The filtered samples (a new float64 array).
+    """
     y = np.array(x, dtype=np.float64, copy=True)
     y[1:] -= coef * x[:-1]
     return y
@@ -94,21 +130,32 @@ def lpc_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, order: int
     ----------
     x : ndarray, shape (n,)
         Mono samples at ``rate``.
+    rate : float
+        Sample rate of ``x`` in Hz.
+    fps : float
+        Output frame rate.
     n_out : int
         Number of output frames (frame ``k`` centred at ``k / fps``).
     order : int
-        Prediction order.
+        Prediction order (default 12).
     window_s : float
-        Window length in seconds.
+        Window length in seconds (default 0.025; see :func:`lpc_window`).
     preemph : float
-        Pre-emphasis coefficient (0 disables).
+        Pre-emphasis coefficient (default 0.97; 0 disables).
     window : {"hamming", "gaussian"}
-        Window shape (Praat's Gaussian for formants).
+        Window shape (Praat's Gaussian for formants); default ``"hamming"``.
 
     Returns
     -------
     a : ndarray, shape (n_out, order + 1)
+        ``[1, a_1, ..., a_p]`` per frame (:func:`levinson`).
     err : ndarray, shape (n_out,)
+        Prediction-error power per frame.
+
+    Raises
+    ------
+    ValueError
+        ``order`` below 1, or ``fps`` not positive and finite.
     """
     if order < 1:
         raise ValueError(f"lpc: order must be >= 1, got {order}")
@@ -124,7 +171,24 @@ def lpc_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, order: int
 
 def lpc_window(order: int, window_s: float, rate: float, window: str = "hamming") -> np.ndarray:
     """The LPC analysis window: ``max(order + 1, round(window_s rate))`` samples, Hamming or
-    (``"gaussian"``) Praat's Gaussian."""
+    (``"gaussian"``) Praat's Gaussian.
+
+    Parameters
+    ----------
+    order : int
+        Prediction order (the window has at least ``order + 1`` samples).
+    window_s : float
+        Window length in seconds.
+    rate : float
+        Sample rate in Hz.
+    window : {"hamming", "gaussian"}
+        Window shape (default ``"hamming"``; any other value gives the Gaussian).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The window (:func:`~voicepuppet.audio.framing.hamming` or :func:`gaussian_window`).
+    """
     length = max(order + 1, int(round(window_s * rate)))
     return hamming(length) if window == "hamming" else gaussian_window(length)
 
@@ -132,7 +196,26 @@ def lpc_window(order: int, window_s: float, rate: float, window: str = "hamming"
 def formant_analysis(rate: int, ceiling: float, n_formants: int = 3):
     """The formant analysis settings: ``(fs, order, preemph)``, the rate the signal is resampled
     to (``2 ceiling``, at most ``rate``), the LPC order ``2 (n_formants + 2)`` and the
-    pre-emphasis from 50 Hz."""
+    pre-emphasis from 50 Hz.
+
+    Parameters
+    ----------
+    rate : int
+        Sample rate of the signal in Hz.
+    ceiling : float
+        Formant ceiling in Hz (e.g. 5500).
+    n_formants : int
+        Number of formants sought (default 3).
+
+    Returns
+    -------
+    fs : int
+        Analysis rate in Hz: ``round(2 ceiling)``, at most ``rate``.
+    order : int
+        LPC order ``2 (n_formants + 2)``.
+    preemph : float
+        Pre-emphasis coefficient ``exp(-2 pi 50 / fs)``.
+    """
     fs = int(round(2 * ceiling))
     if fs > rate:
         fs = int(rate)
@@ -140,7 +223,18 @@ def formant_analysis(rate: int, ceiling: float, n_formants: int = 3):
 
 
 def gaussian_window(n: int) -> np.ndarray:
-    """Praat's Gaussian window (``exp(-12 (t - 1/2)^2)`` rescaled to zero at the edges)."""
+    """Praat's Gaussian window (``exp(-12 (t - 1/2)^2)`` rescaled to zero at the edges).
+
+    Parameters
+    ----------
+    n : int
+        Window length in samples.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The window, 1 at the centre.
+    """
     t = (np.arange(n) + 0.5) / n - 0.5
     e12 = math.exp(-12.0)
     return (np.exp(-48.0 * t * t) - e12) / (1.0 - e12)
@@ -155,7 +249,9 @@ def lpc_to_cepstrum(a: np.ndarray, err: np.ndarray, n_ceps: int) -> np.ndarray:
     Parameters
     ----------
     a : ndarray, shape (T, p + 1)
+        ``[1, a_1, ..., a_p]`` per frame.
     err : ndarray, shape (T,)
+        Prediction-error power per frame.
     n_ceps : int
         Number of coefficients returned, ``c_0 .. c_{n_ceps - 1}``.
 
@@ -177,7 +273,18 @@ def lpc_to_cepstrum(a: np.ndarray, err: np.ndarray, n_ceps: int) -> np.ndarray:
 
 
 def lpc_roots(a: np.ndarray) -> np.ndarray:
-    """Roots of ``A(z)`` per frame via the companion-matrix eigenvalues, shape (T, p)."""
+    """Roots of ``A(z)`` per frame via the companion-matrix eigenvalues.
+
+    Parameters
+    ----------
+    a : ndarray, shape (T, p + 1)
+        ``[1, a_1, ..., a_p]`` per frame.
+
+    Returns
+    -------
+    ndarray of complex, shape (T, p)
+        The p roots of each frame's ``A(z)``.
+    """
     a = np.asarray(a, dtype=np.float64)
     T, p1 = a.shape
     p = p1 - 1
@@ -190,7 +297,20 @@ def lpc_roots(a: np.ndarray) -> np.ndarray:
 
 def reference_formants(ceiling: float, n: int = 3) -> np.ndarray:
     """Reference frequencies of F1..Fn for a formant ceiling (Praat's Formant Track:
-    ``(2i - 1) ceiling / 10``, e.g. 550, 1650, 2750 Hz for 5500 Hz), shape (n,)."""
+    ``(2i - 1) ceiling / 10``, e.g. 550, 1650, 2750 Hz for 5500 Hz).
+
+    Parameters
+    ----------
+    ceiling : float
+        Formant ceiling in Hz.
+    n : int
+        Number of formants (default 3).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Reference frequencies in Hz.
+    """
     return np.array([(2 * i - 1) * ceiling / 10.0 for i in range(1, n + 1)])
 
 
@@ -203,10 +323,25 @@ def formant_candidates(a: np.ndarray, rate: float, *, min_freq: float = 90.0,
     ``B = -log|r| rate / pi``. Candidates below ``min_freq``, within ``margin`` of Nyquist or
     wider than ``max_bandwidth`` are dropped (NaN).
 
+    Parameters
+    ----------
+    a : ndarray, shape (T, p + 1)
+        LPC coefficients ``[1, a_1, ..., a_p]`` per frame.
+    rate : float
+        Sample rate (Hz) the coefficients were computed at.
+    min_freq : float
+        Lowest candidate frequency in Hz (default 90).
+    max_bandwidth : float
+        Widest candidate bandwidth in Hz (default 1000).
+    margin : float
+        Candidates within this many Hz of Nyquist are dropped (default 50).
+    n_max : int, optional
+        Candidates kept per frame (default ``(p + 1) // 2``).
+
     Returns
     -------
     freqs, bands : ndarray, shape (T, n_max)
-        NaN-padded, ascending in frequency.
+        Frequencies and bandwidths in Hz, NaN-padded, ascending in frequency.
     """
     roots = lpc_roots(a)
     T, p = roots.shape
@@ -239,6 +374,19 @@ def track_formants(freqs: np.ndarray, bands: np.ndarray, *, n_formants: int = 3,
     F_i``; transition cost ``transition_cost * sum |log(F_i(t) / F_i(t-1))|``. Frames with too
     few candidates take the values of their neighbours (linear interpolation in time); if no
     frame has formants, the reference values are returned.
+
+    Parameters
+    ----------
+    freqs, bands : ndarray, shape (T, K)
+        Candidate frequencies and bandwidths in Hz per frame, NaN where missing (as
+        :func:`formant_candidates` gives them).
+    n_formants : int
+        Number of formants assigned (default 3).
+    ceiling : float
+        Formant ceiling in Hz that sets the reference frequencies (default 5500; see
+        :func:`reference_formants`).
+    freq_cost, bandwidth_cost, transition_cost : float
+        Weights of the three cost terms (default 1 each).
 
     Returns
     -------
@@ -297,9 +445,32 @@ def formant_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, n_form
     assigned with continuity (``track_formants``) or, if ``track`` is False, taken in order of
     frequency (NaN where missing).
 
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        Mono samples at ``rate``.
+    rate : float
+        Sample rate of ``x`` in Hz.
+    fps : float
+        Output frame rate; frame ``k`` is centred at ``k / fps``.
+    n_out : int
+        Number of output frames.
+    n_formants : int
+        Number of formants (default 3).
+    ceiling : float
+        Formant ceiling in Hz (default 5500); if ``rate`` is below ``2 * ceiling`` the signal
+        is analysed at ``rate`` and the tracker's references follow its Nyquist frequency.
+    window_s : float
+        Gaussian window length in seconds (default 0.05).
+    max_bandwidth : float
+        Widest candidate bandwidth in Hz (default 1000).
+    track : bool
+        Assign with continuity (default True) or take the lowest candidates.
+
     Returns
     -------
     ndarray, shape (n_out, n_formants)
+        Formant frequencies in Hz (finite when ``track``).
     """
     fs, order, preemph = formant_analysis(int(rate), ceiling, n_formants)
     y = resample(np.asarray(x, dtype=np.float64), int(rate), fs) if fs != rate else x

@@ -25,7 +25,22 @@ PITCH_RATE = 8000
 def voicing_probability(best_voiced: np.ndarray, unvoiced: np.ndarray, scale: float = 0.1
                         ) -> np.ndarray:
     """Soft voicing score in (0, 1): a logistic of how much the best voiced candidate beats the
-    unvoiced one (0.5 where Praat's frame-wise decision would flip)."""
+    unvoiced one (0.5 where Praat's frame-wise decision would flip).
+
+    Parameters
+    ----------
+    best_voiced : ndarray, shape (T,)
+        Strength of each frame's best voiced candidate.
+    unvoiced : ndarray, shape (T,)
+        Strength of each frame's unvoiced candidate.
+    scale : float
+        Strength difference that moves the logistic by one unit (default 0.1).
+
+    Returns
+    -------
+    ndarray, shape (T,)
+        ``1 / (1 + exp(-(best_voiced - unvoiced) / scale))`` (argument clipped to +/-50).
+    """
     z = np.clip((best_voiced - unvoiced) / scale, -50.0, 50.0)
     return 1.0 / (1.0 + np.exp(-z))
 
@@ -40,14 +55,29 @@ def pitch_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, floor: f
     Parameters
     ----------
     x : ndarray, shape (n,)
+        Mono samples.
     rate : float
-        Sample rate of ``x``.
+        Sample rate of ``x`` in Hz (resampled to ``PITCH_RATE``, 8 kHz, if higher).
     fps : float
         Output frame rate; frame ``k`` is centred at ``k / fps``.
     n_out : int
         Number of output frames.
     floor, ceiling : float
         Pitch search range in Hz (Praat's defaults 75 and 600).
+    periods : float
+        Window length in periods of ``floor`` (default 3).
+    voicing_threshold : float
+        Praat's voicing threshold (default 0.45): the base strength of the unvoiced candidate.
+    silence_threshold : float
+        Praat's silence threshold (default 0.03), relative to the global peak amplitude.
+    octave_cost : float
+        Per-octave bonus for higher-frequency candidates (default 0.01).
+    octave_jump_cost : float
+        Cost of an octave jump between voiced frames (default 0.35).
+    voiced_unvoiced_cost : float
+        Cost of a voiced/unvoiced transition (default 0.14).
+    n_candidates : int
+        Voiced candidates kept per frame (default 4).
 
     Returns
     -------
@@ -55,6 +85,12 @@ def pitch_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, floor: f
         Fundamental frequency in Hz on voiced frames, NaN on unvoiced ones.
     voicing : ndarray, shape (n_out,)
         Voicing probability in [0, 1] (see ``voicing_probability``).
+
+    Raises
+    ------
+    ValueError
+        Not ``0 < floor < ceiling``, or a ``ceiling`` not below half the analysis rate
+        (``PITCH_RATE``, 8 kHz, or ``rate`` if lower).
     """
     if not 0 < floor < ceiling:
         raise ValueError(f"pitch: need 0 < floor < ceiling, got floor={floor}, ceiling={ceiling}")
@@ -149,7 +185,20 @@ def pitch_frames(x: np.ndarray, rate: float, fps: float, n_out: int, *, floor: f
 def fill_unvoiced(f0: np.ndarray, default: float = 150.0) -> np.ndarray:
     """Interpolate ``log f0`` through unvoiced (NaN) frames, holding the ends; ``default`` Hz
     everywhere if no frame is voiced. Makes F0 a finite, continuous feature (pair it with the
-    voicing probability)."""
+    voicing probability).
+
+    Parameters
+    ----------
+    f0 : array_like, shape (T,)
+        F0 in Hz, NaN (or <= 0) on unvoiced frames.
+    default : float
+        F0 (Hz) returned everywhere when no frame is voiced (default 150).
+
+    Returns
+    -------
+    ndarray, shape (T,)
+        Finite, positive F0 in Hz.
+    """
     f0 = np.asarray(f0, dtype=np.float64)
     good = np.isfinite(f0) & (f0 > 0)
     if not np.any(good):

@@ -25,7 +25,18 @@ SONORANT_BANDS = ((80.0, 400.0), (400.0, 1000.0), (1000.0, 2500.0), (2500.0, 400
 
 # --------------------------------------------------------------------------- mel / MFCC
 def hz_to_mel(f):
-    """Slaney's mel scale (librosa's default, ``htk=False``): linear below 1 kHz, log above."""
+    """Slaney's mel scale (librosa's default, ``htk=False``): linear below 1 kHz, log above.
+
+    Parameters
+    ----------
+    f : array_like
+        Frequencies in Hz.
+
+    Returns
+    -------
+    ndarray
+        Mels, the shape of ``f``.
+    """
     f = np.asarray(f, dtype=np.float64)
     f_sp = 200.0 / 3.0
     min_log_mel = 1000.0 / f_sp
@@ -35,6 +46,18 @@ def hz_to_mel(f):
 
 
 def mel_to_hz(m):
+    """Inverse of :func:`hz_to_mel` (Slaney's mel scale).
+
+    Parameters
+    ----------
+    m : array_like
+        Mels.
+
+    Returns
+    -------
+    ndarray
+        Frequencies in Hz, the shape of ``m``.
+    """
     m = np.asarray(m, dtype=np.float64)
     f_sp = 200.0 / 3.0
     min_log_mel = 1000.0 / f_sp
@@ -44,7 +67,31 @@ def mel_to_hz(m):
 
 def mel_filterbank(rate: float, n_fft: int, n_mels: int = 40, fmin: float = 0.0,
                    fmax: float | None = None) -> np.ndarray:
-    """Triangular mel filters, area-normalised (Slaney), shape (n_mels, n_fft // 2 + 1)."""
+    """Triangular mel filters, area-normalised (Slaney).
+
+    Parameters
+    ----------
+    rate : float
+        Sample rate in Hz.
+    n_fft : int
+        FFT length.
+    n_mels : int
+        Number of filters (default 40).
+    fmin : float
+        Lowest edge in Hz (default 0).
+    fmax : float, optional
+        Highest edge in Hz (default ``rate / 2``).
+
+    Returns
+    -------
+    ndarray, shape (n_mels, n_fft // 2 + 1)
+        Filter weights on the one-sided FFT bins.
+
+    Raises
+    ------
+    ValueError
+        Not ``0 <= fmin < fmax <= rate / 2``.
+    """
     fmax = rate / 2.0 if fmax is None else float(fmax)
     if not 0 <= fmin < fmax <= rate / 2.0:
         raise ValueError(f"mel: need 0 <= fmin < fmax <= rate/2, got fmin={fmin}, fmax={fmax}, "
@@ -61,7 +108,20 @@ def mel_filterbank(rate: float, n_fft: int, n_mels: int = 40, fmin: float = 0.0,
 
 
 def dct_ortho(x: np.ndarray, n: int) -> np.ndarray:
-    """First ``n`` orthonormal DCT-II coefficients along the last axis."""
+    """First ``n`` orthonormal DCT-II coefficients along the last axis.
+
+    Parameters
+    ----------
+    x : ndarray, shape (..., m)
+        Input.
+    n : int
+        Number of coefficients kept.
+
+    Returns
+    -------
+    ndarray, shape (..., n)
+        ``scipy.fft.dct(x, type=2, norm="ortho")`` cut to ``n`` coefficients.
+    """
     from scipy.fft import dct
 
     return dct(x, type=2, norm="ortho", axis=-1)[..., :n]
@@ -70,6 +130,18 @@ def dct_ortho(x: np.ndarray, n: int) -> np.ndarray:
 def deltas(x: np.ndarray, width: int = 2) -> np.ndarray:
     """Regression deltas (HTK): ``d_t = sum_n n (x_{t+n} - x_{t-n}) / (2 sum n^2)``, edges
     replicated. Equals ``librosa.feature.delta(x.T, width=2 * width + 1, mode="nearest").T``.
+
+    Parameters
+    ----------
+    x : array_like, shape (T, d)
+        Features, one row per frame.
+    width : int
+        Frames on each side in the regression (default 2).
+
+    Returns
+    -------
+    ndarray, shape (T, d)
+        The deltas.
     """
     x = np.asarray(x, dtype=np.float64)
     T = x.shape[0]
@@ -82,11 +154,34 @@ def deltas(x: np.ndarray, width: int = 2) -> np.ndarray:
 
 # --------------------------------------------------------------------------- bark / RASTA-PLP
 def hz_to_bark(f):
-    """Schroeder's Bark scale ``6 asinh(f / 600)`` (the one of PLP)."""
+    """Schroeder's Bark scale ``6 asinh(f / 600)`` (the one of PLP).
+
+    Parameters
+    ----------
+    f : array_like
+        Frequencies in Hz.
+
+    Returns
+    -------
+    ndarray
+        Barks, the shape of ``f``.
+    """
     return 6.0 * np.arcsinh(np.asarray(f, dtype=np.float64) / 600.0)
 
 
 def bark_to_hz(z):
+    """Inverse of :func:`hz_to_bark`: ``600 sinh(z / 6)``.
+
+    Parameters
+    ----------
+    z : array_like
+        Barks.
+
+    Returns
+    -------
+    ndarray
+        Frequencies in Hz, the shape of ``z``.
+    """
     return 600.0 * np.sinh(np.asarray(z, dtype=np.float64) / 6.0)
 
 
@@ -94,7 +189,21 @@ def bark_filterbank(rate: float, n_fft: int) -> tuple[np.ndarray, np.ndarray]:
     """PLP critical-band filters (Hermansky 1990), one per Bark from 0 to Nyquist.
 
     The masking curve is flat within +/-0.5 Bark, rises 25 dB/Bark below and falls 10 dB/Bark
-    above. Returns ``(weights (n_bands, n_fft // 2 + 1), centres_hz (n_bands,))``.
+    above.
+
+    Parameters
+    ----------
+    rate : float
+        Sample rate in Hz.
+    n_fft : int
+        FFT length.
+
+    Returns
+    -------
+    weights : ndarray, shape (n_bands, n_fft // 2 + 1)
+        Filter weights on the one-sided FFT bins.
+    centres_hz : ndarray, shape (n_bands,)
+        Filter centres in Hz, evenly spaced in Bark from 0 to Nyquist.
     """
     nyq_bark = float(hz_to_bark(rate / 2.0))
     n_bands = int(math.ceil(nyq_bark)) + 1
@@ -110,6 +219,16 @@ def bark_filterbank(rate: float, n_fft: int) -> tuple[np.ndarray, np.ndarray]:
 def equal_loudness(f_hz: np.ndarray) -> np.ndarray:
     """Equal-loudness weighting of PLP (Hermansky 1990) in Hz, as in rastamat's ``postaud``:
     ``E(f) = (f^2 / (f^2 + 400^2))^2 (f^2 + 1200^2) / (f^2 + 3100^2)``.
+
+    Parameters
+    ----------
+    f_hz : array_like
+        Frequencies in Hz.
+
+    Returns
+    -------
+    ndarray
+        ``E(f)``, the shape of ``f_hz``.
     """
     fsq = np.asarray(f_hz, dtype=np.float64) ** 2
     ftmp = fsq + 1.6e5
@@ -117,7 +236,22 @@ def equal_loudness(f_hz: np.ndarray) -> np.ndarray:
 
 
 def rasta_coefficients(frame_rate: float, pole: float = 0.94) -> tuple[np.ndarray, np.ndarray]:
-    """``(b, a)`` of the RASTA filter at ``frame_rate`` frames/s (pole ``pole^(100 / rate)``)."""
+    """``(b, a)`` of the RASTA filter at ``frame_rate`` frames/s (pole ``pole^(100 / rate)``).
+
+    Parameters
+    ----------
+    frame_rate : float
+        Frames per second of the filtered sequence.
+    pole : float
+        Pole at 100 frames/s (default 0.94).
+
+    Returns
+    -------
+    b : ndarray, shape (5,)
+        Numerator ``[0.2, 0.1, 0, -0.1, -0.2]``.
+    a : ndarray, shape (2,)
+        Denominator ``[1, -pole^(100 / frame_rate)]``.
+    """
     b = np.array([0.2, 0.1, 0.0, -0.1, -0.2])
     return b, np.array([1.0, -(pole ** (100.0 / frame_rate))])
 
@@ -129,6 +263,20 @@ def rasta_filter(log_bands: np.ndarray, frame_rate: float, pole: float = 0.94) -
     rate the pole is rescaled to keep its time constant (``p^(100 / frame_rate)``). The filter
     starts in the steady state of the first frame, so a constant (a fixed channel gain or
     spectral tilt) gives exactly zero output from the first frame on.
+
+    Parameters
+    ----------
+    log_bands : ndarray, shape (T, n_bands)
+        Log band energies, one row per frame.
+    frame_rate : float
+        Frames per second of the rows.
+    pole : float
+        Pole at 100 frames/s (default 0.94).
+
+    Returns
+    -------
+    ndarray, shape (T, n_bands)
+        The filtered log band energies.
     """
     from scipy.signal import lfilter, lfilter_zi
 
@@ -140,7 +288,24 @@ def rasta_filter(log_bands: np.ndarray, frame_rate: float, pole: float = 0.94) -
 
 def plp_from_bands(bands: np.ndarray, centres_hz: np.ndarray, order: int, n_ceps: int
                    ) -> np.ndarray:
-    """Equal loudness, cube-root compression and an all-pole fit -> cepstra (T, n_ceps)."""
+    """Equal loudness, cube-root compression and an all-pole fit -> cepstra (T, n_ceps).
+
+    Parameters
+    ----------
+    bands : ndarray, shape (T, n_bands)
+        Critical-band powers (:func:`bark_filterbank` applied to power spectra).
+    centres_hz : ndarray, shape (n_bands,)
+        Band centres in Hz.
+    order : int
+        All-pole model order.
+    n_ceps : int
+        Number of cepstra returned, ``c_0 .. c_{n_ceps - 1}``.
+
+    Returns
+    -------
+    ndarray, shape (T, n_ceps)
+        PLP cepstra (:func:`~voicepuppet.audio.lpc.lpc_to_cepstrum` of the model).
+    """
     z = bands * equal_loudness(centres_hz)[None, :]
     z = np.cbrt(np.maximum(z, 0.0))
     z[:, 0] = z[:, 1]
@@ -161,6 +326,31 @@ def analysis_window(window_s: float, rate: float, n_fft: int | None = None):
     fast length); ``parseval`` weights turn one-sided power into the mean square of the windowed
     frame over the window energy. Shared by the C++ front end (``stream.core_options``) and the
     numpy reference.
+
+    Parameters
+    ----------
+    window_s : float
+        Window length in seconds.
+    rate : float
+        Sample rate in Hz.
+    n_fft : int, optional
+        FFT length (default the next fast length >= the window, at least 2).
+
+    Returns
+    -------
+    n_fft : int
+        The FFT length.
+    window : ndarray, shape (n_fft,)
+        The centred Hann window.
+    freqs : ndarray, shape (n_fft // 2 + 1,)
+        Frequencies (Hz) of the one-sided bins.
+    parseval : ndarray, shape (n_fft // 2 + 1,)
+        Parseval weights of the bins.
+
+    Raises
+    ------
+    ValueError
+        The window is longer than ``n_fft``.
     """
     length = int(round(window_s * rate))
     if n_fft is None:
@@ -180,7 +370,27 @@ def analysis_window(window_s: float, rate: float, n_fft: int | None = None):
 
 def band_weights(freqs: np.ndarray, parseval: np.ndarray, bands=SONORANT_BANDS) -> np.ndarray:
     """Weights turning a one-sided power spectrum into band energies: each band's indicator
-    ``low <= f < high`` times the Parseval weights, shape (len(bands), n_bins)."""
+    ``low <= f < high`` times the Parseval weights.
+
+    Parameters
+    ----------
+    freqs : ndarray, shape (n_bins,)
+        Frequencies (Hz) of the bins.
+    parseval : ndarray, shape (n_bins,)
+        Parseval weights of the bins (:func:`analysis_window`).
+    bands : sequence of (float, float)
+        ``(low, high)`` edges in Hz (default ``SONORANT_BANDS``).
+
+    Returns
+    -------
+    ndarray, shape (len(bands), n_bins)
+        One row of weights per band.
+
+    Raises
+    ------
+    ValueError
+        A band that is not ``0 <= low < high``.
+    """
     w = np.zeros((len(bands), freqs.shape[0]))
     for i, (lo, hi) in enumerate(bands):
         if not 0 <= lo < hi:
@@ -200,6 +410,33 @@ def spectral_features(x: np.ndarray, rate: float, fps: float, n_out: int, *,
     needs a frame rate near 100/s: its spectra are computed on a grid ``m`` times finer than the
     video frames (``m = round(rasta_rate / fps)``, at least 1) whose every ``m``-th frame is a
     video frame time, and subsampled after filtering.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        Mono samples at ``rate``.
+    rate : float
+        Sample rate in Hz.
+    fps : float
+        Output frame rate; frame ``k`` is centred at ``k / fps``.
+    n_out : int
+        Number of output frames.
+    want : set of str
+        The features computed.
+    window_s : float
+        Analysis window length in seconds (default 0.025).
+    n_fft : int, optional
+        FFT length (default the next fast length >= the window).
+    n_mfcc, n_mels : int
+        MFCCs kept (default 13) and mel filters (default 40).
+    fmin, fmax : float
+        Mel filterbank range in Hz (default 0 to ``rate / 2``).
+    rasta_order, rasta_ceps : int
+        RASTA-PLP all-pole order (default 8) and cepstra kept (default 9).
+    rasta_rate : float
+        Frame rate (frames/s) RASTA filtering runs near (default 100).
+    bands : sequence of (float, float)
+        Band edges in Hz of the band energies (default ``SONORANT_BANDS``).
 
     Returns
     -------

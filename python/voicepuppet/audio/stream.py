@@ -58,10 +58,20 @@ def pcm_to_float(samples) -> np.ndarray:
     """Samples as float64 full scale, shape (n,): integer PCM is scaled by its type's range (as
     :func:`voicepuppet.audio.prepare` does), floats are taken as they are.
 
+    Parameters
+    ----------
+    samples : array_like, shape (n,) or (n, channels)
+        A chunk of samples: floats in full scale or integer PCM; channels are averaged.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        C-contiguous float64 mono samples.
+
     Raises
     ------
     ValueError
-        Not numbers, not one-dimensional, or NaN / infinite samples.
+        Not numbers, not of shape (n,) or (n, channels), or NaN / infinite samples.
     """
     x = np.asarray(samples)
     if x.dtype.kind not in "fiu":
@@ -85,7 +95,18 @@ def pcm_to_float(samples) -> np.ndarray:
 
 def resample_taps(up: int, down: int) -> np.ndarray:
     """The filter of ``scipy.signal.resample_poly(x, up, down)`` (Kaiser(5)-windowed sinc,
-    ``half_len = 10 max(up, down)``, times ``up``), shape (2 half_len + 1,)."""
+    ``half_len = 10 max(up, down)``, times ``up``).
+
+    Parameters
+    ----------
+    up, down : int
+        Up- and down-sampling factors.
+
+    Returns
+    -------
+    ndarray, shape (2 half_len + 1,)
+        The filter taps.
+    """
     from scipy.signal import firwin
 
     half_len = 10 * max(up, down)
@@ -104,6 +125,18 @@ class StreamResampler:
     ----------
     rate_in, rate_out : int
         Sample rates in Hz.
+
+    Attributes
+    ----------
+    up, down : int
+        The resampling ratio ``rate_out / rate_in`` in lowest terms.
+    identity : bool
+        Whether the two rates are equal.
+
+    Raises
+    ------
+    ValueError
+        A rate that is not a whole number of Hz >= 1.
     """
 
     def __init__(self, rate_in: int, rate_out: int):
@@ -117,21 +150,60 @@ class StreamResampler:
         self._core = _core.PolyphaseResampler(self.up, self.down, taps)
 
     def push(self, x) -> np.ndarray:
-        """Feed input samples (n,); returns the output samples completed by them."""
+        """Feed input samples.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The next input samples.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The output samples completed by them (m >= 0).
+
+        Raises
+        ------
+        ValueError
+            ``x`` is not one-dimensional.
+        """
         x = np.ascontiguousarray(x, dtype=np.float64)
         if x.ndim != 1:
             raise ValueError(f"resampler: x must have shape (n,), got {x.shape}")
         return self._core.push(x)
 
     def flush(self) -> np.ndarray:
-        """End of input: the remaining outputs (``ceil(n up / down)`` in total); then reset."""
+        """End of input: the remaining outputs (``ceil(n up / down)`` in total); then reset.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The output samples not yet returned.
+        """
         return self._core.flush()
 
 
 def core_options(fset: FeatureSet, fps: float, rate: int, formant_lag: int | None):
     """The ``_core.AudioFeatureOptions`` of a feature set: the analysis tables of the offline
     definitions (``spectral.analysis_window``, the filterbanks, ``lpc.lpc_window``,
-    ``gaussian_window``, ``resample_poly``'s taps, ``reference_formants``)."""
+    ``gaussian_window``, ``resample_poly``'s taps, ``reference_formants``).
+
+    Parameters
+    ----------
+    fset : FeatureSet
+        A streamable feature set.
+    fps : float
+        Output frame rate.
+    rate : int
+        Sample rate in Hz.
+    formant_lag : int or None
+        Bound (frames) on a formant decision's wait; None: exact.
+
+    Returns
+    -------
+    voicepuppet._core.AudioFeatureOptions
+        The options of the C++ front end.
+    """
     from scipy.signal import lfilter_zi
 
     opt = fset.settings()
@@ -184,7 +256,18 @@ def core_options(fset: FeatureSet, fps: float, rate: int, formant_lag: int | Non
 
 
 def column_names(fset: FeatureSet) -> tuple:
-    """Column names of a streamable feature set, in ``extract``'s order."""
+    """Column names of a streamable feature set, in ``extract``'s order.
+
+    Parameters
+    ----------
+    fset : FeatureSet
+        A streamable feature set.
+
+    Returns
+    -------
+    tuple of str
+        The column names.
+    """
     opt = fset.settings()
     first = 0 if opt["rasta_c0"] else 1
     cols = {"mfcc": [f"mfcc{i}" for i in range(opt["n_mfcc"])],
@@ -215,6 +298,20 @@ class BandLimiter:
         The band's edge (Hz), below ``rate / 2``, with ``2 band_hz`` a whole number of Hz.
     rate : int
         Sample rate (Hz) of the samples filtered.
+
+    Attributes
+    ----------
+    band_hz : float
+        The band's edge (Hz).
+    rate : int
+        Sample rate (Hz).
+    delay_s : float
+        Delay (s) of the two resamplers' half filters: how long a pushed sample may wait.
+
+    Raises
+    ------
+    ValueError
+        ``band_hz`` not between 0 and ``rate / 2``, or ``2 band_hz`` not a whole number.
     """
 
     def __init__(self, band_hz: float, rate: int):
@@ -234,21 +331,49 @@ class BandLimiter:
         self.reset()
 
     def push(self, x: np.ndarray) -> np.ndarray:
-        """The next chunk (n,); returns the band-limited samples completed so far (fewer than
-        pushed while the filters wait for the samples after them: :attr:`delay_s`)."""
+        """Feed the next chunk of the stream.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The next samples.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The band-limited samples completed so far (fewer than pushed while the filters wait
+            for the samples after them: :attr:`delay_s`).
+        """
         x = np.ascontiguousarray(x, dtype=np.float64)
         self._n_in += x.size
         return self._release(self._up.push(self._down.push(x)))
 
     def flush(self) -> np.ndarray:
-        """End of the stream: the remaining samples (as many in all as were pushed); then reset."""
+        """End of the stream: the remaining samples (as many in all as were pushed); then reset.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The band-limited samples not yet returned.
+        """
         tail = np.concatenate([self._up.push(self._down.flush()), self._up.flush()])
         out = self._release(tail)
         self.reset()
         return out
 
     def apply(self, x: np.ndarray) -> np.ndarray:
-        """A whole recording (n,) band-limited, length n."""
+        """Band-limit a whole recording (resets the stream first).
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The recording.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            The band-limited recording, length n.
+        """
         self.reset()
         return np.concatenate([self.push(x), self.flush()])
 
@@ -298,7 +423,20 @@ def _frame_power(x: np.ndarray, n: int) -> np.ndarray:
 def speech_level_db(x: np.ndarray, rate: int) -> float:
     """The speech level (dBFS) of samples ``x`` (n,): the :data:`LEVEL_PERCENTILE`-th percentile
     (inverted CDF: one frame's power) of the power of its :data:`LEVEL_FRAME_S` frames (one
-    short frame for a shorter input); -inf for digital silence."""
+    short frame for a shorter input); -inf for digital silence.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        Samples in full scale.
+    rate : int
+        Sample rate in Hz.
+
+    Returns
+    -------
+    float
+        The speech level in dBFS, or -inf.
+    """
     x = np.asarray(x, dtype=np.float64)
     n = max(1, int(round(LEVEL_FRAME_S * rate)))
     if x.size < n:
@@ -328,8 +466,19 @@ class LevelNormalizer:
 
     Attributes
     ----------
+    level_db : float
+        The target speech level (dBFS).
+    rate : int
+        Sample rate (Hz).
+    input_level_db : float or None
+        The given stream level.
     delay_s : float
         The most a pushed sample waits for the rest of its gate frame.
+
+    Raises
+    ------
+    ValueError
+        ``level_db`` not a level in [-100, 0] dBFS, or ``input_level_db`` not finite.
     """
 
     def __init__(self, level_db: float, rate: int, input_level_db: float | None = None):
@@ -344,15 +493,43 @@ class LevelNormalizer:
         self.reset()
 
     def gain(self, level_db: float) -> float:
-        """The factor that brings speech at ``level_db`` dBFS to :attr:`level_db` (at most
-        :data:`MAX_GAIN_DB` up; 1 for digital silence)."""
+        """The factor that brings speech at ``level_db`` dBFS to :attr:`level_db`.
+
+        Parameters
+        ----------
+        level_db : float
+            A speech level in dBFS (-inf for digital silence).
+
+        Returns
+        -------
+        float
+            The amplitude gain (at most :data:`MAX_GAIN_DB` up; 1 for digital silence).
+        """
         if not np.isfinite(level_db):
             return 1.0
         return float(10.0 ** (min(self.level_db - level_db, MAX_GAIN_DB) / 20.0))
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """A whole recording (n,): scaled by the gain of its own speech level (or of the given
-        ``input_level_db``), its quiet frames turned into dither; length n."""
+        ``input_level_db``), its quiet frames turned into dither; length n. Resets the stream
+        first.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The recording.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            The scaled and gated recording.
+
+        Warns
+        -----
+        AudioWarning
+            The speech level is more than :data:`MAX_GAIN_DB` under :attr:`level_db` (raised by
+            that much and still quiet).
+        """
         self.reset()
         x = np.asarray(x, dtype=np.float64)
         level = self.input_level_db if self.input_level_db is not None else speech_level_db(x, self.rate)
@@ -364,8 +541,19 @@ class LevelNormalizer:
         return self._release(x * self.gain(level), last=True)
 
     def push(self, x: np.ndarray) -> np.ndarray:
-        """The next chunk of a stream; returns the samples of the gate frames completed so far,
-        scaled and gated (fewer than pushed while a frame waits for its end: :attr:`delay_s`)."""
+        """Feed the next chunk of a stream.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The next samples.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The samples of the gate frames completed so far, scaled and gated (fewer than
+            pushed while a frame waits for its end: :attr:`delay_s`).
+        """
         x = np.asarray(x, dtype=np.float64)
         if self.input_level_db is not None:
             g = self.gain(self.input_level_db)
@@ -375,7 +563,13 @@ class LevelNormalizer:
         return self._release(x * g, last=False)
 
     def flush(self) -> np.ndarray:
-        """End of the stream: the last (partial) gate frame; then reset."""
+        """End of the stream: the last (partial) gate frame; then reset.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The samples not yet returned, scaled and gated.
+        """
         out = self._release(np.zeros(0), last=True)
         self.reset()
         return out
@@ -456,6 +650,25 @@ class StreamingFeatures:
         Column names (those of ``extract`` for the same set).
     frames_out : int
         Frames emitted so far.
+    fset : FeatureSet
+        The feature set, with ``options`` applied.
+    fps : float
+        Output frame rate.
+    rate : int
+        Sample rate (Hz).
+    formant_lag : int or None
+        As given.
+    opt : dict
+        All options in force (:meth:`FeatureSet.settings`).
+    want : set of str
+        The features computed.
+
+    Raises
+    ------
+    ValueError
+        A feature that is not streamable, an unknown feature or option, ``fps`` not positive
+        and finite, ``rate`` not a whole number of Hz >= ``MIN_RATE``, or ``formant_lag`` not
+        None or a whole number >= 0.
     """
 
     def __init__(self, features="puppet", fps: float = 29.97, rate: int = 16000,
@@ -496,10 +709,12 @@ class StreamingFeatures:
 
     @property
     def names(self) -> tuple:
+        """Column names (those of ``extract`` for the same set)."""
         return self._names
 
     @property
     def n_features(self) -> int:
+        """Number of columns D."""
         return len(self._names)
 
     @property
@@ -509,6 +724,7 @@ class StreamingFeatures:
 
     @property
     def frames_out(self) -> int:
+        """Frames emitted so far."""
         return int(self._core.frames_out)
 
     @property
@@ -521,7 +737,13 @@ class StreamingFeatures:
         (the right half of the longest analysis window; formants add their tracker's wait,
         bounded by ``formant_lag`` frames when that is set; ``band_hz`` adds its resamplers'
         half filters, :attr:`BandLimiter.delay_s`, and ``level_db`` its gate frame,
-        :attr:`LevelNormalizer.delay_s`)."""
+        :attr:`LevelNormalizer.delay_s`).
+
+        Returns
+        -------
+        float
+            The look-ahead in seconds.
+        """
         o, la = self._options, 0.0
         if self.want & {"mfcc", "mfcc_deltas", "rasta_plp", "bands", "log_energy"}:
             la = max(la, (o.n_fft - o.n_fft // 2) / self.rate)
@@ -551,6 +773,11 @@ class StreamingFeatures:
         -------
         ndarray, shape (K, D)
             The frames completed by this chunk (K >= 0), in order.
+
+        Raises
+        ------
+        ValueError
+            Samples that are not numbers, not of shape (n,) or (n, channels), or not finite.
         """
         x = pcm_to_float(samples)
         if self._level is not None:
@@ -559,7 +786,13 @@ class StreamingFeatures:
 
     def flush(self) -> np.ndarray:
         """End of the stream: the remaining frames, up to ``ceil(n_samples * fps / rate)`` in
-        total (windows past the end see zeros, as offline). Then the object is reset."""
+        total (windows past the end see zeros, as offline). Then the object is reset.
+
+        Returns
+        -------
+        ndarray, shape (K, D)
+            The frames not yet returned, in order.
+        """
         rows = []
         if self._level is not None:
             tail = self._level.flush()
@@ -570,9 +803,27 @@ class StreamingFeatures:
         return np.vstack(rows) if len(rows) > 1 else rows[0]
 
     def process(self, samples, n_out: int | None = None) -> np.ndarray:
-        """A whole recording in one call (the offline front end): ``n_out`` frames (default
-        ``ceil(n * fps / rate)``; frames past the end see silence), shape (n_out, D). Resets
-        the stream before and after."""
+        """A whole recording in one call (the offline front end). Resets the stream before and
+        after.
+
+        Parameters
+        ----------
+        samples : array_like, shape (n,) or (n, channels)
+            The recording: float samples in full scale, or integer PCM.
+        n_out : int, optional
+            Number of frames (default ``ceil(n * fps / rate)``; frames past the end see
+            silence).
+
+        Returns
+        -------
+        ndarray, shape (n_out, D)
+            The feature frames.
+
+        Raises
+        ------
+        ValueError
+            Samples that are not numbers, not of shape (n,) or (n, channels), or not finite.
+        """
         x = pcm_to_float(samples)
         T = n_frames(x.shape[0], self.rate, self.fps) if n_out is None else int(n_out)
         if self._level is not None:
