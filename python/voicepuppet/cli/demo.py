@@ -31,13 +31,50 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
         render_video: bool = True, progress: bool = True, log=print, speech: str = "espeak") -> dict:
     """Run the demo; returns the metrics (also written to ``out_dir/metrics.json``).
 
-    ``train_on`` picks the training landmarks: ``"tracked"`` (what the spring-mesh tracker found,
-    the default) or ``"truth"`` (the performer's ground truth; the tracker is still run and
-    measured). ``speech="real"``: the performer speaks the real recordings that ship inside
-    packages (:func:`voicepuppet.synth.make_real_corpus`: 80 s of two LibriVox readers, tested
-    on two CMU ARCTIC speakers; ``train_seconds`` and ``n_test`` are then not used), in
-    ``out_dir/corpus-real``; a third puppet for voices it never heard (``vocal_features=
-    "projected"``, ``vocal_covariance="tied"``) is measured beside the default there.
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+        Output folder (default ``"voicepuppet-demo"``), created if missing; the corpus is cached
+        in it.
+    train_seconds : float
+        Length of the training video in seconds (default 180).
+    n_test : int
+        Number of held-out utterances (default 10).
+    seed : int
+        Seed of the corpus and of training (default 0).
+    n_states : int
+        Initial facial states of the puppets (default 40).
+    train_on : {"tracked", "truth"}
+        The training landmarks: ``"tracked"`` (what the spring-mesh tracker found, the default)
+        or ``"truth"`` (the performer's ground truth; the tracker is still run and measured).
+    compare_conventional : bool
+        Also train and measure a conventionally trained puppet (Baum-Welch; default True).
+    render_video : bool
+        Render ``demo.mp4`` and ``head.mp4`` (default True).
+    progress : bool
+        Show progress bars (default True).
+    log : callable
+        Called with each progress message (default :func:`print`).
+    speech : {"espeak", "real"}
+        ``"real"``: the performer speaks the real recordings that ship inside packages
+        (:func:`voicepuppet.synth.make_real_corpus`: 80 s of two LibriVox readers, tested on two
+        CMU ARCTIC speakers; ``train_seconds`` and ``n_test`` are then not used), in
+        ``out_dir/corpus-real``; a third puppet for voices it never heard (``vocal_features=
+        "projected"``, ``vocal_covariance="tied"``) is measured beside the default there.
+        Default ``"espeak"``: espeak-ng sentences.
+
+    Returns
+    -------
+    dict
+        ``train_frames``, ``test_frames``, ``tracker_rmse_iod`` and ``tracker_lips_rmse_iod``
+        (the tracker's error over the inter-ocular distance), ``trained_on``, ``models`` (per
+        puppet, :func:`voicepuppet.evaluation.split.evaluate_split`'s result), ``timings``
+        (seconds per stage) and ``test_clips``.
+
+    Raises
+    ------
+    ValueError
+        ``train_on`` or ``speech`` not one of their values.
     """
     if train_on not in ("truth", "tracked"):
         raise ValueError(f"train_on must be 'truth' or 'tracked', got {train_on!r}")
@@ -195,6 +232,13 @@ def _cli(args) -> int:
 
 
 def add_parser(sub) -> None:
+    """Register the ``demo`` verb.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The sub-command parsers of the ``voicepuppet`` command line.
+    """
     p = sub.add_parser("demo", help="the whole system on embedded data: train, animate, evaluate, render",
                        description="Generate the synthetic performer's training video and held-out speech, "
                                    "track it, train a puppet, animate the held-out audio, measure it "
@@ -210,7 +254,7 @@ def add_parser(sub) -> None:
                         "that ship inside packages (80 s of two LibriVox readers; held out: two CMU ARCTIC "
                         "speakers; --train-seconds and --n-test then unused)")
     p.add_argument("--states", type=int, default=40, help="initial facial states (default 40)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the corpus and of training (default 0)")
     p.add_argument("--no-conventional", action="store_true", help="skip the Baum-Welch comparison puppet")
     p.add_argument("--no-render", action="store_true", help="skip the mp4s")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -113,6 +113,13 @@ def _run(args) -> int:
 
 
 def add_parser(sub) -> None:
+    """Register the ``evaluate`` verb.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The sub-command parsers of the ``voicepuppet`` command line.
+    """
     from voicepuppet.evaluation.corpus import TRAIN_ON
 
     p = sub.add_parser("evaluate", help="cross-validate the voice puppet and its phoneme peers",
@@ -128,7 +135,9 @@ def add_parser(sub) -> None:
                    "per sequence (default: the synthetic performer)")
     p.add_argument("--alphabet", choices=["arpabet", "espeak"], default="arpabet",
                    help="phone alphabet of the label files (default arpabet)")
-    p.add_argument("--corpus-dir", metavar="DIR", help="where the synthetic performer is built/cached")
+    p.add_argument("--corpus-dir", metavar="DIR", help="where the synthetic performer is built/cached (default: "
+                   "evaluate-corpus, or evaluate-corpus-real with --speech real, in ~/.cache/voicepuppet or "
+                   "$VOICEPUPPET_CACHE)")
     p.add_argument("--speech", choices=["espeak", "real"], default="espeak",
                    help="what the performer speaks: espeak-ng sentences (default) or the real recordings "
                         "that ship inside packages (two LibriVox readers to learn from, two CMU ARCTIC "
@@ -136,7 +145,7 @@ def add_parser(sub) -> None:
     p.add_argument("--train-seconds", type=float, help="performer training speech (s; default 60, espeak only)")
     p.add_argument("--n-test", type=int, help="performer held-out espeak-ng sentences (default 3, espeak only)")
     p.add_argument("--folds", type=int, default=10, help="k of k-fold cross-validation (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="seeds the corpus, the folds and the models")
+    p.add_argument("--seed", type=int, default=0, help="seeds the corpus, the folds and the models (default 0)")
     p.add_argument("--corpus-seed", type=int, metavar="N",
                    help="seed of the performer corpus alone (default: --seed), e.g. a second partition "
                         "of the same corpus: --seed 1 --corpus-seed 0")
@@ -146,12 +155,12 @@ def add_parser(sub) -> None:
                         "cached beside the corpus); measures stay against the ground truth")
     p.add_argument("--landmark-noise", type=float, default=0.0, metavar="PX",
                    help="add independent Gaussian noise of PX pixels to every training landmark (a worse "
-                        "tracker; seeded by --seed); measures stay against the clean landmarks")
+                        "tracker; seeded by --seed); measures stay against the clean landmarks (default 0: none)")
     p.add_argument("--peers", action="store_true", help="also evaluate the four phoneme-driven models")
     p.add_argument("--no-puppet", action="store_true", help="skip the voice puppet (and its baselines)")
     p.add_argument("--states", type=int, default=40, help="voice puppet states (default 40)")
     p.add_argument("--components", default="0.98",
-                   help="face-space size: an integer, or a variance fraction such as 0.98 (default)")
+                   help="face-space size: an integer, or a variance fraction such as 0.98 (default 0.98)")
     p.add_argument("--compare-training", action="store_true",
                    help="paired comparison of puppet training variants on the same folds (default: "
                         "entropic vs conventional Baum-Welch): per-fold differences of Err, LVE, decoding "

@@ -45,6 +45,13 @@ def _run(args) -> int:
 
 
 def add_parser(sub) -> None:
+    """Register the ``features`` verb.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The sub-command parsers of the ``voicepuppet`` command line.
+    """
     from voicepuppet.audio import FEATURE_SETS, FEATURES
 
     p = sub.add_parser("features", help="audio features at a video frame rate",

@@ -7,7 +7,14 @@ import platform
 
 def collect() -> dict:
     """Versions of voicepuppet, its compiled core and its main dependencies, and the BLAS numpy
-    uses with its current thread count, as a dict."""
+    uses with its current thread count, as a dict.
+
+    Returns
+    -------
+    dict of str to str
+        ``voicepuppet``, ``python``, ``numpy``, ``platform``, the core's build information
+        (keys ``core_*``) and ``blas``.
+    """
     import numpy
 
     from voicepuppet import _core
@@ -27,8 +34,23 @@ def collect() -> dict:
 
 def describe_puppet(path) -> list[str]:
     """What a puppet file holds, as lines of text: who wrote it, its face and audio, each part's
-    state machine and the guide (with the errors its weight was chosen by). ValueError for a file
-    that is not a readable puppet."""
+    state machine and the guide (with the errors its weight was chosen by).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The puppet file (``.vpp``).
+
+    Returns
+    -------
+    list of str
+        The description, one line per item.
+
+    Raises
+    ------
+    ValueError
+        A file that is not a readable puppet (:func:`voicepuppet.puppet.model.load`).
+    """
     from voicepuppet.puppet.model import load
 
     p = load(path)
@@ -76,6 +98,13 @@ def _run(args) -> int:
 
 
 def add_parser(sub) -> None:
+    """Register the ``info`` verb.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The sub-command parsers of the ``voicepuppet`` command line.
+    """
     p = sub.add_parser("info", help="show versions, build type and compiler, or what a puppet file holds",
                        description="Show versions, build type, compiler and SIMD of the core; with puppet "
                                    "files, what each holds (training, state machines, audio, the guide "

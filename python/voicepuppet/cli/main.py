@@ -37,6 +37,13 @@ class UserError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``voicepuppet`` argument parser, with every verb of ``VERB_MODULES``.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The parser; a parsed verb's ``func`` runs it.
+    """
     from voicepuppet._version import __version__
 
     parser = argparse.ArgumentParser(
@@ -52,6 +59,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the ``voicepuppet`` command line.
+
+    Warnings are printed as one line each; a :class:`UserError`, ``ValueError`` or
+    ``FileNotFoundError`` is printed as one line and gives exit code 2.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after the program name (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit code: the verb's (0 for success), 2 for an error of the user's, 130 when
+        interrupted.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

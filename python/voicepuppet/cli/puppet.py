@@ -134,6 +134,13 @@ def _animate(args) -> int:
 
 
 def add_parser(sub) -> None:
+    """Register the ``train`` and ``animate`` verbs.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The sub-command parsers of the ``voicepuppet`` command line.
+    """
     from voicepuppet.puppet.guide import GUIDE_WEIGHTS
 
     p = sub.add_parser("train", help="train a voice puppet from video of a talking face",
@@ -147,27 +154,24 @@ def add_parser(sub) -> None:
     p.add_argument("--init", default="auto", help="tracker init points for the videos (default: auto)")
     p.add_argument("--states", type=int, help="initial states of the facial HMM (default 40; entropic training trims)")
     p.add_argument("--iterations", type=int, help="EM iterations (default 40)")
-    p.add_argument("--parts", choices=["upper_lower"], help="separate upper- and lower-face models (§5.1; 68-point landmarks)")
+    p.add_argument("--parts", choices=["upper_lower"], help="separate upper- and lower-face models (§5.1; 68-point landmarks; "
+                   "default: one model of the whole face)")
     p.add_argument("--prior", choices=["entropic", "ml"], help="entropic MAP (default) or conventional Baum-Welch")
     p.add_argument("--feature-set", help="audio feature set (default: puppet)")
     p.add_argument("--noise-snrs", metavar="DB[,DB...]",
                    help="also learn the vocal side from copies of the training audio with white noise at these "
-                        "SNRs (dB), e.g. 20,10: a puppet for noisy recordings (on the demo's data: at 20 dB SNR Err "
-                        "0.630 -> 0.489, +0.041 on clean audio; as much on pink noise, less under other voices; "
-                        "docs/puppet.md)")
+                        "SNRs (dB), e.g. 20,10: a puppet for noisy recordings (default: none; docs/puppet.md)")
     p.add_argument("--audio-level", metavar="DBFS|none",
                    help="bring every recording the puppet hears, in training and after, to this speech level "
                         "(dBFS) and turn its frames 35 dB under that into dither, so pauses rest whatever the noise floor and quiet "
-                        "recordings animate as loud ones (default -20; none: audio as recorded, as puppets "
-                        "before 2026-12-04; docs/puppet.md)")
+                        "recordings animate as loud ones (default -20; none: audio as recorded; docs/puppet.md)")
     p.add_argument("--audio-band", type=float, metavar="HZ",
                    help="band-limit the training audio, and all audio the puppet animates, to HZ before analysis: "
                         "4000 for a puppet of telephone audio (sampled at 8 kHz; default: the whole band, or "
                         "the narrowest training audio's; docs/puppet.md)")
     p.add_argument("--vocal-features", choices=["audio", "projected"],
                    help="what the vocal Gaussians are fitted on: the audio features (default) or their learned "
-                        "projection onto the face (with --vocal-covariance tied: better on voices the puppet "
-                        "never heard, worse on the training voice; live adds its 5-frame look-ahead; docs/puppet.md)")
+                        "projection onto the face (live adds its 5-frame look-ahead; docs/puppet.md)")
     p.add_argument("--vocal-covariance", choices=["full", "diag", "tied"],
                    help="each state's vocal covariance: its own (full, default; or diag) or one for all (tied)")
     p.add_argument("--guide", choices=["ridge", "none"],
@@ -179,11 +183,13 @@ def add_parser(sub) -> None:
     p.add_argument("--guide-weight", metavar="cv|W",
                    help="the guide's weight written into the puppet: cv (default) chooses it from "
                         f"{', '.join(f'{w:g}' for w in GUIDE_WEIGHTS)} by cross-validation on the training "
-                        "audio; a number fixes it (earlier versions fixed it at 4)")
+                        "audio; a number fixes it")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run the HMM's E-steps on this Dask scheduler "
-                   "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process")
-    p.add_argument("--workers", type=int, help="run the E-steps on a local Dask cluster of this many processes")
+                   "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process (default: all in "
+                   "this process)")
+    p.add_argument("--workers", type=int, help="run the E-steps on a local Dask cluster of this many processes "
+                   "(with --scheduler: wait for that many workers; default: all in this process)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_train)
 
@@ -196,19 +202,18 @@ def add_parser(sub) -> None:
     a.add_argument("-o", "--output", required=True, metavar="ANIM.npz", help="landmark animation (.npz or .csv)")
     a.add_argument("--fps", type=float, help="output frame rate (default: the puppet's)")
     a.add_argument("--posterior", action="store_true", help="posterior-weighted synthesis instead of the Viterbi path")
-    a.add_argument("--exaggerate", type=float, help="scale the motion about the mean face (1: as is)")
+    a.add_argument("--exaggerate", type=float, help="scale the motion about the mean face (default: as is, 1)")
     a.add_argument("--adapt", choices=["full"],
                    help="adapt the audio features to the puppet's vocal model before decoding (test-time "
-                        "fMLLR-style EM, a full affine transform; for a voice far from the performer's, "
-                        "docs/puppet.md)")
+                        "fMLLR-style EM, a full affine transform, for a voice far from the performer's; "
+                        "default: none, the features as they are; docs/puppet.md)")
     a.add_argument("--adapt-tau", type=float, metavar="FRAMES",
                    help="the adaptation prior's weight in frames (default: puppet.ADAPT_DEFAULTS, 30)")
     a.add_argument("--adapt-iter", type=int, metavar="N",
                    help="adaptation EM iterations (default: puppet.ADAPT_DEFAULTS, 1)")
     a.add_argument("--guide-weight", type=float, metavar="W",
                    help="weight of a guided puppet's evidence (default: the puppet's, chosen at training; "
-                        "0: Brand's unguided solve; lower: the lips close more fully on b, p, m, at some cost "
-                        "in lip error elsewhere; docs/results.md)")
+                        "0: Brand's unguided solve)")
     a.add_argument("--states-out", metavar="S.csv",
                    help="also write the facial state sequence, the Viterbi path (for editing: read it back with "
                         "--states-in and the same AUDIO)")

@@ -38,16 +38,26 @@ BILABIALS = ("B", "P", "M")
 class Sequence:
     """One utterance: landmarks, frame labels and (for the puppet) its audio.
 
-    Attributes
+    Each parameter is kept as the attribute of the same name.
+
+    Parameters
     ----------
     name : str
+        Name of the sequence (in reports and fold lists).
     points : ndarray, shape (T, P, 2)
+        The true landmarks: what every prediction is measured against.
     fps : float
+        Frame rate of ``points`` and ``labels``.
     labels : ndarray of int64, shape (T,)
         Indices into :data:`voicepuppet.phonemes.labels.PHONES`.
     samples : ndarray, shape (n,), optional
-        Mono audio of exactly these frames.
+        Mono audio of exactly these frames (default None: no audio).
     rate : int
+        Sample rate of ``samples`` in Hz (default 16000).
+    text : str
+        What is said, where known (default empty).
+    meta : dict
+        Anything else about the sequence, e.g. its ``source`` (default empty).
     train_points : ndarray, shape (T, P, 2), optional
         The landmarks a model learns from when this sequence is in a training fold (e.g. what a
         tracker found), if not ``points``; ``points`` stays what every prediction is measured
@@ -67,6 +77,16 @@ class Sequence:
 def learnt_points(seq: Sequence) -> np.ndarray:
     """The landmarks models learn from in a training fold: ``seq.train_points`` if set, else
     ``seq.points``.
+
+    Parameters
+    ----------
+    seq : Sequence
+        The sequence.
+
+    Returns
+    -------
+    ndarray, shape (T, P, 2)
+        Its training landmarks.
 
     Raises
     ------
@@ -89,6 +109,21 @@ def with_landmark_noise(sequences: list[Sequence], sigma: float, seed: int = 0) 
     tracker, for measuring how training degrades with tracking error. ``points`` (what every
     prediction is measured against) are untouched; the noise is fixed by ``seed`` and the
     sequence's position. ``sigma = 0`` returns the sequences as given.
+
+    Parameters
+    ----------
+    sequences : list of Sequence
+        The sequences.
+    sigma : float
+        Standard deviation of the noise in pixels (>= 0).
+    seed : int
+        Seed of the noise (default 0), with each sequence's position in the list.
+
+    Returns
+    -------
+    list of Sequence
+        New sequences (copies with ``train_points`` set), or the sequences as given when
+        ``sigma`` is 0.
 
     Raises
     ------
@@ -125,13 +160,35 @@ def _cut_points(segs, fps: float, n_frames: int, min_pause: float, min_frames: i
 
 
 def bilabial_mask(labels) -> np.ndarray:
-    """Which frame labels (indices into :data:`voicepuppet.phonemes.labels.PHONES`) are :data:`BILABIALS`."""
+    """Which frame labels (indices into :data:`voicepuppet.phonemes.labels.PHONES`) are :data:`BILABIALS`.
+
+    Parameters
+    ----------
+    labels : array_like of int, shape (T,)
+        Phone indices per frame (e.g. a :class:`Sequence`'s ``labels``).
+
+    Returns
+    -------
+    ndarray of bool, shape (T,)
+        True where the phone is B, P or M.
+    """
     return np.isin(labels, [phonemes.PHONES.index(p) for p in BILABIALS])
 
 
 def bilabial_frames(clip) -> np.ndarray:
     """(T,) bool: the frames of a performer clip whose phone is one of :data:`BILABIALS` (its lips
-    must close), from the clip's own phone timings."""
+    must close), from the clip's own phone timings.
+
+    Parameters
+    ----------
+    clip : voicepuppet.synth.Clip
+        A performer clip (``phones``, ``source``, ``points``, ``fps``).
+
+    Returns
+    -------
+    ndarray of bool, shape (T,)
+        One entry per frame of ``clip.points``.
+    """
     return bilabial_mask(phonemes.frame_labels(phonemes.normalize(clip.phones, _alphabet_of(clip.source)),
                                                len(clip.points), clip.fps))
 
@@ -210,6 +267,9 @@ def tracked_landmarks(clip, cache_dir=None, *, progress: bool = True) -> np.ndar
     clip : voicepuppet.synth.Clip
         ``video`` (path) and ``points`` (T, P, 2), the ground truth.
     cache_dir : str, optional
+        Folder of the cached tracks (default: a ``tracked`` folder beside the video).
+    progress : bool
+        Show the tracker's progress bar when it runs (default True).
 
     Returns
     -------
@@ -274,10 +334,19 @@ def synth_sequences(out_dir=None, train_seconds: float = 60.0, n_test: int = 3, 
     speech : {"espeak", "real"}
         ``"real"``: the real-speech performer (then ``train_seconds`` and ``n_test`` are not
         used; its default folder is ``~/.cache/voicepuppet/evaluate-corpus-real``).
+    progress : bool
+        Show progress bars while building the corpus and tracking (default True).
 
     Returns
     -------
     list of Sequence
+        The training clip's utterances (``train_NN``), then one sequence per held-out clip
+        (``test_NN``).
+
+    Raises
+    ------
+    ValueError
+        ``train_on`` or ``speech`` not one of their values.
     """
     if train_on not in TRAIN_ON:
         raise ValueError(f"train_on must be one of {TRAIN_ON}, got {train_on!r}")
@@ -306,10 +375,26 @@ def load_sequences(folder, alphabet: str = "arpabet") -> list[Sequence]:
     Each ``NAME.npz`` holds ``points`` [T, P, 2] and ``fps``; beside it ``NAME.TextGrid`` or
     ``NAME.lab`` (HTS) gives the phones, and ``NAME.wav`` (optional) the audio.
 
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The data folder.
+    alphabet : {"arpabet", "espeak"}
+        Phone alphabet of the label files (default "arpabet").
+
+    Returns
+    -------
+    list of Sequence
+        One per ``NAME.npz``, sorted by name (audio as float32 mono, channels averaged).
+
     Raises
     ------
+    FileNotFoundError
+        ``folder`` does not exist.
     ValueError
-        No sequences, missing labels, labels that do not cover the frames, unknown phones.
+        No sequences, a ``NAME.npz`` without ``points`` [T >= 2, P, 2] or ``fps``, missing
+        labels, labels that do not cover the frames, unknown phones, or sequences of different
+        frame rates.
     """
     import soundfile
 

@@ -164,6 +164,8 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
     features : list of array (T, A), optional
         Raw audio features per sequence, one row per frame, instead of computing them from each
         sequence's audio (the puppet's default feature set, once per sequence for all folds).
+    progress : bool
+        Show a progress bar over folds and models (default True).
 
     Returns
     -------
@@ -173,6 +175,13 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         ``folds`` are the puppet's per-fold values minus the baseline's, its interval
         :func:`voicepuppet.evaluation.folds.mean_ci` of them. The ridge's entry also lists the
         regularisation chosen per fold (``alpha``).
+
+    Raises
+    ------
+    ValueError
+        Neither the puppet nor the peers enabled, ``k`` not in 2..len(sequences), a sequence's
+        ``train_points`` of another shape than its ``points``, or (for the puppet) a sequence
+        without audio and no ``features``, or ``features`` of the wrong count or shape.
     """
     seqs = list(sequences)
     for s in seqs:
@@ -282,6 +291,8 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     features : list of arrays (T_s, A), optional
         Raw audio features of each sequence, one row per frame, instead of computing them from
         the sequences' audio (then every variant uses these).
+    progress : bool
+        Show a progress bar over folds and variants (default False).
 
     Returns
     -------
@@ -289,6 +300,13 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
         ``variants``: {name: {measure: {"mean", "low", "high", "folds"}}};
         ``differences``: {name: {measure: {...}}} of ``name − baseline`` per fold, mean and 95%
         Student-t interval over folds (:func:`voicepuppet.evaluation.folds.mean_ci`); ``config``.
+
+    Raises
+    ------
+    ValueError
+        Fewer than two variants, a ``baseline`` that is not one of them, a variant with unknown
+        training options, no sequences, ``k`` not in 2..len(sequences), or sequences without
+        audio and no ``features``.
     """
 
     seqs = list(sequences)

@@ -68,6 +68,11 @@ def mean_ci(values, level: float = 0.95) -> tuple[float, float, float]:
     -------
     (mean, low, high) : tuple of float
         With one value the interval is (mean, mean).
+
+    Raises
+    ------
+    ValueError
+        No values, a value that is not finite, or ``level`` outside (0, 1).
     """
     from scipy import stats
 
@@ -86,8 +91,19 @@ def mean_ci(values, level: float = 0.95) -> tuple[float, float, float]:
 
 
 def fold_summary(values) -> dict:
-    """Per-fold values with their mean and 95% interval (:func:`mean_ci`):
-    ``{"mean", "low", "high", "folds"}``, as the evaluation harnesses report every measure."""
+    """Per-fold values with their mean and 95% interval (:func:`mean_ci`), as the evaluation
+    harnesses report every measure.
+
+    Parameters
+    ----------
+    values : sequence of float
+        One value per fold (finite).
+
+    Returns
+    -------
+    dict
+        ``{"mean", "low", "high", "folds"}``: the mean, the interval's ends and the values.
+    """
     mean, low, high = mean_ci(values)
     return {"mean": mean, "low": low, "high": high, "folds": [float(v) for v in values]}
 
@@ -95,7 +111,22 @@ def fold_summary(values) -> dict:
 def over_folds(values, n_folds: int, measure: str) -> dict | None:
     """:func:`fold_summary` of a measure's per-fold values ``[(fold, value)]``
     when every fold has one; for ``closed``, over the folds that have (those whose test sequences
-    hold a B, P or M), at least two, listed in ``fold_index``; else None (not reported)."""
+    hold a B, P or M), at least two, listed in ``fold_index``; else None (not reported).
+
+    Parameters
+    ----------
+    values : list of (int, float)
+        ``(fold index, value)`` of the folds that have the measure.
+    n_folds : int
+        Number of folds.
+    measure : str
+        The measure's name (``"closed"`` may miss folds).
+
+    Returns
+    -------
+    dict or None
+        The :func:`fold_summary` (plus ``fold_index`` for a ``closed`` that misses folds), or None.
+    """
     if len(values) == n_folds:
         return fold_summary([v for _, v in values])
     if measure == "closed" and len(values) >= 2:

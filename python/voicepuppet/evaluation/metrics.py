@@ -49,6 +49,18 @@ def err(pred, truth) -> float:
     ----------
     pred, truth : array (T, ...)
         Frames of face vectors or landmarks, same shape.
+
+    Returns
+    -------
+    float
+        ``|x − y|² / |x + y|²`` over the whole sequence, x and y the prediction and the truth
+        minus the truth's mean frame: 0 is perfect, 1 is no motion.
+
+    Raises
+    ------
+    ValueError
+        ``pred`` and ``truth`` of different shapes, empty or not finite, or neither with any
+        motion (the ratio is undefined).
     """
     x, y = _pair(pred, truth)
     mean = y.mean(axis=0)
@@ -61,19 +73,67 @@ def err(pred, truth) -> float:
 
 
 def l1(pred, truth) -> float:
-    """Mean absolute error per coordinate."""
+    """Mean absolute error per coordinate.
+
+    Parameters
+    ----------
+    pred, truth : array_like, shape (T, ...)
+        Frames of face vectors or landmarks, same shape (finite, not empty).
+
+    Returns
+    -------
+    float
+        The mean of ``|pred − truth|`` over all frames and coordinates.
+
+    Raises
+    ------
+    ValueError
+        ``pred`` and ``truth`` of different shapes, empty, or not finite.
+    """
     x, y = _pair(pred, truth)
     return float(np.mean(np.abs(x - y)))
 
 
 def rms(pred, truth) -> float:
-    """Root mean squared error per coordinate."""
+    """Root mean squared error per coordinate.
+
+    Parameters
+    ----------
+    pred, truth : array_like, shape (T, ...)
+        Frames of face vectors or landmarks, same shape (finite, not empty).
+
+    Returns
+    -------
+    float
+        The square root of the mean of ``(pred − truth)²`` over all frames and coordinates.
+
+    Raises
+    ------
+    ValueError
+        ``pred`` and ``truth`` of different shapes, empty, or not finite.
+    """
     x, y = _pair(pred, truth)
     return float(np.sqrt(np.mean((x - y) ** 2)))
 
 
 def linf(pred, truth) -> float:
-    """Largest absolute error of any coordinate in any frame."""
+    """Largest absolute error of any coordinate in any frame.
+
+    Parameters
+    ----------
+    pred, truth : array_like, shape (T, ...)
+        Frames of face vectors or landmarks, same shape (finite, not empty).
+
+    Returns
+    -------
+    float
+        The maximum of ``|pred − truth|``.
+
+    Raises
+    ------
+    ValueError
+        ``pred`` and ``truth`` of different shapes, empty, or not finite.
+    """
     x, y = _pair(pred, truth)
     return float(np.max(np.abs(x - y)))
 
@@ -97,6 +157,12 @@ def inter_ocular(true_pts) -> np.ndarray:
     Returns
     -------
     ndarray, shape (T,)
+        The distance of points 36 and 45 in each frame.
+
+    Raises
+    ------
+    ValueError
+        The eye corners coincide in some frame.
     """
     d = inter_ocular_distance(true_pts)
     if np.any(d <= 0):
@@ -105,7 +171,27 @@ def inter_ocular(true_pts) -> np.ndarray:
 
 
 def landmark_rmse_iod(pred_pts, true_pts, iod=None) -> float:
-    """RMS point-to-point distance divided by the inter-ocular distance (per frame, then averaged)."""
+    """RMS point-to-point distance divided by the inter-ocular distance (per frame, then averaged).
+
+    Parameters
+    ----------
+    pred_pts, true_pts : array_like, shape (T, P, 2)
+        Predicted and true landmarks of the same frames (finite).
+    iod : float or array_like, shape (T,), optional
+        Inter-ocular distance to divide by (default: :func:`inter_ocular` of ``true_pts``,
+        which needs the 68-point layout).
+
+    Returns
+    -------
+    float
+        The mean over frames of the RMS landmark distance over the inter-ocular distance.
+
+    Raises
+    ------
+    ValueError
+        Landmarks not of one shape (T, P, 2), empty, or not finite, or (without ``iod``) coinciding
+        eye corners.
+    """
     x, y = _landmarks(pred_pts, true_pts)
     d = inter_ocular(y) if iod is None else np.broadcast_to(np.asarray(iod, dtype=np.float64), (len(y),))
     per_frame = np.sqrt(np.mean(np.sum((x - y) ** 2, axis=2), axis=1)) / d
@@ -114,7 +200,25 @@ def landmark_rmse_iod(pred_pts, true_pts, iod=None) -> float:
 
 def lip_vertex_error(pred_pts, true_pts, mouth=IBUG68_MOUTH) -> float:
     """Lip vertex error: per frame the maximum squared distance over the mouth points, averaged
-    over frames (pixels²)."""
+    over frames (pixels²).
+
+    Parameters
+    ----------
+    pred_pts, true_pts : array_like, shape (T, P, 2)
+        Predicted and true landmarks of the same frames (finite).
+    mouth : sequence of int
+        Indices of the mouth points (default :data:`IBUG68_MOUTH`, the 68-point layout's).
+
+    Returns
+    -------
+    float
+        The lip vertex error in squared landmark units (pixels²).
+
+    Raises
+    ------
+    ValueError
+        Landmarks not of one shape (T, P, 2), empty, or not finite, or too few points for ``mouth``.
+    """
     x, y = _landmarks(pred_pts, true_pts)
     mouth = list(mouth)
     if x.shape[1] <= max(mouth):
@@ -128,7 +232,33 @@ def closures(pred_pts, true_pts, must_close, closed_iod: float = CLOSED_GAP_IOD,
     """Lip closures: of the runs of frames where ``must_close`` (T,) is set (the frames of the
     bilabials B, P, M, say), how many the prediction closes, i.e. in at least one of the run's
     frames its lips' gap (the distance of points ``gap``) is at most ``closed_iod`` of the true
-    face's inter-ocular distance. Returns ``(closed, runs)``; pool the counts over sequences."""
+    face's inter-ocular distance. Pool the counts over sequences.
+
+    Parameters
+    ----------
+    pred_pts, true_pts : array_like, shape (T, P, 2)
+        Predicted and true landmarks of the same frames (finite).
+    must_close : array_like of bool, shape (T,)
+        The frames where the lips must close.
+    closed_iod : float
+        Largest lip gap that counts as closed, as a fraction of the true inter-ocular distance
+        (default :data:`CLOSED_GAP_IOD`).
+    gap : pair of int
+        The two points whose distance is the lips' gap (default :data:`IBUG68_LIP_GAP`).
+
+    Returns
+    -------
+    closed : int
+        Runs of ``must_close`` the prediction closes.
+    runs : int
+        Runs of ``must_close`` in all.
+
+    Raises
+    ------
+    ValueError
+        Landmarks not of one shape (T, P, 2), empty, or not finite, ``must_close`` without one
+        entry per frame, too few points for ``gap``, or coinciding eye corners.
+    """
     x, y = _landmarks(pred_pts, true_pts)
     m = np.asarray(must_close, dtype=bool)
     if m.shape != (len(x),):
@@ -147,6 +277,23 @@ def summary(pred_pts, true_pts, face_space=None) -> dict:
     With a :class:`~voicepuppet.face.FaceSpace`, ``err`` and the per-coordinate errors are
     computed on pose-free face coordinates (the model's own space, as in the papers); without one,
     on the pixel landmarks.
+
+    Parameters
+    ----------
+    pred_pts, true_pts : array_like, shape (T, P, 2)
+        Predicted and true landmarks of the same frames (finite).
+    face_space : voicepuppet.face.FaceSpace, optional
+        The face space of ``err``, ``l1``, ``rms`` and ``linf`` (default: none, pixel landmarks).
+
+    Returns
+    -------
+    dict
+        ``frames``, ``err``, ``l1``, ``rms``, ``linf``, and with 68 points ``rmse_iod`` and ``lve``.
+
+    Raises
+    ------
+    ValueError
+        Landmarks not of one shape (T, P, 2), empty, or not finite.
     """
     x, y = _landmarks(pred_pts, true_pts)
     if face_space is not None:

@@ -17,6 +17,7 @@ def markdown_table(header, rows, *, numeric_from: int = 1) -> list[str]:
     Parameters
     ----------
     header : sequence of str
+        Column titles.
     rows : iterable of sequence of str
         Cells already formatted, as many as ``header``.
     numeric_from : int
@@ -25,6 +26,7 @@ def markdown_table(header, rows, *, numeric_from: int = 1) -> list[str]:
     Returns
     -------
     list of str
+        The header line, the alignment line, then one line per row.
     """
     header = list(header)
     lines = ["| " + " | ".join(header) + " |",
@@ -34,17 +36,57 @@ def markdown_table(header, rows, *, numeric_from: int = 1) -> list[str]:
 
 
 def format_interval(v: dict, digits: int = 4) -> str:
-    """A measure over folds: ``mean ± half-width`` of its 95% interval."""
+    """A measure over folds: ``mean ± half-width`` of its 95% interval.
+
+    Parameters
+    ----------
+    v : dict
+        The measure's ``mean``, ``low`` and ``high`` (as :func:`voicepuppet.evaluation.folds.fold_summary`
+        gives them).
+    digits : int
+        Significant digits of the mean (default 4; the half-width has 2).
+
+    Returns
+    -------
+    str
+        The table cell.
+    """
     return f"{v['mean']:.{digits}g} ± {0.5 * (v['high'] - v['low']):.2g}"
 
 
 def format_difference(d: dict) -> str:
-    """A paired difference's cell: ``mean [low, high]`` of its 95% interval, signed."""
+    """A paired difference's cell: ``mean [low, high]`` of its 95% interval, signed.
+
+    Parameters
+    ----------
+    d : dict
+        The difference's ``mean``, ``low`` and ``high``.
+
+    Returns
+    -------
+    str
+        The table cell (3 significant digits each).
+    """
     return f"{d['mean']:+.3g} [{d['low']:+.3g}, {d['high']:+.3g}]"
 
 
 def format_split(result: dict, title: str = "") -> str:
-    """A Markdown table of :func:`voicepuppet.evaluation.split.evaluate_split`'s rows and its model line."""
+    """A Markdown table of :func:`voicepuppet.evaluation.split.evaluate_split`'s rows and its model line.
+
+    Parameters
+    ----------
+    result : dict
+        What :func:`~voicepuppet.evaluation.split.evaluate_split` returns.
+    title : str
+        A bold title above the table (default: none).
+
+    Returns
+    -------
+    str
+        The table (one row per method, train and test columns per measure), then a line of the
+        model's states, arcs, perplexity, context memory, decoding entropy rate, state coding
+        and guide weight.
+    """
     keys = ["err", "rmse_iod", "lve", "rms"]
     if any("closed" in r.get(split, {}) for r in result["rows"].values() for split in ("train", "test")):
         keys.append("closed")
@@ -70,7 +112,18 @@ def format_split(result: dict, title: str = "") -> str:
 def format_table(result: dict) -> str:
     """Markdown table: one row per model, ``mean ± half-width`` of the 95% interval per measure;
     then, where the result has them, the paired per-fold differences (``voice-puppet − ridge``,
-    ``voice-puppet − mean-face``), ``mean [low, high]`` of the 95% interval."""
+    ``voice-puppet − mean-face``), ``mean [low, high]`` of the 95% interval.
+
+    Parameters
+    ----------
+    result : dict
+        What :func:`voicepuppet.evaluation.crossval.cross_validate` returns.
+
+    Returns
+    -------
+    str
+        The tables and a paragraph on how they were made, ending in a newline.
+    """
     cols = [m for m in METRICS if any(m in e for e in result["models"].values())]
     lines = markdown_table(["model"] + [METRICS[m][0] for m in cols],
                            ((name, *(format_interval(e[m]) if m in e else "—" for m in cols))
@@ -134,7 +187,18 @@ def write_results(result: dict, md_path=None, json_path=None, command: str = "",
 
 def format_comparison(result: dict) -> str:
     """Markdown: each variant's measures (mean ± half-width of the 95% interval over folds), then
-    each paired difference against the baseline with its interval."""
+    each paired difference against the baseline with its interval.
+
+    Parameters
+    ----------
+    result : dict
+        What :func:`voicepuppet.evaluation.crossval.compare_training` returns.
+
+    Returns
+    -------
+    str
+        The two tables and a line on how they were made, ending in a newline.
+    """
     measures = [m for m in COMPARE_MEASURES + ("states", "arcs") if m in next(iter(result["variants"].values()))]
     lines = markdown_table(["variant"] + measures, ((name, *(format_interval(row[m]) for m in measures))
                                                     for name, row in result["variants"].items()))

@@ -39,7 +39,20 @@ UNGUIDED_ROW = "voice, unguided (Brand §4.5)"
 
 
 def facial_states(puppet, points) -> np.ndarray:
-    """Viterbi states of the facial HMM for true motion ``points`` [T, P, 2]: (T, parts)."""
+    """Viterbi states of the facial HMM for true motion ``points`` [T, P, 2]: (T, parts).
+
+    Parameters
+    ----------
+    puppet : voicepuppet.puppet.model.Puppet
+        The puppet whose facial HMMs decode the motion.
+    points : ndarray, shape (T, P, 2)
+        Landmarks of one sequence.
+
+    Returns
+    -------
+    ndarray of int64, shape (T, parts)
+        The Viterbi state of each face part at each frame.
+    """
     Y, _ = puppet.face_space.encode(points)
     cols = []
     for k, sl in enumerate(puppet.face_space.part_slices):
@@ -54,7 +67,18 @@ def facial_states(puppet, points) -> np.ndarray:
 
 def bits_per_frame(states) -> float:
     """Size of the LZMA-compressed state sequence in bits per frame (raw LZMA2 stream, no
-    container header)."""
+    container header).
+
+    Parameters
+    ----------
+    states : array_like of int, shape (T,)
+        A state sequence (states >= 0).
+
+    Returns
+    -------
+    float
+        Compressed bits per frame (LZMA2, preset 9).
+    """
     s = np.asarray(states, dtype=np.uint8 if np.max(states) < 256 else np.uint16)
     packed = lzma.compress(s.tobytes(), format=lzma.FORMAT_RAW,
                            filters=[{"id": lzma.FILTER_LZMA2, "preset": 9}])
@@ -62,7 +86,20 @@ def bits_per_frame(states) -> float:
 
 
 def decoding_entropy_rate(puppet, features) -> float:
-    """Entropy rate (nats per frame) of the vocal HMM's posterior over state sequences."""
+    """Entropy rate (nats per frame) of the vocal HMM's posterior over state sequences.
+
+    Parameters
+    ----------
+    puppet : voicepuppet.puppet.model.Puppet
+        The puppet whose vocal HMMs decode the audio.
+    features : array_like, shape (T, A)
+        Raw audio features at the puppet's rate.
+
+    Returns
+    -------
+    float
+        :func:`voicepuppet.hmm.entropic.entropy_rate` of each part's vocal HMM, averaged over parts.
+    """
     z = puppet._core.standardize(np.ascontiguousarray(features, dtype=np.float64))
     rates = []
     for k in range(len(puppet.part_names)):
@@ -72,9 +109,27 @@ def decoding_entropy_rate(puppet, features) -> float:
 
 
 def compare(pred_face, true_points, face_space, must_close=None) -> dict:
-    """Measures of predicted face coordinates against true landmarks (true pose re-applied);
-    with ``must_close`` (T,), the frames of B, P, M, also ``closed`` (the share of their runs the
-    prediction closes, :func:`voicepuppet.evaluation.metrics.closures`) and ``closed_runs``."""
+    """Measures of predicted face coordinates against true landmarks (true pose re-applied).
+
+    Parameters
+    ----------
+    pred_face : ndarray, shape (T', K)
+        Predicted face coordinates in ``face_space``.
+    true_points : ndarray, shape (T, P, 2)
+        True landmarks; both are cut to the shorter of T and T'.
+    face_space : voicepuppet.face.FaceSpace
+        The face space of the prediction (the puppet's).
+    must_close : array_like of bool, shape (T,), optional
+        The frames of B, P, M.
+
+    Returns
+    -------
+    dict
+        ``err``, ``l1``, ``rms``, ``linf`` on face coordinates; with 68 points also
+        ``rmse_iod`` and ``lve`` on the landmarks and, with ``must_close`` and at least one run of
+        it, ``closed`` (the share of their runs the prediction closes,
+        :func:`voicepuppet.evaluation.metrics.closures`) and ``closed_runs``.
+    """
     true_face, pose = face_space.encode(true_points)
     T = min(len(pred_face), len(true_face))
     pf, tf = pred_face[:T], true_face[:T]
@@ -108,6 +163,8 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
         The landmarks the puppet was trained on, one per training sequence, when they are not
         ``train``'s (a puppet trained on tracked landmarks, measured against the ground truth):
         the ridge baseline is fitted on these too, so both learn from the same data.
+    posterior : bool
+        Also measure posterior-weighted synthesis (the ``voice-posterior`` row; default True).
     cache : dict, optional
         Audio features by (split, index); pass the same dict when evaluating several puppets
         with one feature set on the same data.
@@ -119,6 +176,11 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
         sequences (weighted by frames); ``model``: perplexity, context memory, entropy rate of
         decoding the test audio, bits per frame of the state coding, states and arcs, the guide's
         weight (None without a guide) and whether it was chosen by cross-validation.
+
+    Raises
+    ------
+    ValueError
+        ``fit_points`` without one array per training sequence of its frame count.
     """
     fs = puppet.face_space
     feats = {} if cache is None else cache
@@ -194,7 +256,9 @@ def sequence_features(seqs, fps: float, features=None):
 
     Returns
     -------
-    callable ``(i, feature_set) -> ndarray (T_i, A)``, caching what it computes.
+    callable
+        ``(i, feature_set) -> ndarray (T_i, A)``: the features of sequence i, caching what it
+        computes.
 
     Raises
     ------

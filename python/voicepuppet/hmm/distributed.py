@@ -61,16 +61,24 @@ def connect(scheduler: str | None = None, workers: int | None = None, *, timeout
         Worker processes of the local cluster (default: the number of CPUs). With a
         ``scheduler``, wait up to ``timeout`` seconds for that many workers to join.
     timeout : float
-        Seconds to wait for the scheduler (and workers) before giving up with ``ValueError``.
+        Seconds to wait for the scheduler (and workers) before giving up with ``ValueError``
+        (default 10).
     threads_per_worker : int
-        Threads per local worker process (the kernels release the GIL; 1 keeps runs predictable).
-        Each local worker's C++ kernels get ``cpus // (workers * threads_per_worker)`` OpenMP
-        threads (at least 1).
+        Threads per local worker process (default 1: the kernels release the GIL; 1 keeps runs
+        predictable). Each local worker's C++ kernels get
+        ``cpus // (workers * threads_per_worker)`` OpenMP threads (at least 1).
+
+    Yields
+    ------
+    distributed.Client
+        The connected client, closed (with its local cluster, if one was started) when the
+        ``with`` block ends.
 
     Raises
     ------
     ValueError
-        Dask missing, a malformed address, an unreachable scheduler, or too few workers in time.
+        Dask missing, ``workers`` not a positive integer, ``timeout`` not positive, a malformed
+        address, an unreachable scheduler, or too few workers in time.
     """
     _require_dask()
     from distributed import Client, LocalCluster
@@ -131,8 +139,25 @@ def connect(scheduler: str | None = None, workers: int | None = None, *, timeout
 
 def chunk_bounds(lengths, chunk_frames: int = DEFAULT_CHUNK_FRAMES) -> list[tuple[int, int]]:
     """Groups consecutive sequences into chunks of at most ``chunk_frames`` frames (a longer
-    sequence is a chunk of its own). Returns ``(first, stop)`` sequence indices per chunk; the
-    grouping depends only on the data, never on the cluster."""
+    sequence is a chunk of its own). The grouping depends only on the data, never on the cluster.
+
+    Parameters
+    ----------
+    lengths : array_like of int, shape (S,)
+        Frames per sequence.
+    chunk_frames : int
+        Most frames in a chunk of several sequences (default :data:`DEFAULT_CHUNK_FRAMES`).
+
+    Returns
+    -------
+    list of (int, int)
+        ``(first, stop)`` sequence indices per chunk, in order, covering all sequences.
+
+    Raises
+    ------
+    ValueError
+        ``chunk_frames`` not a positive integer.
+    """
     if int(chunk_frames) != chunk_frames or chunk_frames < 1:
         raise ValueError(f"chunk_frames must be a positive integer, got {chunk_frames!r}")
     bounds, first, frames = [], 0, 0
@@ -240,7 +265,24 @@ def _total(values) -> float:
 
 class DaskEvaluation:
     """Forward-backward results of one model over all chunks, reduced in chunk order (the
-    distributed counterpart of :class:`voicepuppet.hmm.entropic.LocalEvaluation`)."""
+    distributed counterpart of :class:`voicepuppet.hmm.entropic.LocalEvaluation`).
+
+    Parameters
+    ----------
+    parts : list of dict
+        One result per chunk, in chunk order, as the workers compute them: per-sequence
+        ``log_likelihoods`` and the chunk's sums (``expected_transitions``, ``expected_starts``,
+        ``weight``, ``sum``, ``outer``, ``exclusive_evidence``, ``heir_fit``).
+
+    Attributes
+    ----------
+    log_likelihood : float
+        log p(X), summed over the sequences in order.
+    expected_transitions : ndarray, shape (N, N)
+        ξ summed over frames and sequences.
+    expected_starts : ndarray, shape (N,)
+        The state posteriors of the sequences' first frames, summed.
+    """
 
     def __init__(self, parts: list[dict]):
         self.log_likelihood = _total(ll for p in parts for ll in p["log_likelihoods"])
@@ -255,15 +297,34 @@ class DaskEvaluation:
         self._heirs = np.argmax(fit, axis=1)
 
     def exclusive_evidence(self) -> np.ndarray:
-        """Evidence only state i explains, shape (N,) (see LocalEvaluation)."""
+        """Evidence only state i explains, shape (N,) (see LocalEvaluation).
+
+        Returns
+        -------
+        ndarray, shape (N,)
+            A copy of the summed exclusive evidence of each state.
+        """
         return self._exclusive.copy()
 
     def heirs(self) -> np.ndarray:
-        """argmax_j≠i Σ_t γ_ti log b_j(x_t), shape (N,) int."""
+        """For each state i, the other state that best explains i's frames.
+
+        Returns
+        -------
+        ndarray of int, shape (N,)
+            argmax_j≠i Σ_t γ_ti log b_j(x_t) for each state i.
+        """
         return self._heirs
 
     def gaussian_stats(self):
-        """``(weight [N], sum [N,D], outer)`` about the data's shift."""
+        """γ-weighted Gaussian statistics about the data's shift.
+
+        Returns
+        -------
+        tuple of ndarray
+            ``(weight [N], sum [N,D], outer)``, outer full [N*D,D] or diag [N,D], summed over
+            the chunks.
+        """
         return self._stats
 
 
@@ -275,13 +336,39 @@ class DaskEStep:
     Parameters
     ----------
     client : distributed.Client
+        The cluster to hold the data and run the E-steps on.
     X : array_like, shape (T, D)
         All training sequences stacked in time (the same array given to ``fit``).
     lengths : array_like of int, shape (S,), optional
+        Frames per sequence; must sum to T. ``None`` (default): one sequence.
     covariance : {"full", "diag"}
+        Covariance type of the model to train (default "full").
     chunk_frames : int
-        Whole sequences are grouped into chunks of at most this many frames; one task per chunk
-        and E-step. The grouping depends on the data only, so results do not depend on the cluster.
+        Whole sequences are grouped into chunks of at most this many frames (default
+        :data:`DEFAULT_CHUNK_FRAMES`); one task per chunk and E-step. The grouping depends on the
+        data only, so results do not depend on the cluster.
+
+    Attributes
+    ----------
+    client : distributed.Client
+        The client given.
+    covariance : str
+        The covariance type given.
+    n_frames, n_dims : int
+        T and D of ``X``.
+    shift : ndarray, shape (D,)
+        The mean of all frames, about which the Gaussian statistics are taken.
+    bounds : list of (int, int)
+        The chunks, as :func:`chunk_bounds` gives them.
+
+    Raises
+    ------
+    ValueError
+        ``covariance`` not "full" or "diag", bad observations or lengths, or a bad ``chunk_frames``.
+
+    Notes
+    -----
+    Use it as a context manager, or call :meth:`close`, to release the data on the cluster.
     """
 
     def __init__(self, client, X, lengths=None, covariance: str = "full",
@@ -333,7 +420,27 @@ class DaskEStep:
 
     # Baum-Welch ----------------------------------------------------------------------
     def stats(self, params: dict, shift) -> dict:
-        """E-step statistics of all sequences (the keys of GaussianHMM.estep), summed in chunk order."""
+        """E-step statistics of all sequences (the keys of GaussianHMM.estep), summed in chunk order.
+
+        Parameters
+        ----------
+        params : dict
+            Model parameters as :meth:`voicepuppet.hmm.gaussian.GaussianHMM.parameters` gives them.
+        shift : array_like, shape (D,)
+            Point the moments are taken about.
+
+        Returns
+        -------
+        dict
+            ``log_likelihood``, ``expected_transitions``, ``expected_starts``, ``weight``,
+            ``sum``, ``outer`` (as :meth:`voicepuppet.hmm.gaussian.GaussianHMM.estep` gives them)
+            and ``shift``.
+
+        Raises
+        ------
+        ValueError
+            ``means`` of another dimension than the data, or the data already released (:meth:`close`).
+        """
         self._check(params)
         shift = np.ascontiguousarray(shift, dtype=np.float64)
         parts = self._map(_chunk_stats, params, shift)
@@ -345,13 +452,42 @@ class DaskEStep:
     # entropic training (the protocol of voicepuppet.hmm.entropic.LocalData) -----------------
     def densities(self, params: dict) -> dict:
         """A handle standing for the log densities of the Gaussians in ``params`` (computed on
-        the workers when needed)."""
+        the workers when needed).
+
+        Parameters
+        ----------
+        params : dict
+            Model parameters (``means``, ``covars`` and ``covariance`` are used).
+
+        Returns
+        -------
+        dict
+            The Gaussians (``means``, ``covars``, ``covariance``): the handle.
+
+        Raises
+        ------
+        ValueError
+            ``means`` of another dimension than the data.
+        """
         self._check(params)
         return {"means": np.ascontiguousarray(params["means"]),
                 "covars": np.ascontiguousarray(params["covars"]), "covariance": params["covariance"]}
 
     def drop_state(self, gaussians: dict, i: int) -> dict:
-        """The handle without state ``i``."""
+        """The handle without state ``i``.
+
+        Parameters
+        ----------
+        gaussians : dict
+            A handle from :meth:`densities` (or from this method).
+        i : int
+            The state to leave out.
+
+        Returns
+        -------
+        dict
+            The handle of the Gaussians without state ``i``.
+        """
         n, d = gaussians["means"].shape
         covars = gaussians["covars"]
         if gaussians["covariance"] == "full":
@@ -362,13 +498,39 @@ class DaskEStep:
                 "covars": np.ascontiguousarray(covars), "covariance": gaussians["covariance"]}
 
     def log_likelihood(self, params: dict, gaussians: dict) -> float:
-        """Σ over sequences (in order) of the per-sequence forward log-likelihoods."""
+        """Σ over sequences (in order) of the per-sequence forward log-likelihoods.
+
+        Parameters
+        ----------
+        params : dict
+            Model parameters (``startprob`` and ``transmat`` are used).
+        gaussians : dict
+            A handle from :meth:`densities` or :meth:`drop_state`.
+
+        Returns
+        -------
+        float
+            The log-likelihood of all sequences.
+        """
         parts = self._map(_chunk_log_likelihood, params, gaussians)
         return _total(ll for p in parts for ll in p)
 
     def evaluate(self, params: dict, gaussians: dict) -> DaskEvaluation:
         """Forward-backward on every chunk (Gaussian statistics about ``shift``), reduced in
-        chunk order."""
+        chunk order.
+
+        Parameters
+        ----------
+        params : dict
+            Model parameters (``startprob`` and ``transmat`` are used).
+        gaussians : dict
+            A handle from :meth:`densities` or :meth:`drop_state`.
+
+        Returns
+        -------
+        DaskEvaluation
+            The log-likelihood, expected counts and what trimming and the M-step need.
+        """
         return DaskEvaluation(self._map(_chunk_evaluate, params, gaussians, self.shift))
 
 
@@ -382,12 +544,21 @@ def fit(model, X, lengths=None, *, client=None, scheduler: str | None = None, wo
         Baum-Welch (:class:`~voicepuppet.hmm.gaussian.GaussianHMM`) or entropic
         (:class:`~voicepuppet.hmm.entropic.EntropicHMM`).
     X : array_like, shape (T, D)
+        Training observations of all sequences, stacked in time.
     lengths : array_like of int, shape (S,), optional
+        Frames per sequence; must sum to T. ``None`` (default): one sequence.
     client : distributed.Client, optional
         An existing client; otherwise one is made by :func:`connect` (``scheduler``, ``workers``,
         ``timeout``) for this call.
+    scheduler : str, optional
+        Without ``client``: address of a running scheduler; ``None`` (default): a local cluster.
+    workers : int, optional
+        Without ``client``: worker processes of the local cluster, or how many to wait for at
+        ``scheduler`` (see :func:`connect`).
+    timeout : float
+        Without ``client``: seconds to wait for the scheduler and workers (default 10).
     chunk_frames : int
-        See :class:`DaskEStep`.
+        See :class:`DaskEStep` (default :data:`DEFAULT_CHUNK_FRAMES`).
 
     Returns
     -------

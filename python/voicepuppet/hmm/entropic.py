@@ -67,12 +67,18 @@ def entropic_multinomial(omega, z: float = 1.0) -> np.ndarray:
     omega : array_like, shape (K,)
         Non-negative evidence (expected counts).
     z : float
-        Prior weight: 1 minimum entropy, 0 maximum likelihood, < 0 maximum-entropy bias.
+        Prior weight: 1 (default) minimum entropy, 0 maximum likelihood, < 0 maximum-entropy bias.
 
     Returns
     -------
     theta : ndarray, shape (K,)
         Probabilities summing to one; zero-evidence entries are 0 when ``z > 0``.
+
+    Raises
+    ------
+    ValueError
+        ``z`` not a finite number; ``omega`` not 1-D, empty, not finite or negative; or
+        ``omega`` all zero with ``z >= 0`` (no unique estimate).
     """
     z = _check_z(z)
     omega = _check_evidence(omega, "omega", 1)
@@ -83,7 +89,28 @@ def entropic_multinomial(omega, z: float = 1.0) -> np.ndarray:
 
 
 def entropic_rows(counts, z: float, old) -> np.ndarray:
-    """Row-wise :func:`entropic_multinomial` of counts [R, K]; rows without evidence kept from ``old``."""
+    """Row-wise :func:`entropic_multinomial` of counts [R, K]; rows without evidence kept from ``old``.
+
+    Parameters
+    ----------
+    counts : array_like, shape (R, K)
+        Non-negative evidence per row (expected counts).
+    z : float
+        Prior weight, as in :func:`entropic_multinomial`.
+    old : array_like, shape (R, K)
+        The current probabilities; a row of ``counts`` without evidence keeps its row of these.
+
+    Returns
+    -------
+    ndarray, shape (R, K)
+        The MAP estimate of each row (each sums to one).
+
+    Raises
+    ------
+    ValueError
+        ``z`` not a finite number, ``counts`` not 2-D, empty, not finite or negative, or
+        ``old`` of another shape than ``counts``.
+    """
     z = _check_z(z)
     counts = _check_evidence(counts, "counts", 2)
     old = np.ascontiguousarray(old, dtype=np.float64)
@@ -93,16 +120,60 @@ def entropic_rows(counts, z: float, old) -> np.ndarray:
 
 
 def entropic_objective(omega, theta, z: float) -> float:
-    """Σ_k (ω_k + Z θ_k) log θ_k (0 log 0 = 0; −inf when evidence meets a zero probability)."""
+    """Σ_k (ω_k + Z θ_k) log θ_k (0 log 0 = 0; −inf when evidence meets a zero probability).
+
+    Parameters
+    ----------
+    omega : array_like, shape (K,)
+        Non-negative evidence (expected counts).
+    theta : array_like, shape (K,)
+        Probabilities.
+    z : float
+        Prior weight.
+
+    Returns
+    -------
+    float
+        The entropic objective that :func:`entropic_multinomial` maximises.
+
+    Raises
+    ------
+    ValueError
+        ``z`` not a finite number, or ``omega`` not 1-D, empty, not finite or negative.
+    """
     return float(_core.entropic_objective(_check_evidence(omega, "omega", 1),
                                           np.ascontiguousarray(theta, dtype=np.float64), _check_z(z)))
 
 
 def anneal_schedule(n_iter: int, z_start: float = -1.0, z_final: float = 1.0,
                     n_anneal: int | None = None) -> np.ndarray:
-    """Per-iteration prior weights: a cosine ramp from ``z_start`` (high temperature, Z < 0 favours
-    spreading probability, so states share the data before they specialise) to ``z_final`` over
-    ``n_anneal`` iterations (default: half of ``n_iter``), then constant."""
+    """Per-iteration prior weights: a cosine ramp from ``z_start`` to ``z_final``, then constant.
+
+    At high temperature (Z < 0) the prior favours spreading probability, so states share the data
+    before they specialise.
+
+    Parameters
+    ----------
+    n_iter : int
+        Number of iterations (>= 1): the length of the schedule.
+    z_start : float
+        Weight the ramp starts from, at the first iteration (default -1).
+    z_final : float
+        Weight at the end of the ramp and after it (default 1).
+    n_anneal : int, optional
+        Iterations of the ramp (>= 0; default: half of ``n_iter``).
+
+    Returns
+    -------
+    ndarray, shape (n_iter,)
+        One prior weight per iteration (the ``z`` of :class:`EntropicHMM`).
+
+    Raises
+    ------
+    ValueError
+        ``n_iter`` not a positive integer, ``n_anneal`` not an integer >= 0, or ``z_start`` /
+        ``z_final`` not finite.
+    """
     if int(n_iter) != n_iter or n_iter < 1:
         raise ValueError(f"n_iter must be a positive integer, got {n_iter!r}")
     n_anneal = int(n_iter) // 2 if n_anneal is None else n_anneal
@@ -112,7 +183,28 @@ def anneal_schedule(n_iter: int, z_start: float = -1.0, z_final: float = 1.0,
 
 
 def log_prior(model, z: float, covar_prior: float = 0.0) -> float:
-    """Log entropic prior of a fitted :class:`~voicepuppet.hmm.gaussian.GaussianHMM` (see docs/entropic.md)."""
+    """Log entropic prior of a fitted :class:`~voicepuppet.hmm.gaussian.GaussianHMM` (see docs/entropic.md).
+
+    Parameters
+    ----------
+    model : GaussianHMM
+        A model with parameters (``startprob_``, ``transmat_``, ``covars_``).
+    z : float
+        Weight of the entropic prior.
+    covar_prior : float
+        Weight ``c`` of a prior term −c/2 · tr K_i⁻¹ on each state's covariance (default 0:
+        none, as in training).
+
+    Returns
+    -------
+    float
+        log P_e(θ) of the model's parameters.
+
+    Raises
+    ------
+    ValueError
+        ``z`` not a finite number.
+    """
     return float(_core.entropic_log_prior(model.startprob_, model.transmat_, model.covars_2d(),
                                           model.covariance, _check_z(z), float(covar_prior)))
 
@@ -146,12 +238,24 @@ class _State:
 class LocalEvaluation:
     """Forward-backward at one model on data held in this process (see :class:`LocalData`).
 
+    Parameters
+    ----------
+    data : LocalData
+        The data (frames, sequence lengths, covariance type, shift).
+    log_b : ndarray, shape (T, N)
+        Log densities of the frames under the model's Gaussians (:meth:`LocalData.densities`).
+    params : dict
+        The model's parameters as :meth:`voicepuppet.hmm.gaussian.GaussianHMM.parameters` gives
+        them (``startprob`` and ``transmat`` are used).
+
     Attributes
     ----------
     log_likelihood : float
+        log p(X), summed over the sequences.
     expected_transitions : ndarray, shape (N, N)
         ξ summed over frames and sequences.
     expected_starts : ndarray, shape (N,)
+        The state posteriors of the sequences' first frames, summed.
     """
 
     def __init__(self, data: "LocalData", log_b: np.ndarray, params: dict):
@@ -163,7 +267,13 @@ class LocalEvaluation:
 
     def exclusive_evidence(self) -> np.ndarray:
         """Σ_t γ_ti · max(0, log b_i(x_t) − max_{j≠i} log b_j(x_t)), shape (N,): the evidence only
-        state i explains (N >= 2)."""
+        state i explains (N >= 2).
+
+        Returns
+        -------
+        ndarray, shape (N,)
+            The exclusive evidence of each state.
+        """
         log_b, post = self._log_b, self._post
         n = log_b.shape[1]
         top2 = np.partition(log_b, n - 2, axis=1)[:, n - 2:]
@@ -173,8 +283,13 @@ class LocalEvaluation:
         return (post * advantage).sum(axis=0)
 
     def heirs(self) -> np.ndarray:
-        """For each state i, the other state that best explains i's frames:
-        argmax_j≠i Σ_t γ_ti log b_j(x_t), shape (N,) int."""
+        """For each state i, the other state that best explains i's frames.
+
+        Returns
+        -------
+        ndarray of int, shape (N,)
+            argmax_j≠i Σ_t γ_ti log b_j(x_t) for each state i (computed once, then cached).
+        """
         if self._heirs is None:
             fit = self._post.T @ self._log_b  # [i, j]
             np.fill_diagonal(fit, -np.inf)
@@ -182,8 +297,17 @@ class LocalEvaluation:
         return self._heirs
 
     def gaussian_stats(self):
-        """γ-weighted Gaussian statistics ``(weight [N], sum [N,D], outer)`` about the data's
-        ``shift`` (outer: full [N*D,D], diag [N,D])."""
+        """γ-weighted Gaussian statistics about the data's ``shift``.
+
+        Returns
+        -------
+        weight : ndarray, shape (N,)
+            Σ_t γ_ti.
+        sum : ndarray, shape (N, D)
+            The γ-weighted sum of the frames minus ``shift``.
+        outer : ndarray, shape (N*D, D) for "full", (N, D) for "diag"
+            The γ-weighted sum of their outer products (squares for "diag").
+        """
         return _core.gaussian_stats(self._data.X, self._post, self._data.shift, self._data.covariance)
 
 
@@ -205,6 +329,23 @@ class LocalData:
       statistics are taken.
 
     ``params`` are dicts as :meth:`voicepuppet.hmm.gaussian.GaussianHMM.parameters` gives them.
+
+    Parameters
+    ----------
+    X : ndarray, shape (T, D)
+        All training frames, sequences stacked in time (C-contiguous float64, as
+        :func:`voicepuppet.hmm.gaussian.check_sequences` gives them).
+    lengths : ndarray of int64, shape (S,)
+        Frames per sequence (summing to T).
+    covariance : {"full", "diag"}
+        Covariance type of the model's Gaussians.
+
+    Attributes
+    ----------
+    X, lengths, covariance
+        The constructor's arguments.
+    shift : ndarray, shape (D,)
+        The mean of all frames.
     """
 
     def __init__(self, X: np.ndarray, lengths: np.ndarray, covariance: str):
@@ -212,15 +353,74 @@ class LocalData:
         self.shift = X.mean(axis=0)
 
     def densities(self, params: dict) -> np.ndarray:
+        """Log densities of every frame under the Gaussians in ``params``.
+
+        Parameters
+        ----------
+        params : dict
+            Model parameters (``means`` and ``covars`` are used).
+
+        Returns
+        -------
+        ndarray, shape (T, N)
+            The log densities; here they are their own handle.
+        """
         return _core.gaussian_log_density(self.X, params["means"], params["covars"], self.covariance)
 
     def drop_state(self, log_b: np.ndarray, i: int) -> np.ndarray:
+        """The log densities without state ``i``.
+
+        Parameters
+        ----------
+        log_b : ndarray, shape (T, N)
+            Log densities from :meth:`densities`.
+        i : int
+            The state to leave out.
+
+        Returns
+        -------
+        ndarray, shape (T, N - 1)
+            ``log_b`` without column ``i``.
+        """
         return np.ascontiguousarray(np.delete(log_b, i, axis=1))
 
     def log_likelihood(self, params: dict, log_b: np.ndarray) -> float:
+        """Σ over sequences of log p(x | params), a forward pass.
+
+        Parameters
+        ----------
+        params : dict
+            Model parameters (``startprob`` and ``transmat`` are used).
+        log_b : ndarray, shape (T, N)
+            Log densities from :meth:`densities` (or :meth:`drop_state`).
+
+        Returns
+        -------
+        float
+            The log-likelihood of all sequences.
+
+        Raises
+        ------
+        RuntimeError
+            No state sequence explains the data.
+        """
         return float(_core.log_likelihood(log_b, params["startprob"], params["transmat"], self.lengths))
 
     def evaluate(self, params: dict, log_b: np.ndarray) -> LocalEvaluation:
+        """Forward-backward at ``params``.
+
+        Parameters
+        ----------
+        params : dict
+            Model parameters (``startprob`` and ``transmat`` are used).
+        log_b : ndarray, shape (T, N)
+            Log densities from :meth:`densities` (or :meth:`drop_state`).
+
+        Returns
+        -------
+        LocalEvaluation
+            The log-likelihood, expected counts and what trimming and the M-step need.
+        """
         return LocalEvaluation(self, log_b, params)
 
 
@@ -282,16 +482,24 @@ class EntropicHMM(GaussianHMM):
     n_states, covariance, **options
         As for :class:`voicepuppet.hmm.gaussian.GaussianHMM`.
     z : float or sequence of float
-        Weight of the entropic prior (1: minimum entropy; 0: maximum likelihood; < 0: high
-        temperature), or one value per iteration (see :func:`anneal_schedule`).
+        Weight of the entropic prior (1, the default: minimum entropy; 0: maximum likelihood;
+        < 0: high temperature), or one value per iteration (see :func:`anneal_schedule`).
     trim : bool
-        Trim arcs and states whenever that raises the log posterior.
+        Trim arcs and states whenever that raises the log posterior (default True).
 
     Attributes
     ----------
     history_ : list of dict
         One entry per iteration, as :func:`fit_entropic` returns them (``log_posterior``,
         ``states``, ``arcs``, ...); states may be trimmed, so ``n_states`` can shrink.
+    z, trim
+        The constructor's arguments.
+
+    Raises
+    ------
+    ValueError
+        ``z`` not a finite number or a 1-D sequence of them, or an option
+        :class:`~voicepuppet.hmm.gaussian.GaussianHMM` refuses.
     """
 
     def __init__(self, n_states: int = 1, covariance: str = "full", *, z=1.0, trim: bool = True, **options):
@@ -308,25 +516,24 @@ class EntropicHMM(GaussianHMM):
         Parameters
         ----------
         X : array_like, shape (T, D)
+            Training observations of all sequences, stacked in time.
         lengths : array_like of int, shape (S,), optional
+            Frames per sequence; must sum to T. ``None`` (default): one sequence.
         estep : object, optional
             Where the data-side quantities come from (default :class:`LocalData` over ``X``; on
             a cluster :class:`voicepuppet.hmm.distributed.DaskEStep`).
 
         Returns
         -------
-        self
+        EntropicHMM
+            ``self``, fitted; ``history_`` holds the iterations (see :func:`fit_entropic`).
         """
         fit_entropic(self, X, lengths, estep=estep)
         return self
 
 
 def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
-    """Train ``model`` (an :class:`EntropicHMM`) by
-    entropic MAP-EM; returns (and stores as ``model.history_``) one dict per iteration with ``z``,
-    ``log_posterior`` and ``log_likelihood`` (at the parameters entering that iteration's M-step,
-    after trimming), ``log_posterior_untrimmed`` (the same before trimming), ``states``, ``arcs``,
-    how many arcs / states that iteration trimmed and ``trim_trials`` (forward passes spent).
+    """Train ``model`` (an :class:`EntropicHMM`) by entropic MAP-EM.
 
     Each iteration: log densities and forward-backward; if ``model.trim`` and Z > 0, transition
     trimming (Brand's test θ_ij ≤ exp(−(ξ_ij/θ_ij)/Z)) and then state trimming, each kept only if
@@ -334,9 +541,41 @@ def fit_entropic(model, X, lengths=None, estep=None) -> list[dict]:
     M-step (MAP multinomials for starts and rows, entropic covariances). At fixed Z every step
     is a generalised EM step, so the log posterior never decreases.
 
-    ``estep`` (default: :class:`LocalData` over ``X``) computes the data-side quantities, e.g. on a
-    cluster (:class:`voicepuppet.hmm.distributed.DaskEStep`); initialisation, trimming decisions and
-    the M-step stay here.
+    Training stops after ``model.n_iter`` iterations, or earlier when, at an unchanged Z, an
+    iteration trims nothing and gains less than ``model.tol`` in log posterior. The model's
+    parameters and ``n_states`` are set to the result.
+
+    Parameters
+    ----------
+    model : EntropicHMM
+        The model to train: its options (``z``, ``trim``, ``n_iter``, ``tol``, ``params``,
+        ``progress``, ...) and initialisation (:meth:`~voicepuppet.hmm.gaussian.GaussianHMM.initialize`).
+    X : array_like, shape (T, D)
+        Training observations of all sequences, stacked in time.
+    lengths : array_like of int, shape (S,), optional
+        Frames per sequence; must sum to T. ``None`` (default): one sequence.
+    estep : object, optional
+        Computes the data-side quantities (default: :class:`LocalData` over ``X``), e.g. on a
+        cluster (:class:`voicepuppet.hmm.distributed.DaskEStep`); initialisation, trimming
+        decisions and the M-step stay here.
+
+    Returns
+    -------
+    list of dict
+        Also stored as ``model.history_``: one dict per iteration with ``iteration``, ``z``,
+        ``log_posterior`` and ``log_likelihood`` (at the parameters entering that iteration's
+        M-step, after trimming), ``log_posterior_untrimmed`` (the same before trimming),
+        ``states``, ``arcs``, how many arcs / states that iteration trimmed (``arcs_trimmed``,
+        ``states_trimmed``) and ``trim_trials`` (forward passes spent).
+
+    Raises
+    ------
+    ValueError
+        Bad observations or lengths, fewer per-iteration ``z`` values than ``n_iter`` (give one
+        value or one per iteration), a non-finite ``z``, or an ``estep`` over other data than ``X``.
+    RuntimeError
+        An iteration's model has no state sequence that explains the data (lower z, use
+        ``trim=False``, or start from more states).
     """
     X, lengths = check_sequences(X, lengths)
     X = aligned(X)  # one data layout in every run (see voicepuppet.hmm.gaussian.aligned)
@@ -472,7 +711,24 @@ def _stationary(transmat: np.ndarray) -> np.ndarray:
 def perplexity(transmat, weights=None) -> float:
     """Average branching factor exp(Σ_i w_i H(θ_i·)) of a transition matrix, in states.
 
-    ``weights`` [N] (e.g. state occupancies) default to the stationary distribution.
+    Parameters
+    ----------
+    transmat : array_like, shape (N, N)
+        A transition matrix (finite, non-negative, rows summing to 1).
+    weights : array_like, shape (N,), optional
+        Weight of each state's row entropy H(θ_i·) (e.g. state occupancies; normalised here).
+        Default: the stationary distribution of ``transmat``.
+
+    Returns
+    -------
+    float
+        The perplexity, between 1 (deterministic) and N.
+
+    Raises
+    ------
+    ValueError
+        ``transmat`` not square, empty, or not a stochastic matrix; ``weights`` not N
+        non-negative numbers with a positive sum.
     """
     A = np.asarray(transmat, dtype=np.float64)
     if A.ndim != 2 or A.shape[0] != A.shape[1] or A.size == 0:
@@ -490,7 +746,20 @@ def perplexity(transmat, weights=None) -> float:
 
 def context_memory(transmat, weights=None) -> float:
     """Frames of context the machine carries: log_perplexity(N) = log N / log perplexity
-    (Voice Puppetry §5, footnote 1); inf for a deterministic machine."""
+    (Voice Puppetry §5, footnote 1); inf for a deterministic machine.
+
+    Parameters
+    ----------
+    transmat : array_like, shape (N, N)
+        A transition matrix.
+    weights : array_like, shape (N,), optional
+        State weights of the perplexity (:func:`perplexity`; default: the stationary distribution).
+
+    Returns
+    -------
+    float
+        log N / log :func:`perplexity`, or ``inf`` when the perplexity is 1.
+    """
     n = np.asarray(transmat).shape[0]
     p = perplexity(transmat, weights)
     return math.inf if p <= 1.0 + 1e-12 else math.log(n) / math.log(p)
@@ -501,6 +770,22 @@ def entropy_rate(log_b, startprob, transmat, lengths=None) -> float:
 
     Exact, from one forward-backward pass: H(S|X) = log p(X) − E[log p(S, X)] with
     E[log p(S, X)] = Σ γ_1 log π + Σ ξ_ij log θ_ij + Σ_t Σ_i γ_ti log b_i(x_t).
+
+    Parameters
+    ----------
+    log_b : array_like, shape (T, N)
+        Log densities of the frames under each state.
+    startprob : array_like, shape (N,)
+        Start probabilities.
+    transmat : array_like, shape (N, N)
+        Transition probabilities.
+    lengths : array_like of int, shape (S,), optional
+        Frames per sequence (default: one sequence of T frames).
+
+    Returns
+    -------
+    float
+        H(S | X) / T in nats per frame (>= 0).
     """
     log_b = np.ascontiguousarray(log_b, dtype=np.float64)
     T = log_b.shape[0]
@@ -517,9 +802,26 @@ def entropy_rate(log_b, startprob, transmat, lengths=None) -> float:
 
 
 def viterbi_share(log_b, startprob, transmat, lengths=None) -> tuple[float, float]:
-    """Share of the posterior mass on the Viterbi path: ``(log_share, share_per_frame)`` with
-    log_share = log p(V | X) = log p(V, X) − log p(X) (summed over sequences) and
-    share_per_frame = exp(log_share / T)."""
+    """Share of the posterior mass on the Viterbi path.
+
+    Parameters
+    ----------
+    log_b : array_like, shape (T, N)
+        Log densities of the frames under each state.
+    startprob : array_like, shape (N,)
+        Start probabilities.
+    transmat : array_like, shape (N, N)
+        Transition probabilities.
+    lengths : array_like of int, shape (S,), optional
+        Frames per sequence (default: one sequence of T frames).
+
+    Returns
+    -------
+    log_share : float
+        log p(V | X) = log p(V, X) − log p(X), summed over sequences (<= 0).
+    share_per_frame : float
+        exp(log_share / T).
+    """
     log_b = np.ascontiguousarray(log_b, dtype=np.float64)
     T = log_b.shape[0]
     lengths = np.array([T], dtype=np.int64) if lengths is None else np.ascontiguousarray(lengths, dtype=np.int64)
@@ -532,8 +834,25 @@ def viterbi_share(log_b, startprob, transmat, lengths=None) -> tuple[float, floa
 
 
 def diagnostics(model, X, lengths=None) -> dict:
-    """The paper's measures for a fitted model on data X: states, arcs, perplexity (weights: the
-    occupancy of X), context memory, log-likelihood per frame, entropy rate and Viterbi share."""
+    """The paper's measures for a fitted model on data X.
+
+    Parameters
+    ----------
+    model : GaussianHMM
+        A fitted model (:class:`~voicepuppet.hmm.gaussian.GaussianHMM` or :class:`EntropicHMM`).
+    X : array_like, shape (T, D)
+        Observations, sequences stacked in time.
+    lengths : array_like of int, shape (S,), optional
+        Frames per sequence (default: one sequence).
+
+    Returns
+    -------
+    dict
+        ``states``, ``arcs`` (non-zero transitions), ``perplexity`` and ``context_memory``
+        (weights: the occupancy of X), ``log_likelihood_per_frame``, ``entropy_rate`` (nats per
+        frame, :func:`entropy_rate`), ``viterbi_log_share`` and ``viterbi_share_per_frame``
+        (:func:`viterbi_share`).
+    """
     X = np.ascontiguousarray(X, dtype=np.float64)
     log_b = model.log_density(X)
     T = X.shape[0]

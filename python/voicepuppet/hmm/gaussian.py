@@ -30,11 +30,21 @@ def check_sequences(X, lengths=None, *, name: str = "X") -> tuple[np.ndarray, np
         Observations of all sequences, stacked in time.
     lengths : array_like of int, shape (S,), optional
         Frames per sequence; must sum to T. ``None`` means one sequence.
+    name : str
+        What the observations are called in error messages (default ``"X"``).
 
     Returns
     -------
     X : ndarray, shape (T, D), C-contiguous float64
+        The observations.
     lengths : ndarray, shape (S,), int64
+        The sequence lengths (``[T]`` when ``lengths`` is ``None``).
+
+    Raises
+    ------
+    ValueError
+        ``X`` is not 2-D, has no frames or no dimensions, or holds NaN or infinite values;
+        ``lengths`` is empty, not 1-D, not integers, has a length <= 0, or does not sum to T.
     """
     X = np.ascontiguousarray(X, dtype=np.float64)
     if X.ndim == 1:
@@ -71,7 +81,19 @@ def aligned(a) -> np.ndarray:
 
     numpy places buffers at varying addresses, and the alignment of the data changes how the
     SIMD kernels split their sums, so the last bits of the results. Everything the training
-    kernels read goes through this, so that a fit is reproducible bit for bit for a given seed."""
+    kernels read goes through this, so that a fit is reproducible bit for bit for a given seed.
+
+    Parameters
+    ----------
+    a : array_like
+        Any array (converted to float64).
+
+    Returns
+    -------
+    ndarray
+        A new C-contiguous float64 array of ``a``'s shape and values whose data starts at an
+        address that is a multiple of 64 bytes.
+    """
     a = np.asarray(a, dtype=np.float64)
     buf = np.empty(a.nbytes + 64, dtype=np.uint8)
     offset = (-buf.ctypes.data) % 64
@@ -85,31 +107,31 @@ class GaussianHMM:
 
     Parameters
     ----------
-    n_states : int
+    n_states : int, default 1
         Number of hidden states N.
-    covariance : {"full", "diag"}
+    covariance : {"full", "diag"}, default "full"
         Covariance structure of each state's Gaussian.
-    n_iter : int
+    n_iter : int, default 10
         Maximum number of EM iterations in :meth:`fit`.
-    tol : float
+    tol : float, default 1e-2
         EM stops when the log-likelihood gains less than ``tol`` in an iteration.
-    min_covar : float
+    min_covar : float, default 1e-3
         Relative variance floor: ``min_covar`` times the mean per-dimension variance of the
         training data is added to every covariance diagonal at initialisation and after each
         M-step (0 gives plain maximum likelihood).
-    random_state : int
+    random_state : int, default 0
         Seed of the initialisation and of :meth:`sample` (deterministic per seed).
-    init : {"kmeans", "frames"}
+    init : {"kmeans", "frames"}, default "kmeans"
         How the state means start: ``"kmeans"`` (k-means++ seeding refined by Lloyd
         iterations) or ``"frames"`` (distinct training frames drawn at random, the plain
         random start of Brand's comparisons). Starts and transitions start uniform and
         covariances at the data's either way.
-    init_params, params : str
+    init_params, params : str, default "stmc"
         Which parameters to initialise / update: any of ``s`` (starts), ``t`` (transitions),
         ``m`` (means), ``c`` (covariances). As in hmmlearn.
-    progress : bool
+    progress : bool, default False
         Show a progress bar during :meth:`fit`.
-    exact : bool
+    exact : bool, default False
         False (default): with full covariances, :meth:`score`, :meth:`decode`,
         :meth:`score_samples` and the E-step evaluate the log densities in float32 first and in
         double only where they can change the answer (docs/benchmarks.md, "hmm"); the results
@@ -118,12 +140,30 @@ class GaussianHMM:
     Attributes
     ----------
     startprob_ : ndarray, shape (N,)
+        Start probabilities (set by :meth:`fit` or by hand).
     transmat_ : ndarray, shape (N, N)
+        Transition probabilities, row i the distribution of the state after state i.
     means_ : ndarray, shape (N, D)
+        Mean of each state's Gaussian.
     covars_ : ndarray, shape (N, D, D) for "full", (N, D) for "diag"
+        Covariance of each state's Gaussian (its diagonal for "diag").
     history_ : list of dict
         One entry per EM iteration: ``iteration``, ``log_likelihood`` (of the parameters
         before that iteration's M-step), ``delta``.
+    variance_floor : float
+        The absolute variance floor of the last :meth:`initialize` (``min_covar`` times the
+        mean per-dimension variance of its data; 0 before).
+
+    Raises
+    ------
+    ValueError
+        ``n_states`` not a positive integer, ``covariance`` or ``init`` not one of their
+        values, ``n_iter < 0``, ``min_covar`` negative or not finite, or ``init_params`` /
+        ``params`` with letters other than s, t, m, c.
+
+    Notes
+    -----
+    The constructor's arguments are kept as attributes of the same names.
     """
 
     def __init__(self, n_states: int = 1, covariance: str = "full", *, n_iter: int = 10,
@@ -161,6 +201,7 @@ class GaussianHMM:
     # ------------------------------------------------------------------ parameters
     @property
     def n_features(self) -> int:
+        """Dimension D of the observations (the width of :attr:`means_`)."""
         return self.means_.shape[1]
 
     def covars_2d(self) -> np.ndarray:
@@ -218,7 +259,18 @@ class GaussianHMM:
 
     # ------------------------------------------------------------------ inference
     def log_density(self, X) -> np.ndarray:
-        """Log emission densities log N(x_t; μ_n, Σ_n), shape (T, N)."""
+        """Log emission densities log N(x_t; μ_n, Σ_n), shape (T, N).
+
+        Parameters
+        ----------
+        X : array_like, shape (T, D)
+            Observations (one or more sequences stacked in time).
+
+        Returns
+        -------
+        ndarray, shape (T, N)
+            ``log N(x_t; μ_n, Σ_n)`` for every frame t and state n.
+        """
         self.check_params()
         X, _ = self._check_X(X, None)
         return _core.gaussian_log_density(X, self.means_, self.covars_2d(), self.covariance)
@@ -227,35 +279,124 @@ class GaussianHMM:
         return (X, lengths, self.startprob_, self.transmat_, self.means_, self.covars_2d(), self.covariance)
 
     def score(self, X, lengths=None) -> float:
-        """Total log-likelihood log p(X) of all sequences."""
+        """Total log-likelihood log p(X) of all sequences.
+
+        Parameters
+        ----------
+        X : array_like, shape (T, D)
+            Observations of all sequences, stacked in time.
+        lengths : array_like of int, shape (S,), optional
+            Frames per sequence; must sum to T. ``None`` (default): one sequence.
+
+        Returns
+        -------
+        float
+            log p(X), summed over the sequences.
+        """
         self.check_params()
         X, lengths = self._check_X(X, lengths)
         return float(_core.gaussian_hmm_score(*self._model_args(X, lengths), exact=self.exact)[0])
 
     def score_samples(self, X, lengths=None) -> tuple[float, np.ndarray]:
-        """Log-likelihood and state posteriors γ, shape (T, N)."""
+        """Log-likelihood and state posteriors γ, shape (T, N).
+
+        Parameters
+        ----------
+        X : array_like, shape (T, D)
+            Observations of all sequences, stacked in time.
+        lengths : array_like of int, shape (S,), optional
+            Frames per sequence; must sum to T. ``None`` (default): one sequence.
+
+        Returns
+        -------
+        log_likelihood : float
+            log p(X), summed over the sequences.
+        posteriors : ndarray, shape (T, N)
+            γ: the probability of each state at each frame given its sequence.
+        """
         self.check_params()
         X, lengths = self._check_X(X, lengths)
         ll, gamma = _core.gaussian_hmm_posteriors(*self._model_args(X, lengths), exact=self.exact)[:2]
         return float(ll), gamma
 
     def predict_proba(self, X, lengths=None) -> np.ndarray:
-        """State posteriors γ [T, N] (each row sums to one)."""
+        """State posteriors γ [T, N] (each row sums to one).
+
+        Parameters
+        ----------
+        X : array_like, shape (T, D)
+            Observations of all sequences, stacked in time.
+        lengths : array_like of int, shape (S,), optional
+            Frames per sequence; must sum to T. ``None`` (default): one sequence.
+
+        Returns
+        -------
+        ndarray, shape (T, N)
+            γ, as :meth:`score_samples` gives it.
+        """
         return self.score_samples(X, lengths)[1]
 
     def decode(self, X, lengths=None) -> tuple[float, np.ndarray]:
-        """Viterbi: (log p(best path, X), best state per frame [T])."""
+        """Viterbi: (log p(best path, X), best state per frame [T]).
+
+        Parameters
+        ----------
+        X : array_like, shape (T, D)
+            Observations of all sequences, stacked in time.
+        lengths : array_like of int, shape (S,), optional
+            Frames per sequence; must sum to T. ``None`` (default): one sequence.
+
+        Returns
+        -------
+        log_prob : float
+            log p(best path, X), summed over the sequences.
+        states : ndarray of int, shape (T,)
+            The most likely state of each frame (each sequence decoded on its own).
+        """
         self.check_params()
         X, lengths = self._check_X(X, lengths)
         logprob, path, _ = _core.gaussian_hmm_decode(*self._model_args(X, lengths), exact=self.exact)
         return float(logprob), path
 
     def predict(self, X, lengths=None) -> np.ndarray:
-        """Most likely state per frame (Viterbi), shape (T,)."""
+        """Most likely state per frame (Viterbi), shape (T,).
+
+        Parameters
+        ----------
+        X : array_like, shape (T, D)
+            Observations of all sequences, stacked in time.
+        lengths : array_like of int, shape (S,), optional
+            Frames per sequence; must sum to T. ``None`` (default): one sequence.
+
+        Returns
+        -------
+        ndarray of int, shape (T,)
+            The states of :meth:`decode`'s best path.
+        """
         return self.decode(X, lengths)[1]
 
     def sample(self, n_samples: int = 1, random_state: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Sample ``(X [n_samples, D], states [n_samples])``; deterministic for a given seed."""
+        """Sample ``(X [n_samples, D], states [n_samples])``; deterministic for a given seed.
+
+        Parameters
+        ----------
+        n_samples : int
+            Number of frames to draw (>= 1; default 1).
+        random_state : int, optional
+            Seed; ``None`` (default): the model's ``random_state``.
+
+        Returns
+        -------
+        X : ndarray, shape (n_samples, D)
+            The sampled observations.
+        states : ndarray of int, shape (n_samples,)
+            The state sequence they were drawn from.
+
+        Raises
+        ------
+        ValueError
+            ``n_samples`` not a positive integer, or parameters that :meth:`check_params` refuses.
+        """
         self.check_params()
         if int(n_samples) != n_samples or n_samples < 1:
             raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
@@ -271,6 +412,12 @@ class GaussianHMM:
         ----------
         X : ndarray, shape (T, D)
             The training frames (all sequences stacked).
+
+        Raises
+        ------
+        ValueError
+            Fewer frames than states, or (when covariances are initialised) a training
+            covariance that stays singular with the variance floor.
         """
         n, (T, d) = self.n_states, X.shape
         if T < n:
@@ -301,9 +448,21 @@ class GaussianHMM:
     def estep(self, X, lengths=None, shift=None) -> dict:
         """One E-step: expected counts and Gaussian statistics (additive over data).
 
-        Returns a dict with ``log_likelihood``, ``expected_transitions`` [N,N],
-        ``expected_starts`` [N], ``weight`` [N], ``sum`` [N,D] and ``outer`` (full: [N*D,D],
-        diag: [N,D]), the moments taken about ``shift`` [D] (default: the mean of X).
+        Parameters
+        ----------
+        X : array_like, shape (T, D)
+            Observations of all sequences, stacked in time.
+        lengths : array_like of int, shape (S,), optional
+            Frames per sequence; must sum to T. ``None`` (default): one sequence.
+        shift : array_like, shape (D,), optional
+            Point the moments are taken about (default: the mean of X).
+
+        Returns
+        -------
+        dict
+            ``log_likelihood``, ``expected_transitions`` [N,N], ``expected_starts`` [N],
+            ``weight`` [N], ``sum`` [N,D] and ``outer`` (full: [N*D,D], diag: [N,D]), the
+            moments taken about ``shift`` [D].
         """
         self.check_params()
         X, lengths = self._check_X(X, lengths)
@@ -314,7 +473,14 @@ class GaussianHMM:
                                         aligned(shift), exact=self.exact)
 
     def mstep(self, stats: dict) -> None:
-        """Maximum-likelihood update of the parameters named in ``params`` from :meth:`estep`."""
+        """Maximum-likelihood update of the parameters named in ``params`` from :meth:`estep`.
+
+        Parameters
+        ----------
+        stats : dict
+            E-step statistics with the keys of :meth:`estep`'s result plus ``shift`` [D], the
+            point the moments were taken about (summed over data, e.g. from several chunks).
+        """
         n = self.n_states
         if "s" in self.params:
             self.startprob_ = _core.normalize_counts(aligned(stats["expected_starts"][None, :]),
@@ -334,9 +500,14 @@ class GaussianHMM:
                 self.covars_ = covars.reshape(n, d, d) if self.covariance == "full" else covars
 
     def parameters(self) -> dict:
-        """The current parameters as a plain dict (what an E-step needs): ``startprob`` [N],
-        ``transmat`` [N,N], ``means`` [N,D], ``covars`` (full [N*D,D], diag [N,D]) and
-        ``covariance``."""
+        """The current parameters as a plain dict (what an E-step needs).
+
+        Returns
+        -------
+        dict
+            ``startprob`` [N], ``transmat`` [N,N], ``means`` [N,D], ``covars`` (full [N*D,D],
+            diag [N,D]) and ``covariance``.
+        """
         return {"startprob": self.startprob_, "transmat": self.transmat_, "means": self.means_,
                 "covars": self.covars_2d(), "covariance": self.covariance}
 
@@ -346,7 +517,9 @@ class GaussianHMM:
         Parameters
         ----------
         X : array_like, shape (T, D)
+            Training observations of all sequences, stacked in time.
         lengths : array_like of int, shape (S,), optional
+            Frames per sequence; must sum to T. ``None`` (default): one sequence.
         estep : object, optional
             Where the E-step statistics come from (e.g. a cluster:
             :class:`voicepuppet.hmm.distributed.DaskEStep`). ``None`` (default): computed here from
@@ -356,7 +529,8 @@ class GaussianHMM:
 
         Returns
         -------
-        self
+        GaussianHMM
+            ``self``, fitted; ``history_`` holds the iterations.
         """
         X, lengths = check_sequences(X, lengths)
         X = aligned(X)  # the same data layout in every run: bit-for-bit reproducible fits

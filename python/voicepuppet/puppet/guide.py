@@ -33,7 +33,20 @@ RIDGE_ALPHAS = tuple(10.0 ** np.arange(-2, 5))
 
 
 def context_stack(A, k: int = RIDGE_CONTEXT) -> np.ndarray:
-    """Frames with their ±k neighbours side by side, edges repeated: (T, A·(2k+1))."""
+    """Frames with their ±k neighbours side by side, edges repeated: (T, A·(2k+1)).
+
+    Parameters
+    ----------
+    A : array_like, shape (T, A)
+        Frames of features.
+    k : int
+        Frames of context on each side (default :data:`RIDGE_CONTEXT`, 5).
+
+    Returns
+    -------
+    ndarray, shape (T, A·(2k+1))
+        Row t holds frames t−k .. t+k, frames beyond the ends repeating the first or last frame.
+    """
     A = np.asarray(A, dtype=np.float64)
     T = len(A)
     idx = np.clip(np.arange(T)[:, None] + np.arange(-k, k + 1)[None, :], 0, T - 1)
@@ -41,7 +54,28 @@ def context_stack(A, k: int = RIDGE_CONTEXT) -> np.ndarray:
 
 
 class RidgeBaseline:
-    """Ridge regression from context-stacked audio features to face coordinates."""
+    """Ridge regression from context-stacked audio features to face coordinates.
+
+    Parameters
+    ----------
+    k : int
+        Frames of context on each side (:func:`context_stack`; default :data:`RIDGE_CONTEXT`, 5).
+    alphas : sequence of float
+        The regularisation weights α to choose from (default ``RIDGE_ALPHAS``, 10⁻² .. 10⁴).
+    n_folds : int
+        Folds of the cross-validation that chooses α (default 5).
+
+    Attributes
+    ----------
+    k, alphas, n_folds
+        The constructor's arguments.
+    alpha : float
+        The α chosen by :meth:`fit`.
+    W : ndarray, shape (A·(2k+1), K)
+        The fitted map (on centred data).
+    x_mean, y_mean : ndarray
+        The means of the context-stacked features and of the face coordinates, set by :meth:`fit`.
+    """
 
     def __init__(self, k: int = RIDGE_CONTEXT, alphas=RIDGE_ALPHAS, n_folds: int = 5):
         self.k, self.alphas, self.n_folds = int(k), tuple(alphas), int(n_folds)
@@ -55,7 +89,23 @@ class RidgeBaseline:
     @limited
     def fit(self, A_list, Y_list, folds=None) -> "RidgeBaseline":
         """Fit on the sequences ``A_list`` / ``Y_list``, α chosen by ``n_folds``-fold CV over
-        contiguous blocks of their stacked frames, or over ``folds`` (frame indices) if given."""
+        contiguous blocks of their stacked frames, or over ``folds`` (frame indices) if given.
+
+        Parameters
+        ----------
+        A_list : list of array_like, shape (T_s, A)
+            Features of each sequence (context-stacked per sequence).
+        Y_list : list of array_like, shape (T_s, K)
+            Face coordinates of the same frames.
+        folds : list of ndarray of int, optional
+            Frame indices (into the stacked frames) of each cross-validation fold; default:
+            ``n_folds`` contiguous blocks.
+
+        Returns
+        -------
+        RidgeBaseline
+            ``self``, fitted (``alpha``, ``W``, ``x_mean``, ``y_mean``).
+        """
         X = np.vstack([context_stack(a, self.k) for a in A_list])
         Y = np.vstack(Y_list)
         self.x_mean, self.y_mean = X.mean(axis=0), Y.mean(axis=0)
@@ -76,7 +126,18 @@ class RidgeBaseline:
         return self
 
     def predict(self, A) -> np.ndarray:
-        """Face coordinates predicted for features ``A`` [T, A]: (T, K)."""
+        """Face coordinates predicted for features ``A`` [T, A]: (T, K).
+
+        Parameters
+        ----------
+        A : array_like, shape (T, A)
+            Features of one sequence, made as those given to :meth:`fit`.
+
+        Returns
+        -------
+        ndarray, shape (T, K)
+            The predicted face coordinates.
+        """
         return (context_stack(A, self.k) - self.x_mean) @ self.W + self.y_mean
 
 
@@ -96,6 +157,25 @@ def cross_fit_folds(lengths, n_folds: int = 5, groups=None) -> list:
     each (so one long training video is cross-fitted too). ``groups`` (one label per sequence)
     keeps sequences together: copies of one recording (its noisy conditions, all of one length)
     are then never on both sides of a fold; the count that matters is that of the groups.
+
+    Parameters
+    ----------
+    lengths : array_like of int, shape (S,)
+        Frames per sequence.
+    n_folds : int
+        Number of folds (default 5).
+    groups : array_like, shape (S,), optional
+        One label per sequence; sequences with one label stay in one fold.
+
+    Returns
+    -------
+    list of ndarray of int
+        ``n_folds`` arrays of frame indices into the concatenated sequences.
+
+    Raises
+    ------
+    ValueError
+        ``groups`` without one label per sequence.
     """
     lengths = np.asarray(lengths, dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -112,18 +192,50 @@ def cross_fit_folds(lengths, n_folds: int = 5, groups=None) -> list:
 
 
 def sequence_runs(frames, sequence) -> list:
-    """Sorted frame indices cut into runs of consecutive frames of one sequence each
-    (``sequence[t]``: the sequence of frame t)."""
+    """Sorted frame indices cut into runs of consecutive frames of one sequence each.
+
+    Parameters
+    ----------
+    frames : array_like of int
+        Sorted frame indices.
+    sequence : ndarray of int, shape (T,)
+        ``sequence[t]``: the sequence of frame t.
+
+    Returns
+    -------
+    list of ndarray of int
+        The runs, in order.
+    """
     frames = np.asarray(frames)
     cut = np.flatnonzero((np.diff(frames) != 1) | (np.diff(sequence[frames]) != 0)) + 1
     return np.split(frames, cut)
 
 
 def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None) -> np.ndarray:
-    """Cross-fitted ridge predictions (T, K) of ``Y`` from the rows of ``X`` (T, C): the frames
-    of each fold of :func:`cross_fit_folds` predicted by a :class:`RidgeBaseline` (its own α
-    choice) fitted on the other folds, so no frame's prediction has seen its own target (nor,
-    with ``groups``, another copy of it)."""
+    """Cross-fitted ridge predictions (T, K) of ``Y`` from the rows of ``X`` (T, C).
+
+    The frames of each fold of :func:`cross_fit_folds` are predicted by a :class:`RidgeBaseline`
+    (its own α choice) fitted on the other folds, so no frame's prediction has seen its own
+    target (nor, with ``groups``, another copy of it).
+
+    Parameters
+    ----------
+    X : ndarray, shape (T, C)
+        Regression inputs, one row per frame (already context-stacked: no further context is added).
+    Y : array_like, shape (T, K)
+        Targets.
+    lengths : array_like of int, shape (S,)
+        Frames per sequence (they add up to T).
+    n_folds : int
+        Cross-fitting folds (default 5).
+    groups : array_like, shape (S,), optional
+        One label per sequence: sequences that are copies of one recording (:func:`cross_fit_folds`).
+
+    Returns
+    -------
+    ndarray, shape (T, K)
+        The cross-fitted predictions.
+    """
     yhat = np.empty(np.shape(Y), dtype=np.float64)
     lengths = np.asarray(lengths, dtype=np.int64)
     seq = np.repeat(np.arange(len(lengths)), lengths)

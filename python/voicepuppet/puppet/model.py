@@ -65,7 +65,9 @@ ADAPT_DEFAULTS = {"tau": 30.0, "n_iter": 1}
 class Animated:
     """What :meth:`Puppet.animate` returns.
 
-    Attributes
+    Each parameter is kept as the attribute of the same name.
+
+    Parameters
     ----------
     animation : Animation
         Landmarks [T', P, 2] at the output rate.
@@ -94,7 +96,32 @@ class Animated:
 
 
 class Puppet:
-    """A trained voice puppet. Build with :meth:`train` or :func:`load`."""
+    """A trained voice puppet. Build with :meth:`train` or :func:`load`.
+
+    Parameters
+    ----------
+    metadata : dict
+        The puppet file's metadata (JSON-able): frame rate, parts, feature set and names,
+        training record, ...
+    arrays : dict of str to array_like
+        The puppet file's arrays (face space, HMMs, audio standardisation, guide, ...), as
+        :func:`voicepuppet.puppet.training.train` makes them.
+
+    Attributes
+    ----------
+    metadata : dict
+        A copy of ``metadata``.
+    arrays : dict of str to ndarray
+        ``arrays`` as numpy arrays.
+    face_space : voicepuppet.face.FaceSpace
+        The puppet's face space (landmarks to face coordinates and back).
+
+    Raises
+    ------
+    ValueError
+        Metadata or arrays that do not make a puppet, e.g. a missing array (checked by the C++
+        core).
+    """
 
     def __init__(self, metadata: dict, arrays: dict):
         self.metadata = dict(metadata)
@@ -106,18 +133,22 @@ class Puppet:
     # ------------------------------------------------------------------------- properties
     @property
     def fps(self) -> float:
+        """Frame rate (frames per second) of the puppet: its training landmarks' and its features'."""
         return float(self._core.fps)
 
     @property
     def feature_set(self):
+        """The :class:`voicepuppet.audio.FeatureSet` the puppet reads audio with."""
         return FeatureSet.from_json(self.metadata["feature_set"])
 
     @property
     def n_points(self) -> int:
+        """Number of landmarks P of the animations."""
         return int(self._core.n_points)
 
     @property
     def part_names(self) -> list:
+        """Names of the face parts, one facial HMM each (list of str)."""
         return list(self.metadata["parts"])
 
     @property
@@ -132,6 +163,18 @@ class Puppet:
         return float(self._core.guide_weight)
 
     def n_states(self, part: int = 0) -> int:
+        """Number of states of one part's HMM (after training's trimming).
+
+        Parameters
+        ----------
+        part : int
+            Index of the face part (default 0, the first).
+
+        Returns
+        -------
+        int
+            The part's state count.
+        """
         return int(self._core.n_states(part))
 
     #: Seconds of digital silence :meth:`rest_face` animates; it takes the middle frame.
@@ -142,8 +185,14 @@ class Puppet:
         :attr:`REST_SECONDS` of digital silence at the middle frame (a pause of its training
         video, decoded as any audio is). Rendering and export retarget an animation's motion
         from it (``Animation.neutral``, which :meth:`animate` sets to it), so audio that begins
-        mid-word does not make its first, open-mouthed frame the photo's closed mouth. None for
-        a puppet trained on given features (``features_list``): its silence is unknown."""
+        mid-word does not make its first, open-mouthed frame the photo's closed mouth.
+
+        Returns
+        -------
+        ndarray, shape (P, 2) or None
+            The rest face (a copy; computed once per puppet). None for a puppet trained on given
+            features (``features_list``): its silence is unknown.
+        """
         if self._rest is None:
             n = int(round(self.REST_SECONDS * DEFAULT_RATE))
             silence = vaudio.Audio(np.zeros(n), DEFAULT_RATE, DEFAULT_RATE, 1, "silence")
@@ -170,12 +219,24 @@ class Puppet:
         Returns
         -------
         ndarray, shape (T, A)
+            The standardised features.
         """
         return self._core.standardize(np.ascontiguousarray(raw, dtype=np.float64))[:, :self._core.n_features]
 
     def part_arrays(self, part: int = 0) -> dict:
-        """The HMM arrays of one part: startprob, transmat, face_means, face_covars, vocal_means,
-        vocal_covars."""
+        """The HMM arrays of one part.
+
+        Parameters
+        ----------
+        part : int
+            Index of the face part (default 0, the first).
+
+        Returns
+        -------
+        dict of str to ndarray
+            ``startprob``, ``transmat``, ``face_means``, ``face_covars``, ``vocal_means``,
+            ``vocal_covars`` (the arrays themselves, not copies).
+        """
         pre = f"hmm/part{part}/"
         return {k[len(pre):]: v for k, v in self.arrays.items() if k.startswith(pre)}
 
@@ -215,17 +276,33 @@ class Puppet:
         client : distributed.Client, optional
             Run the HMM's E-steps on this Dask cluster (:mod:`voicepuppet.hmm.distributed`): the same
             parameters as training in one process, for many hours of video.
-        n_states, n_iter, prior, z, anneal, n_components, max_components, parts, feature_set, \
-        audio_deltas, vocal_covariance, vocal_shrinkage, vocal_features, vocal_context, guide, \
-        guide_context, guide_weight, min_covar, init, noise_snrs, audio_level, seed
-            The training options, each described in
+        n_states, n_iter, prior, z, anneal, init, min_covar, seed
+            Training options of the facial HMMs, each described in
             :class:`~voicepuppet.puppet.training.TrainOptions` (defaults:
             :data:`~voicepuppet.puppet.training.TRAIN_DEFAULTS`).
+        n_components, max_components, parts
+            Training options of the face space (as above).
+        feature_set, audio_deltas, audio_level, noise_snrs
+            Training options of the audio features (as above).
+        vocal_covariance, vocal_shrinkage, vocal_features, vocal_context
+            Training options of the vocal Gaussians (as above).
+        guide, guide_context, guide_weight
+            Training options of the guide (as above).
 
         Returns
         -------
         Puppet
+            The trained puppet.
 
+        Raises
+        ------
+        ValueError
+            A bad option (:class:`~voicepuppet.puppet.training.TrainOptions`), landmarks and
+            audio that do not pair up, or too few training frames for ``n_states`` (at least 10
+            frames per state).
+
+        Notes
+        -----
         numpy's BLAS runs on one thread while training (``VOICEPUPPET_BLAS_THREADS`` sets
         another count; an ``OPENBLAS_NUM_THREADS`` of your own is left alone:
         :func:`voicepuppet.blas.blas_threads`): on 2 cores, 180 s of training audio trains in
@@ -244,14 +321,46 @@ class Puppet:
     # -------------------------------------------------------------------------- animation
     def audio_features(self, audio, n_out: int | None = None, progress: bool = False) -> np.ndarray:
         """Raw (unstandardised) features [T, A] of ``audio`` at the puppet's rate, with the
-        puppet's feature set (:meth:`extract`'s values)."""
+        puppet's feature set (:meth:`extract`'s values).
+
+        Parameters
+        ----------
+        audio : path or voicepuppet.audio.Audio
+            Audio file, video with sound, or loaded audio.
+        n_out : int, optional
+            Number of frames (default: ``ceil(duration * fps)``).
+        progress : bool
+            Show a progress bar (default False).
+
+        Returns
+        -------
+        ndarray, shape (T, A)
+            The raw features, one row per frame.
+        """
         return self.extract(audio, n_out=n_out, progress=progress, stacklevel=4).values
 
     def extract(self, audio, n_out: int | None = None, progress: bool = False, stacklevel: int = 2):
         """The :class:`voicepuppet.audio.Features` the puppet reads from ``audio`` (a file or
         :class:`voicepuppet.audio.Audio`): its feature set at its rate. Audio of a narrower band
         than the puppet analyses (8 kHz telephone audio for a puppet trained on wider-band sound)
-        is warned about (``AudioWarning``, :meth:`check_band`)."""
+        is warned about (``AudioWarning``, :meth:`check_band`).
+
+        Parameters
+        ----------
+        audio : path or voicepuppet.audio.Audio
+            Audio file, video with sound, or loaded audio.
+        n_out : int, optional
+            Number of frames (default: ``ceil(duration * fps)``).
+        progress : bool
+            Show a progress bar (default False).
+        stacklevel : int
+            Stack level of the band warning, counted from the caller (default 2: the caller).
+
+        Returns
+        -------
+        voicepuppet.audio.Features
+            The features at the puppet's rate.
+        """
         audio = audio if isinstance(audio, vaudio.Audio) else vaudio.load_audio(audio)
         self.check_band(audio.source_rate, f"audio {audio.path!r}" if audio.path else "audio", stacklevel=stacklevel)
         return vaudio.extract(audio, fps=self.fps, features=self.feature_set, n_out=n_out, progress=progress)
@@ -264,7 +373,17 @@ class Puppet:
 
     def check_band(self, source_rate: int, what: str = "audio", stacklevel: int = 2) -> None:
         """Warn (``AudioWarning``) when audio sampled at ``source_rate`` Hz is of a narrower band
-        than the puppet learned (8 kHz telephone audio for a puppet of wider-band sound)."""
+        than the puppet learned (8 kHz telephone audio for a puppet of wider-band sound).
+
+        Parameters
+        ----------
+        source_rate : int
+            Sample rate (Hz) the audio was recorded at.
+        what : str
+            How the warning names the audio (default ``"audio"``).
+        stacklevel : int
+            Stack level of the warning, counted from the caller (default 2: the caller).
+        """
         edge = 0.5 * source_rate
         if edge < self.band_hz * (1 - 1e-9):
             warnings.warn(f"{what} is sampled at {source_rate} Hz, so its sound stops at {edge:g} Hz, and "
@@ -321,6 +440,23 @@ class Puppet:
             voice the puppet never heard may want a larger λ (docs/results.md, "The guide's
             weight chosen at training by cross-validation").
             Given states without audio are synthesised unguided.
+        progress : bool
+            Show a progress bar while extracting features from ``audio`` (default False).
+
+        Returns
+        -------
+        Animated
+            The animation (its ``neutral`` the puppet's :meth:`rest_face`), face coordinates,
+            states and log-likelihood.
+
+        Raises
+        ------
+        ValueError
+            ``fps`` not positive; neither or both of ``audio`` and ``features`` (without
+            ``states``); ``adapt`` not None or "full", or given with ``states``; ``posterior``
+            with ``states``; ``guide_weight`` not None or a finite number >= 0, or positive for
+            states without audio; ``states`` not integers of shape (T,) or (T, parts);
+            ``adapt_iter`` not an integer.
         """
         out_fps = float(fps) if fps is not None else self.fps
         if out_fps <= 0 or not np.isfinite(out_fps):
@@ -378,7 +514,23 @@ class Puppet:
 
     # ---------------------------------------------------------------------------- storage
     def save(self, path) -> Path:
-        """Write the puppet file (``.vpp``) atomically."""
+        """Write the puppet file (``.vpp``) atomically.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The file to write; it must end in ``.vpp``.
+
+        Returns
+        -------
+        pathlib.Path
+            The path written.
+
+        Raises
+        ------
+        ValueError
+            Another suffix, or a folder that does not exist or is not writable.
+        """
         p = check_output_path(path, (".vpp",), "puppet file")
         _core.write_puppet_file(os.fspath(p), json.dumps(self.metadata), self.arrays)
         return p
@@ -391,7 +543,25 @@ def _count(value, name: str) -> int:
 
 
 def load(path) -> Puppet:
-    """Read a puppet file (``.vpp``); ValueError names what is wrong with a damaged one."""
+    """Read a puppet file (``.vpp``); ValueError names what is wrong with a damaged one.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The puppet file.
+
+    Returns
+    -------
+    Puppet
+        The puppet it holds.
+
+    Raises
+    ------
+    ValueError
+        The file does not exist, is not a puppet file (wrong magic number), comes from a newer
+        format version, is damaged (truncated, checksum mismatch, malformed, unreadable metadata)
+        or was not written by ``voicepuppet train`` (no part list or feature set).
+    """
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"puppet file {str(p)!r} does not exist")
@@ -412,7 +582,26 @@ def load(path) -> Puppet:
 
 def palette_puppet(palette, name: str) -> Path:
     """The puppet file called ``name`` (with or without ``.vpp``) in the folder ``palette``
-    (Brand §6: the animator picks a character's manner from a palette of puppets)."""
+    (Brand §6: the animator picks a character's manner from a palette of puppets).
+
+    Parameters
+    ----------
+    palette : str or os.PathLike
+        A folder of ``.vpp`` puppet files.
+    name : str
+        The puppet's name: its file name, with or without ``.vpp``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``palette/NAME.vpp``.
+
+    Raises
+    ------
+    ValueError
+        ``palette`` is not a folder, or holds no puppet called ``name`` (the message lists those
+        it holds).
+    """
     folder = Path(palette)
     if not folder.is_dir():
         raise ValueError(f"--palette {str(folder)!r} is not a folder of .vpp puppets")

@@ -31,6 +31,30 @@ def usable_segments(points, lost=None, audio=None, fps: float = 29.97, where: st
     or infinite point (another tool's mark for a point it lost) counts as lost; one on a frame
     that is kept is refused, with its frame. The audio of each kept run is cut to match
     (``audio`` is an :class:`voicepuppet.audio.Audio`).
+
+    Parameters
+    ----------
+    points : array_like, shape (T, P, 2)
+        The sequence's landmarks.
+    lost : array_like of bool, shape (T, P), optional
+        The tracker's lost flags per point (default: only non-finite points are lost).
+    audio : voicepuppet.audio.Audio, optional
+        The sequence's audio, starting at frame 0 (needed when frames are dropped).
+    fps : float
+        Frame rate of ``points`` (default 29.97), to cut the audio.
+    where : str
+        Prefix of the messages naming the sequence (e.g. ``"clip.mp4: "``; default none).
+
+    Returns
+    -------
+    list of (ndarray, voicepuppet.audio.Audio)
+        The kept runs' landmarks, shape (T_i, P, 2), with their audio; the whole sequence as
+        given when nothing is lost.
+
+    Raises
+    ------
+    ValueError
+        A NaN or infinite point on a kept frame, or no run of :data:`MIN_SEGMENT` usable frames.
     """
     T = len(points)
     missing = ~np.isfinite(np.asarray(points, dtype=np.float64)).reshape(T, -1, 2).all(axis=2)

@@ -43,60 +43,68 @@ def _check_context(k, name: str, reader: str) -> None:
 class TrainOptions:
     """What :meth:`Puppet.train <voicepuppet.puppet.model.Puppet.train>` does, beyond its data
     (recorded in each puppet's metadata). Checked when made: a ValueError names a bad value.
+    Each parameter is kept as the (read-only: the dataclass is frozen) attribute of the same name.
 
-    Attributes
+    Parameters
     ----------
-    n_states : int
+    n_states : int, default 40
         States each facial HMM starts with, fully connected (Brand: start large and let the
         entropic prior trim).
-    n_iter : int
+    n_iter : int, default 40
         EM iterations.
-    prior : {"entropic", "ml"}
+    prior : {"entropic", "ml"}, default "entropic"
         Entropic MAP estimation, or conventional Baum-Welch (for comparison).
-    z : float
+    z : float, default 1.0
         Weight of the entropic prior (1: minimum entropy).
-    anneal : bool
+    anneal : bool, default True
         Ramp z from -1 to 1 over the first half of the iterations.
-    n_components : float or int
+    n_components : float or int, default 0.98
         Face basis per part: the fraction of variance kept, or a number of components.
-    max_components : int
+    max_components : int, default 12
         At most this many components per part.
-    parts : None, "upper_lower" or dict
+    parts : None, "upper_lower" or dict, default None
         One face model (None), the upper and lower face of the 68-point layout, or
         name -> point indices.
-    feature_set : str or FeatureSet
+    feature_set : str or FeatureSet, default "puppet"
         The audio features (see :mod:`voicepuppet.audio`).
-    audio_deltas : int
+    audio_deltas : int, default 2
         Regression deltas over +-this many frames appended to the audio features.
-    vocal_covariance : {"full", "diag", "tied"}
+    vocal_covariance : {"full", "diag", "tied"}, default "full"
         Covariance of each state's vocal Gaussian (:func:`remap`).
-    vocal_shrinkage : float
+    vocal_shrinkage : float, default 1.0
         Evidence of the pooled Gaussian in each state's, in units of the feature count (frames).
-    vocal_features : {"audio", "projected"}
+    vocal_features : {"audio", "projected"}, default "audio"
         Remap on the audio features, or on the ridge's cross-fitted face prediction
         (:func:`voicepuppet.puppet.guide.fit_projection`).
-    vocal_context : int
+    vocal_context : int, default 5
         Frames of audio on each side the projection reads (projected only), 0..100.
-    guide : {"ridge", "none"}
+    guide : {"ridge", "none"}, default "ridge"
         The ridge's prediction of the face as evidence in the trajectory solve, or Brand's solve
         alone.
-    guide_context : int
+    guide_context : int, default 5
         Frames of audio on each side the guide's ridge reads, 0..100.
-    guide_weight : "cv" or float
+    guide_weight : "cv" or float, default "cv"
         The guide's weight: chosen from :data:`voicepuppet.puppet.guide.GUIDE_WEIGHTS` by
         cross-validation on the training audio, or a number >= 0.
-    min_covar : float
+    min_covar : float, default 0.1
         Facial variance floor, times the mean data variance.
-    init : {"kmeans", "frames"}
+    init : {"kmeans", "frames"}, default "kmeans"
         State means from k-means++, or random training frames.
-    noise_snrs : sequence of float
+    noise_snrs : sequence of float, default ()
         SNRs (dB) of white-noise copies of the training audio that the vocal side also learns
         from; empty: none.
-    audio_level : float or None
+    audio_level : float or None, default -20.0
         The speech level (dBFS) every recording is brought to before analysis (the feature
         option ``level_db``, unless the feature set sets one); None: as recorded.
-    seed : int
+    seed : int, default 0
         Seeds everything random in training.
+
+    Raises
+    ------
+    ValueError
+        ``prior``, ``vocal_covariance``, ``vocal_features`` or ``guide`` not one of its values,
+        ``vocal_context`` or ``guide_context`` not an integer in [0, 100], ``guide_weight`` not
+        "cv" or a finite number >= 0, or a numeric ``guide_weight`` with ``guide="none"``.
     """
 
     n_states: int = 40
@@ -123,7 +131,13 @@ class TrainOptions:
     seed: int = 0
 
     def as_dict(self) -> dict:
-        """The options as a dict, option name -> value (values as given: not copied or converted)."""
+        """The options as a dict, option name -> value (values as given: not copied or converted).
+
+        Returns
+        -------
+        dict
+            One entry per option, in the order of the fields.
+        """
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
     def __post_init__(self):
@@ -162,11 +176,24 @@ def train(points_list, audio_list=None, *, features_list=None, fps: float = 29.9
     points_list, audio_list, features_list, fps, progress, client
         As for :meth:`voicepuppet.puppet.model.Puppet.train`.
     options : TrainOptions
+        The training options (default: :class:`TrainOptions` ``()``, the defaults).
 
     Returns
     -------
     metadata : dict
+        The puppet file's metadata: format, version, frame rate, points, parts, feature set and
+        names, and the training record (frames, sequences, options, per-part diagnostics, guide
+        and projection details).
     arrays : dict of str to ndarray
+        The puppet file's arrays (frame rate, audio standardisation, face space, each part's
+        HMM and vocal Gaussians, the guide and projection when trained).
+
+    Raises
+    ------
+    ValueError
+        Neither or both of ``audio_list`` and ``features_list``, not one audio per landmark
+        sequence, too few frames for ``n_states`` (at least 10 per state), features of the
+        wrong shape, a negative ``audio_deltas``, or a bad option.
     """
     opt = options.as_dict()
     if isinstance(points_list, np.ndarray) or not isinstance(points_list, (list, tuple)):
@@ -262,7 +289,26 @@ def training_feature_set(feature_set=None, audio_level=_DEFAULT.audio_level):
     ``feature_set`` and ``audio_level`` (before the narrowest training audio's band): the set
     with its ``level_db`` set to ``audio_level`` unless it sets its own or ``audio_level`` is
     None. What to extract features with for ``Puppet.train(features_list=...)`` to train the
-    puppet training from audio would."""
+    puppet training from audio would.
+
+    Parameters
+    ----------
+    feature_set : str or FeatureSet, optional
+        The training option ``feature_set`` (default: its default, ``"puppet"``).
+    audio_level : float or None
+        The training option ``audio_level``, speech level in dBFS (default -20); None: as recorded.
+
+    Returns
+    -------
+    voicepuppet.audio.FeatureSet
+        The feature set, with ``level_db`` set when it applies.
+
+    Raises
+    ------
+    ValueError
+        ``audio_level`` neither a number nor None (when the set has no ``level_db`` of its own),
+        or a ``feature_set`` with an unknown feature name.
+    """
     fset = vaudio.as_feature_set(_DEFAULT.feature_set if feature_set is None else feature_set)
     if audio_level is None or "level_db" in fset.options:
         return fset
@@ -433,7 +479,7 @@ def remap(gamma, features, covariance: str = "full", floor: float = 1e-3, shrink
         ``Σ_i S_i / Σ_i w_i`` (a linear-discriminant vocal model: the states differ by their
         means only), returned as N equal copies so a puppet file stores it as "full".
     floor : float
-        Added to every variance (the features are standardised, so this is relative).
+        Added to every variance (default 1e-3; the features are standardised, so this is relative).
     shrinkage : float, optional
         κ, frames of evidence given to the pooled Gaussian (default: A, the feature count).
 
@@ -446,6 +492,12 @@ def remap(gamma, features, covariance: str = "full", floor: float = 1e-3, shrink
         "full" / "diag": ``(S_i + κ Σ) / (w_i + κ)``, the weighted scatter ``S_i`` of state i about
         its mean shrunk towards the pooled covariance ``Σ`` with κ frames of evidence; "tied":
         ``Σ_i S_i / Σ_i w_i`` for every state; each plus ``floor`` on the variances.
+
+    Raises
+    ------
+    ValueError
+        ``gamma`` and ``features`` not 2-D with the same frames, ``covariance`` not one of
+        :data:`VOCAL_COVARIANCES`, or ``shrinkage`` negative or not finite.
     """
     g = np.asarray(gamma, dtype=np.float64)
     X = np.asarray(features, dtype=np.float64)
