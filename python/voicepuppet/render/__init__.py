@@ -1,5 +1,5 @@
 """Rendering: a textured face driven by landmark animations, drawn off screen and written as
-video (Brand §4.6); interchange formats (:mod:`.export`).
+video (Brand §4.6); interchange formats (:mod:`voicepuppet.render.export`).
 
 The modules, in the order they build on each other:
 
@@ -11,7 +11,7 @@ The modules, in the order they build on each other:
 - :mod:`.video`: the off-screen pyvista renderer, frames, ``.mp4`` / ``.gif`` / ``.png`` output.
 - :mod:`.head`: the mesh from a textured 3-D head scan.
 - :mod:`.faces`: the face a command names: a photo, a video's frame at rest, a head, a palette's.
-- :mod:`.export`: landmarks, VTK series, glTF, ARKit weights, Rhubarb mouth cues.
+- :mod:`voicepuppet.render.export`: landmarks, VTK series, glTF, ARKit weights, Rhubarb mouth cues.
 
 ``_backend`` (package-private) imports pyvista and sets it up for headless rendering.
 """

@@ -55,7 +55,9 @@ def skin_depth(xy: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
 class FaceMesh:
     """A textured face mesh in image coordinates.
 
-    Attributes
+    Each parameter is kept as the attribute of the same name.
+
+    Parameters
     ----------
     vertices : ndarray, shape (V, 3)
         x, y in pixels (y down, as in the image) and depth z in pixels (towards the viewer).
@@ -83,6 +85,9 @@ class FaceMesh:
     canvas : (width, height), optional
         the view's size when it is not the image's: a 3-D head (:mod:`voicepuppet.render.head`), whose
         image is its texture.
+    _interp : ndarray, optional
+        The interpolation matrix, computed on first use (:meth:`interpolation_matrix`); not to be
+        given.
 
     The mouth's interior lies behind the skin, in layers below the skin's depth surface
     (:data:`voicepuppet.render.interior.INTERIOR_DEPTH`), the cavity deepest, so a renderer with a
