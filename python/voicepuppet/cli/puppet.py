@@ -66,7 +66,8 @@ def _train(args) -> int:
     from voicepuppet import audio as vaudio
     from voicepuppet._files import check_output_path
     from voicepuppet.puppet.model import TRAIN_DEFAULTS, Puppet
-    from voicepuppet.tracking.tracker import VariableFrameRateWarning, load_landmarks, on_uniform_grid, track_video
+    from voicepuppet.tracking.landmarks import load_landmarks, on_uniform_grid
+    from voicepuppet.tracking.tracker import VariableFrameRateWarning, track_video
 
     out = check_output_path(args.output, (".vpp",), "puppet file")
     videos, marks, audios = list(args.video), list(args.landmarks or []), list(args.audio or [])

@@ -439,7 +439,7 @@ def _detect_facing(vertices, faces, uv, image) -> np.ndarray | None:
     import pyvista as pv
 
     from voicepuppet.render.mesh import FaceMesh, FaceRenderer
-    from voicepuppet.tracking.tracker import SURE_FACE_SCORE, NoFaceError, auto_init
+    from voicepuppet.tracking.detect import SURE_FACE_SCORE, NoFaceError, auto_init
 
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     scale = DETECT_HEIGHT / max(float(hi[1] - lo[1]), 1e-12)

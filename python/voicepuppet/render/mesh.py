@@ -1118,7 +1118,7 @@ def load_face(image_path, points_path=None, rest=None, progress: bool = False) -
     if given is None:
         import cv2
 
-        from voicepuppet.tracking.tracker import NoFaceError, auto_init
+        from voicepuppet.tracking.detect import NoFaceError, auto_init
 
         try:
             return build_face_mesh(img, auto_init(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY),
@@ -1136,7 +1136,7 @@ def _face_points(path) -> np.ndarray:
         from voicepuppet.animation import load_animation
 
         return load_animation(pp).points
-    from voicepuppet.tracking.tracker import load_init_points
+    from voicepuppet.tracking.landmarks import load_init_points
 
     return load_init_points(pp)[0][None]
 
@@ -1149,7 +1149,7 @@ def _video_face(path: Path, given: np.ndarray | None, rest, why: Exception,
     import cv2
 
     from voicepuppet.tracking import video
-    from voicepuppet.tracking.tracker import NoFaceError, first_face
+    from voicepuppet.tracking.detect import NoFaceError, first_face
 
     try:
         info = video.probe_video(path)
@@ -1187,7 +1187,7 @@ def _rest_frame(path: Path, fps: float, rest, found, start: int, progress: bool 
     from tqdm.auto import tqdm
 
     from voicepuppet.tracking import video
-    from voicepuppet.tracking.tracker import PROBE_MAX_PIXELS, NoFaceError, auto_init
+    from voicepuppet.tracking.detect import PROBE_MAX_PIXELS, NoFaceError, auto_init
 
     stride = max(1, int(round(REST_STRIDE_S * fps)))
     last = int(REST_SCAN_S * fps)
