@@ -431,7 +431,7 @@ def test_frames_where_the_face_is_lost_are_dropped_with_a_warning(rng):
 
 
 def test_points_of_a_variable_frame_rate_video_are_resampled_onto_the_grid():
-    from voicepuppet.tracking.tracker import on_uniform_grid
+    from voicepuppet.tracking.landmarks import on_uniform_grid
 
     fps = 30.0
     # 1 s at 30 fps, 1 s at 15 fps, a 0.5 s stall, 0.5 s at 30 fps

@@ -511,7 +511,7 @@ def test_a_photo_without_a_face_names_the_option_that_gives_its_points(tmp_path,
     from PIL import Image
 
     pytest.importorskip("dlib")
-    from voicepuppet.tracking.tracker import DLIB_MODEL_PATHS
+    from voicepuppet.tracking.detect import DLIB_MODEL_PATHS
 
     if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
         pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
@@ -530,7 +530,7 @@ def test_real_photo_with_dlib_landmarks():
     photo, a planted jaw opening moves the mouth and chin, not the eyes."""
     dlib = pytest.importorskip("dlib")
     skdata = pytest.importorskip("skimage.data")
-    from voicepuppet.tracking.tracker import DLIB_MODEL_PATHS
+    from voicepuppet.tracking.detect import DLIB_MODEL_PATHS
 
     model = next((p for p in DLIB_MODEL_PATHS if Path(p).is_file()), None)
     if model is None:
@@ -566,7 +566,7 @@ def test_a_video_gives_the_face_of_its_first_frame_with_one(tmp_path):
 
     dlib = pytest.importorskip("dlib")
     skdata = pytest.importorskip("skimage.data")
-    from voicepuppet.tracking.tracker import DLIB_MODEL_PATHS, auto_init
+    from voicepuppet.tracking.detect import DLIB_MODEL_PATHS, auto_init
 
     if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
         pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
@@ -607,7 +607,7 @@ def test_a_video_gives_its_face_at_rest_when_the_animation_has_one(tmp_path):
 
     dlib = pytest.importorskip("dlib")
     skdata = pytest.importorskip("skimage.data")
-    from voicepuppet.tracking.tracker import DLIB_MODEL_PATHS, auto_init
+    from voicepuppet.tracking.detect import DLIB_MODEL_PATHS, auto_init
 
     if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
         pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")

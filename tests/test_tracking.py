@@ -1,4 +1,4 @@
-"""Tests of voicepuppet.tracking.tracker: planted truth on a real face photo against OpenCV's pyramidal
+"""Tests of voicepuppet.tracking: planted truth on a real face photo against OpenCV's pyramidal
 Lucas-Kanade, a real talking face against dlib's landmarks, Delaunay against scipy, the CLI and
 bad input."""
 
@@ -12,7 +12,10 @@ import numpy as np
 import pytest
 
 from voicepuppet import layout
-from voicepuppet.tracking import tracker as tracking
+from voicepuppet import tracking
+from voicepuppet.tracking import detect as tracking_detect
+from voicepuppet.tracking import springs
+from voicepuppet.tracking._checks import as_grey
 
 cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")
 pytest.importorskip("skimage", reason="pip install scikit-image")
@@ -242,7 +245,7 @@ def test_auto_init_takes_the_face_not_the_larger_clutter():
     _dlib_or_skip()
     skdata = pytest.importorskip("skimage.data")
     img = skdata.astronaut()
-    rects, scores, _ = tracking._dlib_detector().run(tracking._grey(img, 0, None), 0, 0.0)
+    rects, scores, _ = tracking_detect._dlib_detector().run(as_grey(img, 0, None), 0, 0.0)
     assert len(rects) >= 2 and max(r.width() for r in rects) > rects[int(np.argmax(scores))].width()
     best = rects[int(np.argmax(scores))]
     pts = tracking.auto_init(img)
@@ -265,7 +268,7 @@ def test_auto_init_waits_for_a_face_that_appears_later(tmp_path, write_avi):
     path = write_avi(tmp_path / "late.avi", np.concatenate([np.full((20,) + face.shape[1:], 128, np.uint8),
                                                             face[:30]]), fps=25.0)
     decoded, fps = video.read_grey_frames(path)
-    stride = int(round(tracking.AUTO_INIT_STRIDE_S * fps))
+    stride = int(round(tracking_detect.AUTO_INIT_STRIDE_S * fps))
 
     def detect(t):
         try:
@@ -314,7 +317,7 @@ def test_auto_init_looks_for_a_face_for_a_minute(tmp_path, write_avi, monkeypatc
     with pytest.warns(UserWarning, match=f"found one at frame {expect} "):
         r = tracking.track_video(path, "auto", passes=1, progress=False, patch_radius=4, levels=2)
     assert r.start == expect and r.lost[:expect].all() and not r.lost[expect].all()
-    monkeypatch.setattr(tracking, "AUTO_INIT_SCAN_S", 2.0)
+    monkeypatch.setattr(tracking_detect, "AUTO_INIT_SCAN_S", 2.0)
     with pytest.raises(tracking.NoFaceError, match=r"no face in the first 2\.0 s of .*cut the video to start "
                                                     r"there \(ffmpeg -ss SECONDS -i card\.avi start\.mp4\)"):
         tracking.track_video(path, "auto", passes=1, progress=False)
@@ -353,20 +356,20 @@ def test_coincident_detections_are_set_apart_the_way_the_face_goes():
     for roll in (0.0, 0.5):  # radians: an upright and a tilted head
         turn = np.array([[np.cos(roll), -np.sin(roll)], [np.sin(roll), np.cos(roll)]])
         pts = closed @ turn.T
-        out = tracking._separate_coincident(pts)
+        out = tracking_detect.separate_coincident(pts)
         moved = [48, 60, 61, 62, 63, 65, 66, 67]
         np.testing.assert_array_equal(np.delete(out, moved, axis=0), np.delete(pts, moved, axis=0))
         assert len(np.unique(out, axis=0)) == 68
         up = (out - pts) @ turn  # the displacement in the head's own frame
         for top, bottom in ((61, 67), (62, 66), (63, 65)):
-            assert np.linalg.norm(out[top] - out[bottom]) == pytest.approx(tracking.SEPARATE_PX)
+            assert np.linalg.norm(out[top] - out[bottom]) == pytest.approx(tracking_detect.SEPARATE_PX)
             assert up[top, 1] < 0 < up[bottom, 1]
         assert up[48, 0] < 0 < up[60, 0]  # the outer corner outwards, the inner one in
         tracking.delaunay_edges(out)  # the spring mesh takes them
         with pytest.raises(ValueError, match="coincide"):
             tracking.delaunay_edges(pts)
     rest = neutral_landmarks()
-    assert tracking._separate_coincident(rest) is rest
+    assert tracking_detect.separate_coincident(rest) is rest
 
 
 def test_init_points_with_a_closed_mouth_are_set_apart_with_a_warning(tmp_path):
@@ -383,7 +386,7 @@ def test_init_points_with_a_closed_mouth_are_set_apart_with_a_warning(tmp_path):
     path.write_text(json.dumps({"points": closed.tolist()}))
     with pytest.warns(UserWarning, match=r"points 61, 62, 63, 65, 66, 67 in .*closed\.json.* moved 0\.5 px apart"):
         pts, _ = tracking.load_init_points(path)
-    np.testing.assert_array_equal(pts, tracking._separate_coincident(closed))
+    np.testing.assert_array_equal(pts, tracking_detect.separate_coincident(closed))
     tracking.delaunay_edges(pts)
     csv = tmp_path / "closed.csv"  # the CSV form alike
     csv.write_text("x,y\n" + "\n".join(f"{x},{y}" for x, y in closed))
@@ -422,7 +425,7 @@ def test_auto_init_tracks_a_closed_mouth(tmp_path):
     assert (shape.part(62).x, shape.part(62).y) == (shape.part(66).x, shape.part(66).y)  # the case
     r = tracking.track_video(path, "auto", passes=1, progress=False)
     assert r.points.shape == (len(frames), 68, 2) and r.start == 0
-    assert np.linalg.norm(r.points[0, 62] - r.points[0, 66]) == pytest.approx(tracking.SEPARATE_PX)
+    assert np.linalg.norm(r.points[0, 62] - r.points[0, 66]) == pytest.approx(tracking_detect.SEPARATE_PX)
     assert r.points[0, 62, 1] < r.points[0, 66, 1]
     assert np.all(np.isfinite(r.points)) and r.lost.mean() < 0.1
 
@@ -574,7 +577,7 @@ def test_lips_follow_the_mouth_of_the_synthetic_performer(performer):
     old = tracking.track_frames(frames, truth[0], fps=fps, passes=2, lips=False)
     lip, rest, corr, std, std_true = _lip_scores(new.points, truth)
     lip0, rest0, corr0, std0, _ = _lip_scores(old.points, truth)
-    corners = np.linalg.norm(new.points - truth, axis=2)[:, list(tracking.MOUTH_CORNERS)].mean()
+    corners = np.linalg.norm(new.points - truth, axis=2)[:, list(springs.MOUTH_CORNERS)].mean()
     corner54 = np.linalg.norm(new.points[:, 54] - truth[:, 54], axis=1).mean()
     upper_outer = np.linalg.norm(new.points[:, [49, 53]] - truth[:, [49, 53]], axis=2).mean()
     print(f"lips: error {lip:.2f} px (whole patches {lip0:.2f}), mouth-opening correlation {corr:.3f} "
@@ -631,15 +634,15 @@ def test_re_estimated_springs_across_the_mouth_opening_are_softened(performer):
     stiff = np.full(n, 100.0)
     mesh = _core.SpringMesh(edges, np.full(n, 10.0), stiff, np.ascontiguousarray(prec.reshape(-1, 4)), mean)
     floor = 3.0
-    soft = tracking._soften_opening(mesh, edges, floor)
+    soft = springs.soften_opening(mesh, edges, floor)
     lower = np.zeros(68, dtype=bool)
-    lower[list(tracking.LOWER_LIP)] = True
+    lower[list(springs.LOWER_LIP)] = True
     on_lips = np.all(edges >= 48, axis=1)
-    across = on_lips & ~tracking._same_lip(edges)
+    across = on_lips & ~springs._same_lip(edges)
     to_lower = lower[edges].any(axis=1) & ~on_lips
     assert across.sum() >= 6 and to_lower.sum() >= 3  # the mesh spans the opening
-    corner = across & np.isin(edges, tracking.MOUTH_CORNERS).any(axis=1)
-    assert corner.sum() >= 4 and np.array_equal(corner, tracking._corner_to_lower(edges))
+    corner = across & np.isin(edges, springs.MOUTH_CORNERS).any(axis=1)
+    assert corner.sum() >= 4 and np.array_equal(corner, springs._corner_to_lower(edges))
     assert np.all(lower[edges[corner]].any(axis=1))  # a corner to the lower lip
     p2 = np.asarray(soft.offset_precision).reshape(-1, 2, 2)
     for e in range(n):
@@ -664,7 +667,7 @@ def test_re_estimated_springs_across_the_mouth_opening_are_softened(performer):
     v = np.array([[c, -s_], [s_, c]])
     prec[e] = v @ np.diag([0.01, 50.0]) @ v.T
     mesh2 = _core.SpringMesh(edges, np.full(n, 10.0), stiff, np.ascontiguousarray(prec.reshape(-1, 4)), mean)
-    p3 = np.asarray(tracking._soften_opening(mesh2, edges, floor).offset_precision).reshape(-1, 2, 2)
+    p3 = np.asarray(springs.soften_opening(mesh2, edges, floor).offset_precision).reshape(-1, 2, 2)
     np.testing.assert_allclose(p3[e], v @ np.diag([0.01, 1.0 / floor**2]) @ v.T, atol=1e-12)
 
 
@@ -674,21 +677,21 @@ def test_mouth_corners_springs_to_the_lower_lip_check_their_data(performer):
     # lip take part in the springs' check on the data, with the springs within one lip.
     _, truth, _ = performer
     edges = tracking.delaunay_edges(truth[0])
-    checked = tracking._checked_lip_edges(edges)
-    same = np.flatnonzero(tracking._same_lip(edges))
-    corner = np.flatnonzero(tracking._corner_to_lower(edges))
+    checked = springs.checked_lip_edges(edges)
+    same = np.flatnonzero(springs._same_lip(edges))
+    corner = np.flatnonzero(springs._corner_to_lower(edges))
     assert len(corner) >= 4
     np.testing.assert_array_equal(checked, np.union1d(same, corner))
-    lower = np.isin(edges, tracking.LOWER_LIP)
+    lower = np.isin(edges, springs.LOWER_LIP)
     for e in corner:
         a, b = edges[e]
-        assert (a in tracking.MOUTH_CORNERS) != (b in tracking.MOUTH_CORNERS)
+        assert (a in springs.MOUTH_CORNERS) != (b in springs.MOUTH_CORNERS)
         assert lower[e].sum() == 1
     # Every corner has one (the mesh spans the opening at both ends of the mouth).
-    assert set(edges[corner].ravel()) >= set(tracking.MOUTH_CORNERS)
+    assert set(edges[corner].ravel()) >= set(springs.MOUTH_CORNERS)
     # Springs across the opening from the upper lip (not a corner) stay out of the check.
-    _, across = tracking._across_opening(edges)
-    assert not np.isin(np.flatnonzero(across & ~tracking._corner_to_lower(edges)), checked).any()
+    _, across = springs._across_opening(edges)
+    assert not np.isin(np.flatnonzero(across & ~springs._corner_to_lower(edges)), checked).any()
 
 
 def test_tracking_holds_under_head_rotation_and_scale():

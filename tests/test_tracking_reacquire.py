@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from voicepuppet import _core
-from voicepuppet.tracking import tracker as tracking
+from voicepuppet import tracking
+from voicepuppet.tracking import reacquire
 
 cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")
 pytest.importorskip("skimage", reason="pip install scikit-image")
@@ -88,12 +89,12 @@ def test_a_region_that_is_only_background_is_not_taken_for_the_face(returning):
     # (deformed by the planted motion) correlates far above the threshold wherever it is, and
     # the points it maps there are the truth's within 3 px (the pyramid's reach is more).
     frames, truth = returning
-    search = tracking._FaceSearch(frames[0], truth[0])
+    search = reacquire.FaceSearch(frames[0], truth[0])
     for t in range(ABSENT[0], ABSENT[1]):
         assert search.find(frames[t], truth[0]) is None
     for t in range(ABSENT[1], len(frames), 4):
         points, ncc = search.find(frames[t], truth[0])
-        assert ncc > tracking.REACQUIRE_NCC + 0.15
+        assert ncc > reacquire.REACQUIRE_NCC + 0.15
         np.testing.assert_allclose(points.mean(axis=0), truth[t].mean(axis=0), atol=3.0)  # within the pyramid's reach
 
 

@@ -1,4 +1,4 @@
-"""Tests of the tracker's working scale (voicepuppet.tracking.tracker, ``working_scale``): a large face is
+"""Tests of the tracker's working scale (voicepuppet.tracking.scale, ``working_scale``): a large face is
 tracked on frames resized down to the size the tracker was tuned on and the points mapped back;
 the pixel-centre mapping against OpenCV's resize, the factor, the option's errors, a face at or
 below the reference tracked exactly as before, and the synthetic performer planted 2.5x larger
@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from voicepuppet.tracking import tracker as tracking
+from voicepuppet import tracking
 from voicepuppet.tracking import video
 
 cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")

@@ -17,7 +17,8 @@ import sys
 import cv2
 import numpy as np
 
-from voicepuppet.tracking import tracker as tracking
+from voicepuppet import tracking
+from voicepuppet.tracking import reacquire
 from voicepuppet.tracking import video
 
 CASES = (  # (absent from, absent to, shift x, shift y, cover)
@@ -101,7 +102,7 @@ def poses(dirs) -> None:
             for t in range(90, n):
                 c[t] = cv2.warpAffine(canvas[t], M, canvas.shape[2:0:-1], flags=cv2.INTER_LINEAR, borderValue=bg)
                 m[t] = moved[t] @ M[:, :2].T + M[:, 2]
-            peak = tracking._FaceSearch(c[0], m[0]).peak(c[95])[0]
+            peak = reacquire.FaceSearch(c[0], m[0]).peak(c[95])[0]
             r = tracking.track_frames(c, m[0], fps=fps, passes=2)
             after = slice(r.reacquired[0] if r.reacquired else 90, n)
             la, ra = scores(r.points, m, after)

@@ -541,7 +541,8 @@ def animate_folder(puppet_path, audio_dir, out_dir, formats=("npz",), *, fps=Non
 def track_file(video_path, out_npz, *, init="auto", passes: int = 2, **options) -> list[Path]:
     """Tracks one video and writes ``out_npz`` and its ``.csv`` twin: the one-by-one reference of
     ``batch track`` (:func:`voicepuppet.tracking.tracker.track_video` + ``save_landmarks``)."""
-    from voicepuppet.tracking.tracker import save_landmarks, track_video
+    from voicepuppet.tracking.landmarks import save_landmarks
+    from voicepuppet.tracking.tracker import track_video
 
     result = track_video(str(video_path), init, passes=passes, progress=False, **options)
     return save_landmarks(out_npz, result)
@@ -560,7 +561,7 @@ def _track_task(video_path: str, out_stem: str, init, passes: int, options: dict
         stage = Path(d) / (Path(out_stem).name + ".npz")
         track_file(video_path, stage, init=init, passes=passes, **options)
         files = _collect(Path(d))
-        from voicepuppet.tracking.tracker import load_landmarks
+        from voicepuppet.tracking.landmarks import load_landmarks
 
         lm = load_landmarks(stage)
         fps = float(lm["fps"])  # a variable-rate video's frames are at their times, not k / fps
@@ -580,7 +581,7 @@ def track_folder(video_dir, out_dir, *, init="auto", passes: int = 2, client=Non
     video_dir : folder searched recursively for :data:`VIDEO_SUFFIXES`
     out_dir : output folder
     init : ``"auto"`` (dlib detector on each video's first frame) or a points file (JSON/CSV,
-        see :func:`voicepuppet.tracking.tracker.load_init_points`) used for every video
+        see :func:`voicepuppet.tracking.landmarks.load_init_points`) used for every video
     passes, **options : as in :func:`voicepuppet.tracking.tracker.track_video`
     client, scheduler, workers, timeout, progress : as in :func:`animate_folder`
 
@@ -589,7 +590,7 @@ def track_folder(video_dir, out_dir, *, init="auto", passes: int = 2, client=Non
     BatchSummary
     """
     from voicepuppet.hmm.distributed import connect
-    from voicepuppet.tracking.tracker import load_init_points
+    from voicepuppet.tracking.landmarks import load_init_points
 
     if int(passes) != passes or passes < 1:
         raise ValueError(f"passes must be a positive integer, got {passes!r}")

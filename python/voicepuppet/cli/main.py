@@ -18,7 +18,7 @@ from voicepuppet.blas import blas_threads
 VERB_MODULES = [
     "voicepuppet.cli.info",
     "voicepuppet.cli.demo",
-    "voicepuppet.tracking.tracker",
+    "voicepuppet.cli.track",
     "voicepuppet.cli.puppet",
     "voicepuppet.cli.features",
     "voicepuppet.cli.render",

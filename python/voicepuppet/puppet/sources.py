@@ -10,7 +10,9 @@ from dataclasses import replace
 import numpy as np
 
 from voicepuppet import audio as vaudio
-from voicepuppet.tracking.tracker import VariableFrameRateWarning, load_landmarks, on_uniform_grid, track_video
+from voicepuppet.tracking import tracker
+from voicepuppet.tracking.landmarks import load_landmarks, on_uniform_grid
+from voicepuppet.tracking.tracker import VariableFrameRateWarning
 
 __all__ = ["MAX_LOST_SHARE", "MIN_SEGMENT", "MAX_AV_MISMATCH_S", "usable_segments", "training_sequences"]
 
@@ -95,7 +97,7 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", progre
     """The training sequences of a puppet from videos and/or landmark files with their audio.
 
     Each video is tracked (unless its landmarks are given), its landmarks put on a uniform frame
-    grid (:func:`voicepuppet.tracking.tracker.on_uniform_grid`) and cut where the face was lost
+    grid (:func:`voicepuppet.tracking.landmarks.on_uniform_grid`) and cut where the face was lost
     (:func:`usable_segments`). Every sound is loaded before any tracking, so a video without an
     audio track fails at once.
 
@@ -150,7 +152,7 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", progre
             print(f"tracking {videos[i]} ...")
             with warnings.catch_warnings():  # the resampling below says it, with what it did
                 warnings.simplefilter("ignore", VariableFrameRateWarning)
-                res = track_video(videos[i], init=init, progress=progress)
+                res = tracker.track_video(videos[i], init=init, progress=progress)
             pts, f, lost, times, where = res.points, res.fps, res.lost, res.times, f"{videos[i]}: "
         if fps is None:
             fps = f

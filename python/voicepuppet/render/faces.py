@@ -23,9 +23,8 @@ from voicepuppet.face import shape_distance
 from voicepuppet.render.head import HEAD_SUFFIXES, load_head
 from voicepuppet.render.mesh import FaceMesh
 from voicepuppet.render.photo import OPEN_MOUTH_IOD, build_face_mesh, lip_gap_iod
-from voicepuppet.tracking import NoFaceError, auto_init, first_face, load_init_points
+from voicepuppet.tracking import PROBE_MAX_PIXELS, NoFaceError, auto_init, first_face, load_init_points
 from voicepuppet.tracking import video as tracking_video
-from voicepuppet.tracking.tracker import PROBE_MAX_PIXELS
 
 __all__ = ["REST_STRIDE_S", "REST_SCAN_S", "load_face", "face_palette", "resolve_face"]
 
@@ -40,14 +39,14 @@ def load_face(image_path, points_path=None, rest=None, progress: bool = False) -
     """A face mesh from a photo file, or a video (the puppet's own, say), and its points: JSON
     ``{"points": [[x, y], ...]}``, CSV ``x,y`` rows, or an animation or landmarks ``.npz`` (its
     first frame; for a video, its frames). Without points, the 68 landmarks are detected (dlib,
-    see :func:`voicepuppet.tracking.tracker.auto_init`) on the photo.
+    see :func:`voicepuppet.tracking.detect.auto_init`) on the photo.
 
     A video gives one of its frames. With ``rest`` (P, 2), the rest face the animation moves
     from (:attr:`voicepuppet.animation.Animation.rest`), it is the frame whose face is nearest
     it (:func:`voicepuppet.face.shape_distance`), so the photo is the face at rest whatever the
     video begins with: among the frames of a landmarks ``.npz``, or without points among those
     dlib finds a face on, one every :data:`REST_STRIDE_S` s over the first :data:`REST_SCAN_S`
-    s. Without ``rest``: the first frame with a face (:func:`voicepuppet.tracking.tracker.first_face`),
+    s. Without ``rest``: the first frame with a face (:func:`voicepuppet.tracking.detect.first_face`),
     or with points the first frame.
 
     A textured 3-D head (``.obj``), with its 68 points in 3-D or without (detected on its front

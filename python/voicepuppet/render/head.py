@@ -49,8 +49,7 @@ from voicepuppet.render._backend import import_pyvista
 from voicepuppet.render.interior import INTERIOR_DEPTH, mouth_interior, pixel_tones, tone
 from voicepuppet.render.mesh import MOUTH_COLOUR, FaceMesh, skin_depth
 from voicepuppet.render.video import FaceRenderer
-from voicepuppet.tracking import NoFaceError, auto_init
-from voicepuppet.tracking.tracker import SURE_FACE_SCORE
+from voicepuppet.tracking import SURE_FACE_SCORE, NoFaceError, auto_init
 
 __all__ = ["HEAD_SUFFIXES", "load_head", "read_points_3d", "detect_points_3d", "frontal_frame", "sample_head"]
 
@@ -453,10 +452,10 @@ DETECT_TURNS = (0.0, 180.0, 90.0, -90.0)
 def detect_points_3d(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, image: np.ndarray,
                      name: str = "the head") -> np.ndarray:
     """The 68 landmarks (iBUG order) of a textured head found without being given: dlib's
-    detector and shape predictor (:func:`voicepuppet.tracking.tracker.auto_init`) on the head drawn with
+    detector and shape predictor (:func:`voicepuppet.tracking.detect.auto_init`) on the head drawn with
     its y axis up, from +z, else -z, +x or -x (:data:`DETECT_TURNS`), unlit,
-    :data:`DETECT_HEIGHT` px high, until it is sure of a face (:data:`voicepuppet.tracking.tracker.
-    SURE_FACE_SCORE`) that is not mirrored (a face mask seen from behind: :func:`frontal_frame`
+    :data:`DETECT_HEIGHT` px high, until it is sure of a face (:data:`voicepuppet.tracking.detect.SURE_FACE_SCORE`)
+    that is not mirrored (a face mask seen from behind: :func:`frontal_frame`
     refuses its points); each point is lifted to the surface it
     lies on (the nearest in front along the view), and an inner lip pair with the surface
     between them at their depth (a closed mouth) becomes one point, their middle.

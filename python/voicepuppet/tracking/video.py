@@ -28,8 +28,22 @@ def _cv2():
 
 
 class VideoInfo:
-    """What a video holds: ``width``, ``height``, ``fps`` and ``frame_count`` (as reported by the
-    container; 0 when unknown)."""
+    """What a video holds, as reported by the container (:func:`probe_video`); each parameter is
+    kept as the attribute of its name.
+
+    Parameters
+    ----------
+    path : str
+        The video file.
+    width : int
+        Frame width, px.
+    height : int
+        Frame height, px.
+    fps : float
+        Frame rate (0 when unknown).
+    frame_count : int
+        Number of frames (0 when unknown).
+    """
 
     def __init__(self, path: str, width: int, height: int, fps: float, frame_count: int):
         self.path, self.width, self.height, self.fps, self.frame_count = path, width, height, fps, frame_count
@@ -55,7 +69,20 @@ def _open(path: str | os.PathLike):
 def probe_video(path: str | os.PathLike) -> VideoInfo:
     """Opens ``path`` and reports its size, frame rate and frame count.
 
-    Raises ``ValueError`` if the file does not exist or cannot be decoded.
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A video file.
+
+    Returns
+    -------
+    VideoInfo
+        Its size, frame rate and frame count.
+
+    Raises
+    ------
+    ValueError
+        The file does not exist or cannot be decoded.
     """
     cv2 = _cv2()
     cap = _open(path)
@@ -82,8 +109,18 @@ def frame_times(path: str | os.PathLike) -> np.ndarray | None:
     A phone's video often has a variable frame rate: frame ``k`` is then not at ``k / fps``, and
     these times are what lines the frames up with the sound. Frames less than
     :data:`TIED_STAMPS` of the median frame interval apart (a muxer's repeated or one-tick-apart
-    stamps) are spread evenly up to the next stamp. Returns None when the container
-    gives a frame no time stamp (or PyAV cannot read it): frame ``k`` is then at ``k / fps``.
+    stamps) are spread evenly up to the next stamp.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A video file.
+
+    Returns
+    -------
+    ndarray, shape (T,), float64, or None
+        The times, s; None when the container gives a frame no time stamp (or PyAV cannot read
+        it): frame ``k`` is then at ``k / fps``.
     """
     import av
 
@@ -119,8 +156,21 @@ def _untie(times: np.ndarray) -> np.ndarray:
 
 
 def grid_slip(times: np.ndarray, fps: float) -> float:
-    """The largest distance of frame times (s, the first at 0) from the grid ``k / fps``, in frame
-    periods: about 0 for a constant frame rate, growing along a video whose rate varies."""
+    """The largest distance of frame times from the grid ``k / fps``, in frame periods: about 0
+    for a constant frame rate, growing along a video whose rate varies.
+
+    Parameters
+    ----------
+    times : array_like, shape (T,)
+        Frame times, s (measured from the first).
+    fps : float
+        The grid's frame rate.
+
+    Returns
+    -------
+    float
+        The largest distance, in frame periods (0 for no frames).
+    """
     times = np.asarray(times, dtype=np.float64).reshape(-1)
     return float(np.max(np.abs(times - times[0] - np.arange(len(times)) / fps)) * fps) if len(times) else 0.0
 
@@ -133,7 +183,23 @@ def nominal_rate(times: np.ndarray) -> float:
     """The frame rate of a video's most common frame interval (the mean of the intervals within
     25 % of the median: stamps rounded to milliseconds average out), snapped to a
     :data:`COMMON_RATES` rate within 1 %: what a variable-rate video runs at most of the time (a
-    phone's 30 fps with drops: 30, where OpenCV reports the average rate, e.g. 27.4)."""
+    phone's 30 fps with drops: 30, where OpenCV reports the average rate, e.g. 27.4).
+
+    Parameters
+    ----------
+    times : array_like, shape (T,)
+        Frame times, s, increasing, T >= 2.
+
+    Returns
+    -------
+    float
+        The frame rate, frames per second.
+
+    Raises
+    ------
+    ValueError
+        Fewer than two increasing times.
+    """
     gaps = np.diff(np.asarray(times, dtype=np.float64).reshape(-1))
     if not len(gaps) or not np.median(gaps) > 0:
         raise ValueError("nominal_rate needs at least two increasing frame times")
@@ -149,7 +215,24 @@ def downscale(frame: np.ndarray, scale: float) -> np.ndarray:
     The output is ``round(W * scale)`` by ``round(H * scale)`` pixels, and a point (x, y) of
     ``frame`` (pixel centres at integers) is at ``((x + 0.5) * scale - 0.5, (y + 0.5) * scale
     - 0.5)`` in it, in both axes with the same ``scale`` (OpenCV's own factor, not the rounded
-    size's). ``scale == 1`` returns ``frame`` itself, untouched.
+    size's).
+
+    Parameters
+    ----------
+    frame : ndarray, shape (H, W) or (H, W, 3)
+        The frame.
+    scale : float
+        The factor, in (0, 1].
+
+    Returns
+    -------
+    ndarray
+        The resized frame; ``frame`` itself, untouched, when ``scale == 1``.
+
+    Raises
+    ------
+    ValueError
+        ``scale`` is not in (0, 1].
     """
     if not 0.0 < scale <= 1.0:
         raise ValueError(f"scale must be in (0, 1] (a downscale factor), got {scale!r}")
@@ -160,8 +243,27 @@ def downscale(frame: np.ndarray, scale: float) -> np.ndarray:
 
 
 def iter_frames(path: str | os.PathLike, grey: bool = True, scale: float = 1.0) -> Iterator[np.ndarray]:
-    """Yields the frames of a video in order: (H, W) uint8 grey, or (H, W, 3) BGR if not ``grey``;
-    resized by ``scale`` (see :func:`downscale`) when it is below 1."""
+    """Yields the frames of a video in order, decoded by OpenCV.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A video file.
+    grey : bool, default True
+        Yield grey frames (else BGR).
+    scale : float, default 1.0
+        Resize the frames by this factor in (0, 1] (see :func:`downscale`).
+
+    Yields
+    ------
+    ndarray, shape (H, W) or (H, W, 3), uint8
+        The next frame: grey, or BGR if not ``grey``.
+
+    Raises
+    ------
+    ValueError
+        The file does not exist or cannot be decoded, or ``scale`` is not in (0, 1].
+    """
     cv2 = _cv2()
     if not 0.0 < scale <= 1.0:
         raise ValueError(f"scale must be in (0, 1] (a downscale factor), got {scale!r}")
@@ -179,8 +281,22 @@ def iter_frames(path: str | os.PathLike, grey: bool = True, scale: float = 1.0) 
 
 
 def frame_at(path: str | os.PathLike, index: int, grey: bool = True) -> np.ndarray | None:
-    """Frame ``index`` of a video as :func:`iter_frames` yields it (decoded in order up to it),
-    or None if the video has no such frame."""
+    """Frame ``index`` of a video as :func:`iter_frames` yields it (decoded in order up to it).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A video file.
+    index : int
+        The frame's index, from 0.
+    grey : bool, default True
+        Return it grey (else BGR).
+
+    Returns
+    -------
+    ndarray, shape (H, W) or (H, W, 3), uint8, or None
+        The frame, or None if the video has no such frame.
+    """
     frames = iter_frames(path, grey=grey)
     try:
         return next(itertools.islice(frames, int(index), None), None)
@@ -191,12 +307,23 @@ def frame_at(path: str | os.PathLike, index: int, grey: bool = True) -> np.ndarr
 def read_grey_frames(path: str | os.PathLike) -> tuple[np.ndarray, float]:
     """Decodes a whole video to grey frames.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A video file.
+
     Returns
     -------
-    frames : (T, H, W) uint8
-    fps : frames per second (29.97 assumed, with a warning-free fallback, if the container has none)
+    frames : ndarray, shape (T, H, W), uint8
+        The frames.
+    fps : float
+        Frames per second (29.97 assumed, with a warning-free fallback, if the container has
+        none).
 
-    Raises ``ValueError`` if the video cannot be opened or holds no frames.
+    Raises
+    ------
+    ValueError
+        The video cannot be opened or holds no frames.
     """
     info = probe_video(path)
     frames = list(iter_frames(path))
@@ -212,13 +339,26 @@ def write_overlay(path: str | os.PathLike, frames_bgr, points: np.ndarray, lost:
 
     Parameters
     ----------
-    path : output video (.mp4 or .avi)
-    frames_bgr : iterable of (H, W, 3) uint8 BGR (or (H, W) grey) frames, at least T of them
-    points : (T, P, 2) positions
-    lost : (T, P) bool lost flags
-    fps : frame rate of the output
-    edges : (E, 2) point index pairs to draw, optional
-    progress : optional callable(n) called after each frame
+    path : str or os.PathLike
+        Output video (.mp4, .m4v, .mov or .avi).
+    frames_bgr : iterable of ndarray
+        (H, W, 3) uint8 BGR (or (H, W) grey) frames, at least T of them.
+    points : ndarray, shape (T, P, 2)
+        Positions (x, y).
+    lost : ndarray, shape (T, P), bool
+        Lost flags.
+    fps : float
+        Frame rate of the output.
+    edges : ndarray, shape (E, 2), optional
+        Point index pairs to draw.
+    progress : callable, optional
+        Called with 1 after each frame.
+
+    Raises
+    ------
+    ValueError
+        A path of another extension or in a directory that does not exist, a codec that cannot
+        write, or fewer frames than points.
     """
     cv2 = _cv2()
     path = Path(path)

@@ -1,0 +1,261 @@
+"""Face detection and initialisation: dlib's 68 landmarks on the first frame with a face.
+
+``--init auto`` (:func:`auto_init`) runs dlib's frontal face detector and its 68-point shape
+predictor (iBUG 300-W layout) on a frame; :func:`first_face` looks for the first frame of a
+video with a face when the first has none. dlib (the ``dlib-bin`` wheel) and its model (Debian's
+``libdlib-data``) are optional: they are imported when a face is looked for.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import os
+import threading
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from voicepuppet.animation import neutral_landmarks
+from voicepuppet.layout import OUTER_EYE_CORNERS
+from voicepuppet.tracking import video
+from voicepuppet.tracking._checks import as_grey
+
+__all__ = ["NoFaceError", "auto_init", "first_face", "separate_coincident", "DLIB_MODEL_PATHS",
+           "AUTO_INIT_STRIDE_S", "AUTO_INIT_SCAN_S", "PROBE_MAX_PIXELS", "SEPARATE_PX", "SURE_FACE_SCORE"]
+
+
+# Where Debian's libdlib-data puts dlib's 68-point model (override with VOICEPUPPET_DLIB_MODEL).
+DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
+# With init="auto" and no face on the first frame (a title card, a fade-in, someone stepping into
+# view), the detector looks at one frame every AUTO_INIT_STRIDE_S seconds of the first
+# AUTO_INIT_SCAN_S seconds; tracking starts on the earliest frame with a face (those between the
+# last faceless probe and the first with a face are looked at one by one). Those looks upsample
+# the frame (dlib's way to find faces under its 80 px window) only while the upsampled frame
+# has at most PROBE_MAX_PIXELS: a faceless 1920x1080 frame costs dlib 0.11 s as it is and
+# 1.9 s upsampled twice, so 120 looks stay seconds; the smallest face they find is ~20 px on a
+# 320x320 frame, ~40 px on 640x480 and ~80 px from 1280x720 up (the first frame: any size).
+AUTO_INIT_STRIDE_S = 0.5
+AUTO_INIT_SCAN_S = 60.0
+PROBE_MAX_PIXELS = 1 << 21
+# How far apart (px) auto_init sets landmarks the detector put on one pixel (a closed mouth's
+# inner lips): the spring mesh's triangulation needs distinct points.
+SEPARATE_PX = 0.5
+
+
+class NoFaceError(ValueError):
+    """The landmark detector found no face (``--init auto``)."""
+
+
+#: dlib detection score (its SVM margin; 0 is its default threshold) above which a detection is
+#: taken for a face: of those the largest is the subject; below, clutter scores (a badge: 0.05).
+SURE_FACE_SCORE = 0.5
+
+# dlib's detector takes 0.26 s to build and its 68-point model 0.5 s to load, more than a look
+# at a frame: built once per process (a face search looks at up to 120 frames), used one thread
+# at a time.
+_DLIB_LOCK = threading.Lock()
+
+
+@functools.lru_cache(maxsize=1)
+def _dlib_detector():
+    import dlib
+
+    return dlib.get_frontal_face_detector()
+
+
+@functools.lru_cache(maxsize=2)
+def _dlib_predictor(model: str):
+    import dlib
+
+    return dlib.shape_predictor(model)
+
+
+def auto_init(frame: np.ndarray, instead: str = "--init points.json",
+              max_pixels: int | None = None, min_score: float | None = None) -> np.ndarray:
+    """Finds 68 face landmarks on a frame with dlib's shape predictor (iBUG 300-W layout).
+
+    dlib's detector looks at the frame, then (no face found) at it upsampled once and twice, each
+    time twice the size on a side for faces half as small; with ``max_pixels`` only the sizes of
+    at most that many pixels after the first (see :data:`PROBE_MAX_PIXELS`). Of several faces
+    the largest of those the detector is sure of (:data:`SURE_FACE_SCORE`) is taken, else its
+    surest: the largest alone took the astronaut's badge (score 0.05) over her face (1.50). With
+    ``min_score``, detections scoring less are no face.
+
+    Needs the ``dlib-bin`` (or ``dlib``) wheel and the model file from Debian's ``libdlib-data``
+    (``/usr/share/dlib/shape_predictor_68_face_landmarks.dat``) or the path in the environment
+    variable ``VOICEPUPPET_DLIB_MODEL``.
+
+    Parameters
+    ----------
+    frame : ndarray, shape (H, W) or (H, W, 3), uint8
+        The frame, grey or BGR.
+    instead : str, default "--init points.json"
+        The caller's way to give the points by hand, named in the errors.
+    max_pixels : int, optional
+        Upsample the frame only while it has at most this many pixels (the first size is always
+        looked at); default: up to twice.
+    min_score : float, optional
+        Detections scoring less are no face; default: all the detector reports.
+
+    Returns
+    -------
+    ndarray, shape (68, 2), float64
+        The landmarks (x, y) in the frame's pixels, points on one pixel moved apart
+        (:func:`separate_coincident`).
+
+    Raises
+    ------
+    ValueError
+        dlib or its model is not installed (the message says what to install), or the frame is
+        not a uint8 image.
+    NoFaceError
+        No face was found (a ``ValueError``). Both messages name ``instead``.
+    """
+    try:
+        import dlib
+    except ImportError:
+        raise ValueError("finding face landmarks automatically needs a detector: pip install dlib-bin and "
+                         "apt-get install libdlib-data (dlib's 68-point model), or pass the points with "
+                         f'{instead} ({{"points": [[x, y], ...]}})') from None
+    candidates = [os.environ.get("VOICEPUPPET_DLIB_MODEL", "")] + list(DLIB_MODEL_PATHS)
+    model = next((c for c in candidates if c and Path(c).is_file()), None)
+    if model is None:
+        raise ValueError("finding face landmarks automatically: dlib is installed but not its 68-point model: "
+                         "apt-get install libdlib-data, or set VOICEPUPPET_DLIB_MODEL to "
+                         f"shape_predictor_68_face_landmarks.dat, or pass the points with {instead}")
+    g = as_grey(frame, 0, None)
+    faces = []
+    with _DLIB_LOCK:
+        for upsample in (0, 1, 2):
+            if upsample and max_pixels is not None and g.size * 4 ** upsample > max_pixels:
+                break
+            faces, scores, _ = _dlib_detector().run(g, upsample, 0.0)
+            if min_score is not None:
+                faces, scores = [f for f, s in zip(faces, scores) if s >= min_score], \
+                    [s for s in scores if s >= min_score]
+            if len(faces):
+                break
+        if not len(faces):
+            raise NoFaceError(f"dlib's detector found no face on the frame; pass the points with {instead}")
+        sure = [f for f, s in zip(faces, scores) if s >= SURE_FACE_SCORE]
+        face = max(sure, key=lambda r: r.width() * r.height()) if sure else faces[int(np.argmax(scores))]
+        shape = _dlib_predictor(model)(g, face)
+    points = np.array([[shape.part(i).x, shape.part(i).y] for i in range(shape.num_parts)], dtype=np.float64)
+    return separate_coincident(points)
+
+
+def separate_coincident(points: np.ndarray) -> np.ndarray:
+    """``points`` with the points that share a position moved :data:`SEPARATE_PX` apart.
+
+    dlib gives whole pixels, so on a closed mouth the upper and lower inner lip (61-63 and 67-65)
+    land on one pixel, as may a lip corner's outer and inner point; the spring mesh needs distinct
+    points. Each point of a shared position moves half the distance away from the others, in the
+    direction it lies from them on the neutral face (:func:`voicepuppet.animation.neutral_landmarks`)
+    turned by the head's roll (the outer eye corners' line): upper lip up, lower lip down.
+
+    Parameters
+    ----------
+    points : ndarray, shape (68, 2), float64
+        Landmarks (x, y) of the 68-point layout.
+
+    Returns
+    -------
+    ndarray, shape (68, 2), float64
+        ``points`` itself when no two share a position, else a moved copy.
+    """
+    _, index, counts = np.unique(points, axis=0, return_inverse=True, return_counts=True)
+    index = index.reshape(-1)
+    if counts.max() == 1:
+        return points
+    ref = neutral_landmarks()
+    a, b = OUTER_EYE_CORNERS
+    eyes, ref_eyes = points[b] - points[a], ref[b] - ref[a]
+    roll = np.arctan2(eyes[1], eyes[0]) - np.arctan2(ref_eyes[1], ref_eyes[0])
+    turn = np.array([[np.cos(roll), -np.sin(roll)], [np.sin(roll), np.cos(roll)]])
+    out = points.copy()
+    for k in np.flatnonzero(counts > 1):
+        members = np.flatnonzero(index == k)
+        away = (ref[members] - ref[members].mean(axis=0)) @ turn.T
+        out[members] += 0.5 * SEPARATE_PX * away / np.linalg.norm(away, axis=1, keepdims=True)
+    return out
+
+
+def first_face(path, first: np.ndarray, fps: float, progress: bool = False,
+               grey: bool = True) -> tuple[int, np.ndarray, np.ndarray]:
+    """The first frame of a video that :func:`auto_init` finds a face on, and the face's points.
+
+    That is ``first`` (the video's first frame, as decoded), else the first probe (one frame
+    every :data:`AUTO_INIT_STRIDE_S` s up to :data:`AUTO_INIT_SCAN_S` s at ``fps``) with a face,
+    or the earliest of the frames since the probe before it that has one; after the first frame
+    the detector upsamples only up to :data:`PROBE_MAX_PIXELS`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The video.
+    first : ndarray, shape (H, W) or (H, W, 3), uint8
+        Its first frame, as decoded.
+    fps : float
+        Its frame rate (sets the probes' spacing).
+    progress : bool, default False
+        Show a progress bar over the probes.
+    grey : bool, default True
+        Decode the probed frames grey (else BGR).
+
+    Returns
+    -------
+    index : int
+        The frame's index in the video.
+    frame : ndarray, shape (H, W) or (H, W, 3), uint8
+        The frame as decoded: grey, or BGR without ``grey``.
+    points : ndarray, shape (68, 2), float64
+        The face's landmarks on it.
+
+    Raises
+    ------
+    NoFaceError
+        No frame looked at has a face.
+    ValueError
+        dlib or its model is not installed, or the video cannot be opened.
+    """
+    try:
+        return 0, first, auto_init(first)
+    except NoFaceError:
+        pass
+    stride = max(1, int(round(AUTO_INIT_STRIDE_S * fps)))
+    last = int(AUTO_INIT_SCAN_S * fps)
+    frames = video.iter_frames(path, grey=grey)
+    seen = 0
+    try:
+        with tqdm(total=last // stride, desc="looking for a face", unit="frame", disable=not progress,
+                  leave=False) as bar:
+            since = []  # the frames after the last probe: the face may have come in among them
+            for t, frame in enumerate(itertools.islice(frames, last + 1)):
+                seen = t + 1
+                if t == 0:
+                    continue
+                if t % stride:
+                    since.append((t, frame))
+                    continue
+                bar.update(1)
+                try:
+                    points = auto_init(frame, max_pixels=PROBE_MAX_PIXELS)
+                except NoFaceError:
+                    since = []
+                    continue
+                for u, earlier in since:
+                    try:
+                        found = auto_init(earlier, max_pixels=PROBE_MAX_PIXELS)
+                    except NoFaceError:
+                        continue
+                    t, frame, points = u, earlier, found
+                    break
+                return t, frame, points
+    finally:
+        frames.close()
+    cut = (f"; if it comes in later, cut the video to start there (ffmpeg -ss SECONDS -i {Path(path).name} "
+           "start.mp4)") if seen > last else ""
+    raise NoFaceError(f"no face in the first {seen / fps:.1f} s of {str(path)!r} (the first frame, then one "
+                      f"every {AUTO_INIT_STRIDE_S:g} s); check that the face is in view, upright and lit{cut}")
