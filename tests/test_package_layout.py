@@ -1,6 +1,7 @@
 """The package's import rules (DESIGN.md, "Layout"), checked on the source with ``ast``.
 
-1. No import circle among the package's modules, counting imports inside functions too.
+1. No import circle among the package's modules, counting imports inside functions too; each
+   stage imports only the stages below it in the data flow (:data:`ORDER`).
 2. No module imports an underscore name from another module; an underscore *module* (such as
    ``voicepuppet._core`` or ``render._backend``) is imported only from inside its own package.
 3. Imports of the package's own modules inside functions only in ``voicepuppet.cli`` (to keep
@@ -17,6 +18,14 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1] / "python" / "voicepuppet"
 PKG = "voicepuppet"
 MAX_LINES = 700
+
+#: The package's stages from the bottom up: a module imports only modules of its own stage or
+#: of stages before it here. The data flow of DESIGN.md, with two stages lower than it draws
+#: them: ``animation`` (the landmark-animation file format the tracker's neighbours and the
+#: puppet produce) and ``synth`` (the synthetic performer, which evaluation's corpora are made of).
+ORDER = ("_core", "_version", "_files", "blas", "layout", "data", "animation", "tracking", "face", "audio", "hmm",
+         "trajectory", "puppet", "render", "phonemes", "synth", "evaluation", "live", "batch", "bench", "cli",
+         "__init__")
 
 
 def _modules() -> dict[str, Path]:
@@ -118,6 +127,22 @@ def test_cycle_finder_finds_a_planted_circle():
 
 def test_no_import_circles():
     assert _cycles(GRAPH) == []
+
+
+def _stage(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def test_every_module_belongs_to_a_stage():
+    assert sorted({_stage(m) for m in KNOWN} - set(ORDER)) == []
+
+
+def test_stages_import_only_lower_stages():
+    rank = {s: i for i, s in enumerate(ORDER)}
+    bad = [f"{m} imports {t}" for m, targets in GRAPH.items() for t in targets
+           if rank[_stage(t)] > rank[_stage(m)]]
+    assert bad == []
 
 
 def test_no_private_names_across_modules():

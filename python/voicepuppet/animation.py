@@ -21,6 +21,7 @@ from typing import Optional
 import numpy as np
 
 from voicepuppet import layout as face_layout
+from voicepuppet.layout import neutral_landmarks
 from voicepuppet._files import atomic_path, write_npz
 
 __all__ = ["Animation", "load_animation", "save_animation", "check_points",
@@ -404,59 +405,6 @@ def apply_controls(anim: Animation, *, exaggeration: Optional[float] = None, off
 
 
 # ------------------------------------------------------------------ a parametric 68-point face
-
-def _arc(cx, cy, rx, ry, a0, a1, n):
-    a = np.linspace(a0, a1, n)
-    return np.column_stack([cx + rx * np.cos(a), cy + ry * np.sin(a)])
-
-
-def neutral_landmarks(width: int = 320, height: int = 320) -> np.ndarray:
-    """A frontal neutral face in the 68-point layout of :mod:`voicepuppet.layout`,
-    centred in a ``width`` x ``height`` image, mouth closed. Returns (68, 2) float64.
-
-    Parameters
-    ----------
-    width, height : int
-        Image size in pixels (default 320 x 320); the face scales with the smaller.
-
-    Returns
-    -------
-    ndarray, shape (68, 2)
-        Pixel coordinates (x, y), float64.
-    """
-    s = min(width, height) / 440.0
-    cx, cy = width / 2.0, height / 2.0
-    pts = np.zeros((68, 2))
-    # jaw 0..16: from the subject's right temple (image left) under the chin to the left temple
-    theta = np.linspace(0.0, np.pi, 17)
-    pts[0:17] = np.column_stack([cx - 105 * s * np.cos(theta), cy - 10 * s + 130 * s * np.sin(theta)])
-    # brows 17..26 (arched upwards: y smaller in the middle)
-    pts[17:22] = _arc(cx - 52 * s, cy - 58 * s, 34 * s, 10 * s, np.pi, 2 * np.pi, 5)
-    pts[22:27] = _arc(cx + 52 * s, cy - 58 * s, 34 * s, 10 * s, np.pi, 2 * np.pi, 5)
-    # nose bridge 27..30, nose base 31..35
-    pts[27:31] = np.column_stack([np.full(4, cx), cy + np.linspace(-42, 8, 4) * s])
-    pts[31:36] = np.column_stack([cx + np.linspace(-20, 20, 5) * s,
-                                  cy + (18 - 4 * np.cos(np.linspace(-1.2, 1.2, 5))) * s])
-    # eyes 36..47: corner, two upper lid points, corner, two lower lid points
-    for start, ex in ((36, cx - 45 * s), (42, cx + 45 * s)):
-        a = np.array([np.pi, 4 * np.pi / 3, 5 * np.pi / 3, 0.0, np.pi / 3, 2 * np.pi / 3])
-        pts[start:start + 6] = np.column_stack([ex + 20 * s * np.cos(a), cy - 30 * s + 9 * s * np.sin(a)])
-    # outer lip 48..59: corner (48), upper lip to the other corner (54), lower lip back
-    my = cy + 62 * s
-    a = np.linspace(np.pi, 2 * np.pi, 7)
-    upper = np.column_stack([cx + 42 * s * np.cos(a), my + 14 * s * np.sin(a)])
-    upper[3, 1] += 4 * s  # the Cupid's bow dip
-    b = np.linspace(0.0, np.pi, 7)[1:-1]
-    lower = np.column_stack([cx + 42 * s * np.cos(b), my + 16 * s * np.sin(b)])
-    pts[48:55] = upper
-    pts[55:60] = lower
-    # inner lip 60..67: corner, three upper, corner, three lower; closed mouth: lips touch
-    ai = np.linspace(np.pi, 2 * np.pi, 5)
-    pts[60:65] = np.column_stack([cx + 30 * s * np.cos(ai), my + 1.5 * s * np.sin(ai)])
-    bi = np.linspace(0.0, np.pi, 5)[1:-1]
-    pts[65:68] = np.column_stack([cx + 30 * s * np.cos(bi), my + 1.5 * s * np.sin(bi)])
-    return pts
-
 
 def procedural_animation(n_frames: int = 60, fps: float = 30.0, *, width: int = 320,
                          height: int = 320, jaw=None, smile=None, seed: Optional[int] = None) -> Animation:

@@ -1,7 +1,8 @@
 """The facial landmark layout shared by the synthetic performer, tracking, training and
 rendering: the 68-point iBUG / Multi-PIE markup (dlib's and menpo's), image coordinates (x, y).
 
-Groups index into the 68 points. ``MOUTH`` (outer + inner lip) is what the lip vertex error is
+Groups index into the 68 points; :func:`neutral_landmarks` draws a frontal neutral face in
+the layout (for the drawn performer, tests and demos). ``MOUTH`` (outer + inner lip) is what the lip vertex error is
 measured on; the inter-ocular distance (outer eye corners) normalises landmark errors.
 """
 
@@ -10,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["N_POINTS", "GROUPS", "NAMES", "MOUTH", "UPPER_FACE", "LOWER_FACE", "OUTER_EYE_CORNERS",
-           "EYE_CORNERS", "RIGID", "LIP_GAP", "inter_ocular_distance"]
+           "EYE_CORNERS", "RIGID", "LIP_GAP", "inter_ocular_distance", "neutral_landmarks"]
 
 N_POINTS = 68
 
@@ -69,3 +70,56 @@ def inter_ocular_distance(points: np.ndarray) -> np.ndarray:
                          "distance explicitly for other layouts")
     a, b = OUTER_EYE_CORNERS
     return np.linalg.norm(points[..., a, :] - points[..., b, :], axis=-1)
+
+
+def _arc(cx, cy, rx, ry, a0, a1, n):
+    a = np.linspace(a0, a1, n)
+    return np.column_stack([cx + rx * np.cos(a), cy + ry * np.sin(a)])
+
+
+def neutral_landmarks(width: int = 320, height: int = 320) -> np.ndarray:
+    """A frontal neutral face in the 68-point layout of :mod:`voicepuppet.layout`,
+    centred in a ``width`` x ``height`` image, mouth closed. Returns (68, 2) float64.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size in pixels (default 320 x 320); the face scales with the smaller.
+
+    Returns
+    -------
+    ndarray, shape (68, 2)
+        Pixel coordinates (x, y), float64.
+    """
+    s = min(width, height) / 440.0
+    cx, cy = width / 2.0, height / 2.0
+    pts = np.zeros((68, 2))
+    # jaw 0..16: from the subject's right temple (image left) under the chin to the left temple
+    theta = np.linspace(0.0, np.pi, 17)
+    pts[0:17] = np.column_stack([cx - 105 * s * np.cos(theta), cy - 10 * s + 130 * s * np.sin(theta)])
+    # brows 17..26 (arched upwards: y smaller in the middle)
+    pts[17:22] = _arc(cx - 52 * s, cy - 58 * s, 34 * s, 10 * s, np.pi, 2 * np.pi, 5)
+    pts[22:27] = _arc(cx + 52 * s, cy - 58 * s, 34 * s, 10 * s, np.pi, 2 * np.pi, 5)
+    # nose bridge 27..30, nose base 31..35
+    pts[27:31] = np.column_stack([np.full(4, cx), cy + np.linspace(-42, 8, 4) * s])
+    pts[31:36] = np.column_stack([cx + np.linspace(-20, 20, 5) * s,
+                                  cy + (18 - 4 * np.cos(np.linspace(-1.2, 1.2, 5))) * s])
+    # eyes 36..47: corner, two upper lid points, corner, two lower lid points
+    for start, ex in ((36, cx - 45 * s), (42, cx + 45 * s)):
+        a = np.array([np.pi, 4 * np.pi / 3, 5 * np.pi / 3, 0.0, np.pi / 3, 2 * np.pi / 3])
+        pts[start:start + 6] = np.column_stack([ex + 20 * s * np.cos(a), cy - 30 * s + 9 * s * np.sin(a)])
+    # outer lip 48..59: corner (48), upper lip to the other corner (54), lower lip back
+    my = cy + 62 * s
+    a = np.linspace(np.pi, 2 * np.pi, 7)
+    upper = np.column_stack([cx + 42 * s * np.cos(a), my + 14 * s * np.sin(a)])
+    upper[3, 1] += 4 * s  # the Cupid's bow dip
+    b = np.linspace(0.0, np.pi, 7)[1:-1]
+    lower = np.column_stack([cx + 42 * s * np.cos(b), my + 16 * s * np.sin(b)])
+    pts[48:55] = upper
+    pts[55:60] = lower
+    # inner lip 60..67: corner, three upper, corner, three lower; closed mouth: lips touch
+    ai = np.linspace(np.pi, 2 * np.pi, 5)
+    pts[60:65] = np.column_stack([cx + 30 * s * np.cos(ai), my + 1.5 * s * np.sin(ai)])
+    bi = np.linspace(0.0, np.pi, 5)[1:-1]
+    pts[65:68] = np.column_stack([cx + 30 * s * np.cos(bi), my + 1.5 * s * np.sin(bi)])
+    return pts

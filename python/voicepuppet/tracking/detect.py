@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from voicepuppet.animation import neutral_landmarks
+from voicepuppet.layout import neutral_landmarks
 from voicepuppet.layout import OUTER_EYE_CORNERS
 from voicepuppet.tracking import video
 from voicepuppet.tracking._checks import as_grey
