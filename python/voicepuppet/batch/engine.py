@@ -269,7 +269,16 @@ class BatchSummary:
     workers: int
 
     def count(self, status: str) -> int:
-        """How many inputs have ``status`` (``done``, ``skipped``, ``failed``)."""
+        """How many inputs have a status.
+
+        Parameters
+        ----------
+        status : {"done", "skipped", "failed"}
+
+        Returns
+        -------
+        int
+        """
         return sum(1 for f in self.files if f.status == status)
 
     @property
@@ -278,14 +287,26 @@ class BatchSummary:
         return [f for f in self.files if f.status == "failed"]
 
     def to_dict(self) -> dict:
-        """The summary as JSON-able data (what ``batch-summary.json`` holds)."""
+        """The summary as JSON-able data.
+
+        Returns
+        -------
+        dict
+            What ``batch-summary.json`` holds.
+        """
         return {"verb": self.verb, "wall_seconds": self.wall_seconds, "workers": self.workers,
                 "done": self.count("done"), "skipped": self.count("skipped"), "failed": self.count("failed"),
                 "media_seconds_done": sum(f.media_seconds for f in self.files if f.status == "done"),
                 "files": [asdict(f) for f in self.files]}
 
     def text(self) -> str:
-        """The summary as printed: counts and wall time, then each warning and failure."""
+        """The summary as printed.
+
+        Returns
+        -------
+        str
+            Counts and wall time, then each warning and failure, one per line.
+        """
         lines = [f"batch {self.verb}: {self.count('done')} done, {self.count('skipped')} skipped (already "
                  f"finished, checksums verified), {self.count('failed')} failed; {self.wall_seconds:.1f} s "
                  f"on {self.workers} workers"]

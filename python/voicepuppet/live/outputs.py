@@ -231,7 +231,13 @@ class FaceDriver:
 
 
 def viewer_page() -> str:
-    """The viewer page (``voicepuppet/live/web/index.html``) as text."""
+    """The viewer page.
+
+    Returns
+    -------
+    str
+        ``voicepuppet/live/web/index.html``.
+    """
     return resources.files("voicepuppet.live").joinpath("web", "index.html").read_text("utf-8")
 
 
