@@ -193,9 +193,7 @@ def run(quick: bool = False, repeats: int = 3, animate: bool = True) -> list[dic
         n_vid, frames_each = (4, 12) if quick else (8, 40)
         vid_dir = work / "videos"
         video_seconds = _videos(vid_dir, n_vid, frames_each)
-
         init = work / "points.json"
-
         init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist()}))
         ref = work / "track-ref"
 

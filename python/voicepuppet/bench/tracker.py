@@ -219,7 +219,6 @@ def run(quick: bool, repeats: int) -> list[dict]:
     err_lk = float(np.linalg.norm(res["lk"] - truth, axis=2).mean())
     per = n - 1
     # Per-frame compute (one more pass, timed frame by frame) for the streaming percentiles.
-
     tracker = _core.SpringMeshTracker(frames[0], ASTRONAUT_POINTS, mesh)
     frame_ms = []
     for t in range(1, n):
