@@ -1,4 +1,4 @@
-"""voicepuppet.batch.jobs: folders tracked and animated on a Dask LocalCluster, outputs equal to the
+"""voicepuppet.batch: folders tracked and animated on a Dask LocalCluster, outputs equal to the
 one-by-one outputs, resumable through the checksum manifest, per-file failures (unreadable,
 undecodable, full disk) reported without stopping the rest, clear errors for bad arguments."""
 
@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from voicepuppet.batch import jobs as batch
+from voicepuppet import batch
+from voicepuppet.batch import engine, jobs
 from voicepuppet.hmm.distributed import connect
 
 cv2 = pytest.importorskip("cv2", reason="pip install opencv-contrib-python-headless")
@@ -141,20 +142,20 @@ def test_a_points_file_warning_is_said_once_not_per_file(client, videos, tmp_pat
 def test_full_disk_is_reported_per_file_and_leaves_nothing_half_written(client, videos, monkeypatch, tmp_path):
     root, init = videos
     out = tmp_path / "out"
-    real = batch._write_file
+    real = engine.write_file
 
     def full_for_b(path, data):
         if path.name.startswith("b."):
             raise OSError(errno.ENOSPC, "No space left on device", str(path))
         return real(path, data)
 
-    monkeypatch.setattr(batch, "_write_file", full_for_b)
+    monkeypatch.setattr(engine, "write_file", full_for_b)
     s = batch.track_folder(root, out, init=str(init), passes=1, client=client, progress=False)
     b = next(f for f in s.files if f.input == "b.avi")
     assert b.status == "failed" and "no space left on device" in b.error
     assert {f.input for f in s.files if f.status == "done"} == {"a.avi", "sub/c.avi"}
     assert not any(n.startswith("b.") or ".partial" in n for n in outputs(out))
-    monkeypatch.setattr(batch, "_write_file", real)  # space freed: the re-run completes it
+    monkeypatch.setattr(engine, "write_file", real)  # space freed: the re-run completes it
     s2 = batch.track_folder(root, out, init=str(init), passes=1, client=client, progress=False)
     assert [f.input for f in s2.files if f.status == "done"] == ["b.avi"]
 
@@ -235,9 +236,9 @@ def test_bad_arguments_are_clear_errors(videos, tmp_path, capsys):
                  "--scheduler", f"tcp://127.0.0.1:{port}", "--timeout", "2"]) == 2
     assert "cannot reach the Dask scheduler" in capsys.readouterr().err
     with pytest.raises(ValueError, match="unknown export format"):
-        batch._format_tags(["npz", "mp3"])
+        jobs._format_tags(["npz", "mp3"])
     with pytest.raises(ValueError, match="same file twice"):
-        batch._format_tags(["arkit", "arkit"])
+        jobs._format_tags(["arkit", "arkit"])
 
 
 def _free_port() -> int:

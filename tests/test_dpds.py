@@ -1,4 +1,4 @@
-"""Tests of voicepuppet.phonemes.models against independent truth.
+"""Tests of the phoneme-driven models (voicepuppet.phonemes) against independent truth.
 
 - DPDS: the C++ gradient of eq. 1 against central finite differences (for fixed parameters and
   for the profile likelihood that training optimises); the exact mu/nu solve against numpy's
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from voicepuppet import _core
-from voicepuppet.phonemes import models as dpds
+from voicepuppet import phonemes as dpds
 from voicepuppet.phonemes.labels import N_PHONES
 
 SEED = 20261123

@@ -251,10 +251,10 @@ def test_cli_renders_and_exports_a_head(tmp_path, capsys):
     assert not (tmp_path / "b.mp4").exists()
     err = capsys.readouterr().err
     assert "finding the 68 landmarks of dome.obj" in err and "no face found on" in err
-    from voicepuppet.live.server import _FaceDriver
+    from voicepuppet.live.outputs import FaceDriver
 
     with pytest.raises(ValueError, match="render and export take the head"):
-        _FaceDriver(str(obj), str(pts), 68)
+        FaceDriver(str(obj), str(pts), 68)
 
 
 def _marked(head):

@@ -1,4 +1,4 @@
-"""Live voice puppetry (voicepuppet.live.server, voicepuppet::StreamingPuppet): the stream against the
+"""Live voice puppetry (voicepuppet.live, voicepuppet::StreamingPuppet): the stream against the
 offline puppet, latency bounds, the ``live`` verb (file, raw PCM on stdin, WebSocket, viewer in
 headless Chromium) and bad input.
 
@@ -22,7 +22,7 @@ from voicepuppet.animation import neutral_landmarks
 from voicepuppet import data as samples
 from voicepuppet.audio import load_audio, prepare
 from voicepuppet.audio.stream import speech_level_db
-from voicepuppet.live.server import TRUSTED_GUIDE_WEIGHT, LivePuppet, split_lag
+from voicepuppet.live.puppet import TRUSTED_GUIDE_WEIGHT, LivePuppet, split_lag
 
 SEED = 20261123
 FPS = 30000 / 1001
@@ -399,13 +399,13 @@ def free_port() -> int:
 
 def start_live(argv):
     """``voicepuppet live ARGV`` in a thread: (thread, its stdout, {"code": exit code} when done)."""
+    from voicepuppet.cli.live import _run
     from voicepuppet.cli.main import build_parser
-    from voicepuppet.live.server import run_live
 
     args = build_parser().parse_args(argv)
     out = io.StringIO()
     result = {}
-    th = threading.Thread(target=lambda: result.setdefault("code", run_live(args, out)), daemon=True)
+    th = threading.Thread(target=lambda: result.setdefault("code", _run(args, out)), daemon=True)
     th.start()
     return th, out, result
 

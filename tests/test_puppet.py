@@ -320,7 +320,7 @@ def test_the_band_of_the_training_audio_is_the_puppets(tmp_path):
         whole.animate(wide)
     with pytest.warns(AudioWarning, match=r"sampled at 8000 Hz.*up to 8000 Hz.*--audio-band 4000"):
         whole.animate(narrow)
-    from voicepuppet.live.server import LivePuppet
+    from voicepuppet.live import LivePuppet
 
     with pytest.warns(AudioWarning, match=r"the live audio is sampled at 8000 Hz.*--audio-band 4000"):
         LivePuppet(whole, rate=8000)

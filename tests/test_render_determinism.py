@@ -16,7 +16,7 @@ import pytest
 from voicepuppet import synth
 from voicepuppet.tracking import tracker as tracking
 from voicepuppet.tracking import video
-from voicepuppet.synth.video import _pose_matrices, rgb_to_yuv420p
+from voicepuppet.synth.video import pose_matrices, rgb_to_yuv420p
 
 FPS, RATE, SEED = 30000 / 1001, 16000, 4
 
@@ -236,7 +236,7 @@ def test_write_video_does_not_depend_on_the_cpus_or_the_heap(photo, tmp_path, mo
     art = synth.articulate([], _hum(6.0), RATE, photo.points, fps=FPS, seed=SEED)
     warper = synth.FaceWarper(photo.image, photo.points)
     frames = [warper.warp(warper.mesh_points(p, m))
-              for p, m in zip(art.points, _pose_matrices(art.pose, art.centre))]
+              for p, m in zip(art.points, pose_matrices(art.pose, art.centre))]
     cpus = os.sched_getaffinity(0)
     write_video(frames, tmp_path / "all.mp4", FPS)
     os.sched_setaffinity(0, {min(cpus)})

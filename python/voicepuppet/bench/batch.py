@@ -25,6 +25,7 @@ files byte for byte), 1 otherwise.
 from __future__ import annotations
 
 import hashlib
+import json
 import shutil
 import tempfile
 import time
@@ -33,7 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
-from voicepuppet.bench import case, timeit_interleaved
+from voicepuppet import batch, synth
+from voicepuppet.bench.hmm import make_problem
+from voicepuppet.bench.runner import case, timeit_interleaved
+from voicepuppet.bench.tracker import ASTRONAUT_POINTS, planted_face_sequence
+from voicepuppet.hmm.distributed import DaskEStep, connect
+from voicepuppet.hmm.gaussian import GaussianHMM
+from voicepuppet.puppet import Puppet, load
 
 SENTENCES = [
     "Peter bought a map of the bay before the boats came back.",
@@ -61,8 +68,6 @@ def _compare(out: Path, ref: Path) -> float:
 
 
 def _cluster(n: int):
-    from voicepuppet.hmm.distributed import connect
-
     t0 = time.perf_counter()
     ctx = connect(workers=n, timeout=120)
     client = ctx.__enter__()
@@ -71,9 +76,6 @@ def _cluster(n: int):
 
 def _make_puppet(work: Path, quick: bool):
     """A puppet trained on the synthetic performer (cached corpus), saved to work/puppet.vpp."""
-    from voicepuppet import synth
-    from voicepuppet.puppet.model import Puppet
-
     corpus = synth.make_corpus(work / "corpus", train_seconds=20 if quick else 60, n_test=0, seed=0,
                                real_test=False, progress=False)
     clip = corpus.train
@@ -87,8 +89,6 @@ def _speech_files(folder: Path, n: int) -> float:
     """n spoken wav files (espeak-ng sentences); returns their total duration in seconds."""
     import soundfile as sf
 
-    from voicepuppet import synth
-
     folder.mkdir(parents=True, exist_ok=True)
     total = 0.0
     for i in range(n):
@@ -100,8 +100,6 @@ def _speech_files(folder: Path, n: int) -> float:
 
 def _videos(folder: Path, n: int, frames_each: int) -> float:
     import cv2
-
-    from voicepuppet.bench.tracker import planted_face_sequence
 
     frames, _, _ = planted_face_sequence(n * frames_each, seed=3, occlusion=None, blur=None)
     folder.mkdir(parents=True, exist_ok=True)
@@ -119,8 +117,6 @@ def _trivial_task(path: str, name: str) -> dict:
 
 
 def _engine_overhead(work: Path, client, n_files: int, repeats: int) -> dict:
-    from voicepuppet.batch import jobs as batch
-
     src = work / "trivial"
     src.mkdir(exist_ok=True)
     for i in range(n_files):
@@ -138,7 +134,7 @@ def _engine_overhead(work: Path, client, n_files: int, repeats: int) -> dict:
         for rel, path, (name,) in jobs:
             value = _trivial_task(str(path), name)
             for n, data in value["files"].items():
-                batch._write_file(out / n, data)
+                batch.write_file(out / n, data)
         shutil.rmtree(out)
 
     med, res = timeit_interleaved({"ours": ours, "peer": peer}, repeats)
@@ -150,11 +146,6 @@ def _engine_overhead(work: Path, client, n_files: int, repeats: int) -> dict:
 
 def _training_case(client, quick: bool, repeats: int) -> dict:
     """Baum-Welch with its E-steps on the cluster vs in this process (same data, same start)."""
-    from voicepuppet.hmm.distributed import DaskEStep
-    from voicepuppet.hmm.gaussian import GaussianHMM
-
-    from voicepuppet.bench.hmm import make_problem
-
     n, d, T, S, n_iter = (10, 20, 4000, 8, 3) if quick else (40, 40, 18000, 24, 5)
     _, X = make_problem(n, d, T, seed=4)
     lengths = np.full(S, T // S)
@@ -179,9 +170,22 @@ def _training_case(client, quick: bool, repeats: int) -> dict:
 
 
 def run(quick: bool = False, repeats: int = 3, animate: bool = True) -> list[dict]:
-    """The suite; ``animate=False`` leaves out the animation cases (no puppet training)."""
-    from voicepuppet.batch import jobs as batch
+    """The batch suite's cases (see the module's docstring).
 
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+    animate : bool
+        False leaves out the animation cases (no puppet training).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+    """
     rows = []
     work = Path(tempfile.mkdtemp(prefix="voicepuppet-bench-batch-"))
     try:
@@ -189,11 +193,7 @@ def run(quick: bool = False, repeats: int = 3, animate: bool = True) -> list[dic
         n_vid, frames_each = (4, 12) if quick else (8, 40)
         vid_dir = work / "videos"
         video_seconds = _videos(vid_dir, n_vid, frames_each)
-        from voicepuppet.bench.tracker import ASTRONAUT_POINTS
-
         init = work / "points.json"
-        import json
-
         init.write_text(json.dumps({"points": ASTRONAUT_POINTS.tolist()}))
         ref = work / "track-ref"
 
@@ -210,8 +210,6 @@ def run(quick: bool = False, repeats: int = 3, animate: bool = True) -> list[dic
         aref = work / "animate-ref"
 
         def animate_peer():
-            from voicepuppet.puppet.model import load
-
             shutil.rmtree(aref, ignore_errors=True)
             aref.mkdir()
             puppet = load(puppet_path)

@@ -5,7 +5,7 @@ Cases (K = 16 face dimensions, 41 phones, phones dwelling 2-12 frames at 29.97 f
 
 - ``generate_hour``: DPDS generation for one hour of labels (107,892 frames), C++ recursion vs a
   numpy loop over frames; ``realtime_factor`` = seconds of video per second of compute.
-- ``stream_hour``: the same hour pushed one frame at a time through :class:`voicepuppet.phonemes.models.DPDSStream`
+- ``stream_hour``: the same hour pushed one frame at a time through :class:`voicepuppet.phonemes.dpds.DPDSStream`
   (Python call per frame included): ``frame_ms_p50`` / ``frame_ms_p99``.
 - ``trajectory_hour``: beside it, the puppet's synthesis kernel on the same hour (Brand's
   closed-form trajectory with one full-covariance Gaussian per phone, block Cholesky), no peer.
@@ -17,7 +17,7 @@ Cases (K = 16 face dimensions, 41 phones, phones dwelling 2-12 frames at 29.97 f
   A in numpy; ``agree`` compares the gradients.
 - ``solve_10min``: the exact mu/nu/r solve (Algorithm 1) on the same frames, no peer (the
   tests compare it with lstsq on small problems).
-- ``train_10min``: :meth:`voicepuppet.phonemes.models.DPDS.fit` on the same 10 minutes (L-BFGS-B, 100
+- ``train_10min``: :meth:`voicepuppet.phonemes.dpds.DPDS.fit` on the same 10 minutes (L-BFGS-B, 100
   iterations at most), no peer.
 """
 
@@ -28,7 +28,12 @@ import time
 import numpy as np
 
 from voicepuppet import _core
-from voicepuppet.bench import case, rel_diff, timeit_interleaved
+from voicepuppet.animation import neutral_landmarks
+from voicepuppet.bench.runner import case, rel_diff, timeit_interleaved
+from voicepuppet.phonemes.dpds import DPDS
+from voicepuppet.phonemes.labels import N_PHONES
+from voicepuppet.puppet import Puppet
+from voicepuppet.trajectory import make_model
 
 FPS = 29.97
 K = 16
@@ -36,16 +41,12 @@ SEED = 2007
 
 
 def _labels(rng, T):
-    from voicepuppet.phonemes.labels import N_PHONES
-
     dwell = rng.integers(2, 13, size=T)
     seq = np.repeat(rng.integers(0, N_PHONES, size=T), dwell)[:T]
     return np.ascontiguousarray(seq, dtype=np.int64)
 
 
 def _params(rng):
-    from voicepuppet.phonemes.labels import N_PHONES
-
     a = rng.uniform(0.5, 0.95, size=(N_PHONES, K))
     mu = rng.normal(size=(N_PHONES, K))
     nu = rng.normal(size=(N_PHONES, K)) * (1 - a)
@@ -78,9 +79,6 @@ def _numpy_gradient(a, mu, nu, r, Y, off, lab):
 def _puppet_animate_case(rng, n_frames: int, repeats: int) -> dict:
     """A 40-state puppet trained on 2 minutes of performer landmarks with synthetic feature
     frames (features_list), then animated from an hour of feature frames."""
-    from voicepuppet.animation import neutral_landmarks
-    from voicepuppet.puppet.model import Puppet
-
     T = int(120 * FPS)
     neutral = neutral_landmarks()
     basis = rng.normal(size=(4, 68, 2))
@@ -100,10 +98,20 @@ def _puppet_animate_case(rng, n_frames: int, repeats: int) -> dict:
 
 
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
-    from voicepuppet.phonemes.models import DPDS
-    from voicepuppet.phonemes.labels import N_PHONES
-    from voicepuppet.trajectory import make_model
+    """The dpds suite's cases (see the module's docstring).
 
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+    """
     rng = np.random.default_rng(SEED)
     cases = []
     hour = int(round((60 if quick else 3600) * FPS))

@@ -15,8 +15,8 @@ import time
 
 import numpy as np
 
-from voicepuppet.bench import case
 from voicepuppet.bench.hmm import make_problem
+from voicepuppet.bench.runner import case
 from voicepuppet.hmm.entropic import EntropicHMM
 from voicepuppet.hmm.gaussian import GaussianHMM
 
@@ -30,6 +30,20 @@ def _train(X, n, n_iter, prior):
 
 
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
+    """The entropic suite's case (see the module's docstring).
+
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+    """
     n_true, n, d, T, n_iter = (8, 12, 20, 2000, 10) if quick else (26, 40, 100, 18000, 30)
     _, X = make_problem(n_true, d, T)
     per_iter = {"entropic": [], "conventional": []}

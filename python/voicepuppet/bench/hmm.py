@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from voicepuppet import _core
-from voicepuppet.bench import case, rel_diff, timeit_interleaved
+from voicepuppet.bench.runner import case, rel_diff, timeit_interleaved
 from voicepuppet.hmm.gaussian import GaussianHMM
 
 
@@ -27,7 +27,23 @@ def _peer():
 
 
 def make_problem(n: int, d: int, T: int, seed: int = 0) -> tuple[GaussianHMM, np.ndarray]:
-    """A random sticky full-covariance model and T frames sampled from it."""
+    """A random sticky full-covariance model and T frames sampled from it.
+
+    Parameters
+    ----------
+    n : int
+        States.
+    d : int
+        Dimensions.
+    T : int
+        Frames.
+    seed : int
+
+    Returns
+    -------
+    model : GaussianHMM
+    X : ndarray, shape (T, d)
+    """
     rng = np.random.default_rng(seed)
     m = GaussianHMM(n, "full", random_state=seed)
     m.startprob_ = np.full(n, 1.0 / n)
@@ -53,6 +69,25 @@ def _matmul_gflops(repeats: int, dtype=np.float64) -> float:
 
 
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
+    """The hmm suite's cases (see the module's docstring).
+
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+
+    Raises
+    ------
+    ValueError
+        The peer is not installed (the message says what to install).
+    """
     hmm = _peer()
     n, d, T = (8, 20, 2000) if quick else (26, 100, 18000)
     size = f"N={n} D={d} T={T} full"

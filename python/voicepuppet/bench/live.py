@@ -12,7 +12,7 @@ Cases (medians of interleaved repeats; per-frame percentiles over every frame of
   ``vocal_features="projected", vocal_covariance="tied"`` (±5 frames, exact look-ahead), against
   the unprojected puppet's stream (``agree``: its exact stream against its offline animate;
   ``frame_ms_p50_10x``: per-frame compute on the clip's features repeated 10 times);
-- ``live_lag{L}ms``: :class:`voicepuppet.live.server.LivePuppet` end to end (audio chunks of 5 ms in,
+- ``live_lag{L}ms``: :class:`voicepuppet.live.puppet.LivePuppet` end to end (audio chunks of 5 ms in,
   face frames out) for several latency budgets. A frame's end-to-end latency is the audio
   time between the frame's moment and the end of the chunk that completed it, plus the compute
   time of that push: ``latency = lag + compute`` measured, not assumed.
@@ -26,13 +26,26 @@ Cases (medians of interleaved repeats; per-frame percentiles over every frame of
 from __future__ import annotations
 
 import gc
+import hashlib
+import json
 import math
+import os
 import statistics
 import time
 
 import numpy as np
 
-from voicepuppet.bench import case, rel_diff, timeit_interleaved
+from voicepuppet import _core
+from voicepuppet.audio import extract, load_audio, prepare
+from voicepuppet.audio.extract import reference_extract
+from voicepuppet.audio.stream import StreamingFeatures, speech_level_db
+from voicepuppet.bench.runner import case, print_table, rel_diff, timeit_interleaved
+from voicepuppet.data import cache_dir
+from voicepuppet.evaluation.metrics import err, landmark_rmse_iod
+from voicepuppet.live.puppet import LivePuppet
+from voicepuppet.puppet import TRAIN_DEFAULTS, Puppet, load
+from voicepuppet.puppet.guide import GUIDE_WEIGHT, GUIDE_WEIGHTS
+from voicepuppet.synth import make_corpus
 
 LAGS_MS = (0, 50, 100, 150, 250, 330)
 CHUNK = 80  # 5 ms at 16 kHz: the ``voicepuppet live`` default (live.CHUNK_MS)
@@ -40,11 +53,6 @@ CHUNK = 80  # 5 ms at 16 kHz: the ``voicepuppet live`` default (live.CHUNK_MS)
 
 def _corpus(quick: bool):
     """Training clip and held-out clips of the synthetic performer (cached), and a puppet."""
-    import os
-
-    from voicepuppet.data import cache_dir
-    from voicepuppet.synth import make_corpus
-
     secs = 20 if quick else 60
     c = make_corpus(os.path.join(cache_dir(), f"bench-live-{secs}s"), train_seconds=secs, n_test=3,
                     seed=0, progress=False)
@@ -59,13 +67,6 @@ def _projected(corpus, quick: bool):
 def _cached_puppet(corpus, quick: bool, **options):
     """The bench's puppet of ``corpus`` with training ``options``, cached in the corpus folder
     under the corpus's key (from its ``corpus.json``): a rebuilt corpus trains it again."""
-    import hashlib
-    import json
-    import os
-
-    from voicepuppet.puppet.guide import GUIDE_WEIGHT, GUIDE_WEIGHTS
-    from voicepuppet.puppet.model import Puppet, load
-    from voicepuppet.puppet.training import TRAIN_DEFAULTS
 
     with open(os.path.join(corpus.out_dir, "corpus.json")) as fh:
         key = json.load(fh)["key"]
@@ -103,12 +104,20 @@ def _stream_live(live, x):
 
 
 def run(quick: bool = False, repeats: int = 3) -> list:
-    from voicepuppet import _core
-    from voicepuppet.audio import extract, load_audio, prepare
-    from voicepuppet.audio.extract import reference_extract
-    from voicepuppet.audio.stream import StreamingFeatures, speech_level_db
-    from voicepuppet.live.server import LivePuppet
+    """The live suite's cases (see the module's docstring).
 
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+    """
     corpus, puppet = _corpus(quick)
     clip = corpus.test[0]
     x = load_audio(clip.audio).samples
@@ -248,12 +257,17 @@ def error_table(quick: bool = False) -> str:
     """Markdown table: streamed vs offline animation per latency budget, both synthesis modes,
     over the held-out clips of the synthetic performer (3 espeak-ng utterances and CMU ARCTIC
     a0009). Err is eq. 7 on landmarks (mean-subtracted motion), RMSE is landmark RMSE over the
-    inter-ocular distance; 'vs truth' columns compare with the performer's real landmarks."""
-    from voicepuppet.audio import load_audio
-    from voicepuppet.audio.stream import speech_level_db
-    from voicepuppet.live.server import LivePuppet
-    from voicepuppet.evaluation.metrics import err, landmark_rmse_iod
+    inter-ocular distance; 'vs truth' columns compare with the performer's real landmarks.
 
+    Parameters
+    ----------
+    quick : bool
+        The quick suite's smaller corpus and puppet.
+
+    Returns
+    -------
+    str
+    """
     corpus, puppet = _corpus(quick)
     rows = ["| lag budget (ms) | latency (ms) | look-aheads (formant, deltas, guide, decoder, trajectory) | mode "
             "| Err vs offline | RMSE/IOD vs offline | Err vs truth | RMSE/IOD vs truth |",
@@ -298,10 +312,6 @@ def _lag_price_table(puppet, clips, settings, sweep=(None, (None,)), guide_weigh
     (and with ``guide_weight``, the offline animation too); Err / RMSE against the offline
     animation and the truth as in :func:`error_table`, Viterbi, means over the clips."""
     option, values = sweep
-    from voicepuppet.audio import load_audio
-    from voicepuppet.audio.stream import speech_level_db
-    from voicepuppet.live.server import LivePuppet
-    from voicepuppet.evaluation.metrics import err, landmark_rmse_iod
 
     offline = {c.audio: puppet.animate(load_audio(c.audio), guide_weight=guide_weight
                                        ).animation.points for c in clips}
@@ -350,7 +360,17 @@ def projection_table(quick: bool = False) -> str:
     """Markdown table: the price of ``projection_lag`` < k for the projected puppet of
     ``_projected``, streamed without its guide (``guide_weight=0``, the table of
     docs/streaming.md was measured before guided puppets streamed): each projection look-ahead
-    with the other look-aheads of the 150 ms and 330 ms budgets, and covering."""
+    with the other look-aheads of the 150 ms and 330 ms budgets, and covering.
+
+    Parameters
+    ----------
+    quick : bool
+        The quick suite's smaller corpus and puppet.
+
+    Returns
+    -------
+    str
+    """
     corpus, _ = _corpus(quick)
     proj = _projected(corpus, quick)
     return _lag_price_table(proj, corpus.test, _PRICE_SETTINGS,
@@ -363,7 +383,17 @@ def guide_table(quick: bool = False) -> str:
     guide look-ahead with the other look-aheads of the 150 ms and 330 ms budgets (where the
     split gives the guide the decoder's look-ahead for free; more costs latency), and
     covering; then, at each budget's latency, splits that give the guide and the decoder more
-    by taking from the trajectory and the deltas."""
+    by taking from the trajectory and the deltas.
+
+    Parameters
+    ----------
+    quick : bool
+        The quick suite's smaller corpus and puppet.
+
+    Returns
+    -------
+    str
+    """
     corpus, puppet = _corpus(quick)
     kg = int(puppet._core.guide_context)
     table = _lag_price_table(puppet, corpus.test, _PRICE_SETTINGS, ("guide_lag", range(kg + 1)))
@@ -397,6 +427,4 @@ if __name__ == "__main__":  # pragma: no cover
     elif a.table:
         print(error_table(a.quick))
     else:
-        from voicepuppet.bench import print_table
-
         print_table(run(a.quick, 3))

@@ -13,20 +13,31 @@ import time
 
 import numpy as np
 
-from voicepuppet.bench import case
+from voicepuppet import _core, audio as vaudio, synth
+from voicepuppet.bench.runner import case
+from voicepuppet.puppet import Puppet
 
 
 def _corpus(seconds: float):
-    from voicepuppet import synth
-
     root = os.path.join(os.path.expanduser("~"), ".cache", "voicepuppet", f"bench-corpus-{int(seconds)}")
     return synth.make_corpus(root, train_seconds=seconds, n_test=1, real_test=False, progress=False)
 
 
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
-    from voicepuppet import _core, audio as vaudio
-    from voicepuppet.puppet.model import Puppet
+    """The pipeline suite's cases (see the module's docstring).
 
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+    """
     seconds = 30.0 if quick else 180.0
     corpus = _corpus(seconds)
     train = corpus.train

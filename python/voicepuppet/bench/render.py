@@ -12,15 +12,28 @@ from pathlib import Path
 
 import numpy as np
 
-from voicepuppet.bench import case, timeit_interleaved
+from voicepuppet.animation import procedural_animation
+from voicepuppet.bench.runner import case, timeit_interleaved
+from voicepuppet import render
+from voicepuppet.render import export
 
 
 def run(quick: bool = False, repeats: int = 1) -> list[dict]:
-    import soundfile as sf
+    """The render suite's cases (see the module's docstring).
 
-    from voicepuppet.render import export
-    from voicepuppet import render
-    from voicepuppet.animation import procedural_animation
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+    """
+    import soundfile as sf
 
     fps, seconds, (w, h) = 30000 / 1001, (3.0 if quick else 30.0), (640, 480)
     n = int(round(seconds * fps))

@@ -14,7 +14,9 @@ import time
 
 import numpy as np
 
-from voicepuppet.bench import case, timeit_interleaved
+from voicepuppet import synth
+from voicepuppet.bench.runner import case, timeit_interleaved
+from voicepuppet.synth.video import pose_matrices
 
 
 def _skimage():
@@ -26,9 +28,25 @@ def _skimage():
 
 
 def run(quick: bool = False, repeats: int = 3) -> list[dict]:
-    from voicepuppet import synth
-    from voicepuppet.synth.video import _pose_matrices
+    """The synth suite's cases (see the module's docstring).
 
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+
+    Raises
+    ------
+    RuntimeError
+        espeak-ng or scikit-image (the peer) is missing.
+    """
     if not synth.espeak_available():
         raise RuntimeError("the synth benchmark needs espeak-ng: apt-get install espeak-ng")
     PiecewiseAffineTransform, sk_warp = _skimage()
@@ -38,7 +56,7 @@ def run(quick: bool = False, repeats: int = 3) -> list[dict]:
     art = synth.articulate(utt.phones, utt.samples, utt.rate, photo.points, seed=0)
     t = int(np.argmax(art.param("gap")))
     warper = synth.FaceWarper(photo.image, photo.points)
-    dst = warper.mesh_points(art.points[t], _pose_matrices(art.pose[t:t + 1], art.centre)[0])
+    dst = warper.mesh_points(art.points[t], pose_matrices(art.pose[t:t + 1], art.centre)[0])
 
     def ours():
         return warper.warp(dst)

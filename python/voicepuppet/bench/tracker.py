@@ -14,7 +14,13 @@ scikit-image``.
 
 from __future__ import annotations
 
+import importlib
+import time
+
 import numpy as np
+
+from voicepuppet import _core
+from voicepuppet.bench.runner import case, timeit_interleaved
 
 # 26 landmarks on the astronaut's face (frame coordinates after the 1.25x resize below): dlib's
 # 68-point model on that frame, points 0, 4, 8, 12, 16 (jaw), 17, 19, 21, 22, 24, 26 (brows),
@@ -32,8 +38,6 @@ _FACE_CENTRE = np.array([282.0, 165.0])
 
 
 def _require(module: str, pip_name: str):
-    import importlib
-
     try:
         return importlib.import_module(module)
     except ImportError as exc:  # pragma: no cover - depends on the environment
@@ -149,7 +153,21 @@ def track_lk(frames: np.ndarray, points: np.ndarray, *, patch_radius: int = 6,
              levels: int = 3) -> np.ndarray:
     """Pyramidal Lucas-Kanade (OpenCV) from the same points with the same patch and pyramid.
 
-    Returns (T, P, 2) positions (frame 0 = the given points).
+    Parameters
+    ----------
+    frames : ndarray of uint8, shape (T, H, W)
+        Grey frames.
+    points : ndarray, shape (P, 2)
+        Points (x, y) on frame 0.
+    patch_radius : int
+        Half the window's side, as the spring-mesh tracker's patch.
+    levels : int
+        Pyramid levels.
+
+    Returns
+    -------
+    ndarray, shape (T, P, 2)
+        Positions (frame 0 = the given points).
     """
     cv2 = _require("cv2", "opencv-contrib-python-headless")
     win = 2 * patch_radius + 1
@@ -166,8 +184,6 @@ def track_lk(frames: np.ndarray, points: np.ndarray, *, patch_radius: int = 6,
 
 
 def _track_ours(frames: np.ndarray, points: np.ndarray, mesh) -> np.ndarray:
-    from voicepuppet import _core
-
     tracker = _core.SpringMeshTracker(frames[0], points, mesh)
     out = np.empty((len(frames), len(points), 2))
     out[0] = points
@@ -177,10 +193,20 @@ def _track_ours(frames: np.ndarray, points: np.ndarray, mesh) -> np.ndarray:
 
 
 def run(quick: bool, repeats: int) -> list[dict]:
-    """Frames per second of one spring-mesh pass vs ``calcOpticalFlowPyrLK``, 26 points, 640x480."""
-    from voicepuppet import _core
-    from voicepuppet.bench import case, timeit_interleaved
+    """Frames per second of one spring-mesh pass vs ``calcOpticalFlowPyrLK``, 26 points, 640x480.
 
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+    """
     cv2 = _require("cv2", "opencv-contrib-python-headless")
     cv2.setNumThreads(1)  # one core for both
     n = 40 if quick else 120
@@ -193,8 +219,6 @@ def run(quick: bool, repeats: int) -> list[dict]:
     err_lk = float(np.linalg.norm(res["lk"] - truth, axis=2).mean())
     per = n - 1
     # Per-frame compute (one more pass, timed frame by frame) for the streaming percentiles.
-    import time
-
     tracker = _core.SpringMeshTracker(frames[0], ASTRONAUT_POINTS, mesh)
     frame_ms = []
     for t in range(1, n):

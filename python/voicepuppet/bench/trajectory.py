@@ -26,7 +26,8 @@ import time
 
 import numpy as np
 
-from voicepuppet.bench import case, rel_diff, timeit_interleaved
+from voicepuppet import _core, trajectory as tr
+from voicepuppet.bench.runner import case, rel_diff, timeit_interleaved
 
 FPS = 29.97
 N_STATES = 26
@@ -116,6 +117,25 @@ def _child_solve(T: int, d: int, kind: str) -> dict:
 
 
 def run(quick: bool, repeats: int) -> list[dict]:
+    """The trajectory suite's cases (see the module's docstring).
+
+    Parameters
+    ----------
+    quick : bool
+        Small sizes, for a smoke run.
+    repeats : int
+        Timed repeats per case (median).
+
+    Returns
+    -------
+    list of dict
+        Rows made by :func:`voicepuppet.bench.runner.case`.
+
+    Raises
+    ------
+    ImportError
+        A peer is not installed (the message says what to install).
+    """
     try:
         import scipy.linalg as sla
         from nnmnkwii.paramgen import mlpg
@@ -123,9 +143,6 @@ def run(quick: bool, repeats: int) -> list[dict]:
     except ImportError as exc:  # pragma: no cover - depends on the environment
         raise ImportError("the trajectory benchmark needs its peers: pip install scipy nnmnkwii threadpoolctl "
                           f"(missing: {exc.name})") from exc
-
-    from voicepuppet import _core
-    from voicepuppet import trajectory as tr
 
     rng = np.random.default_rng(SEED)
     d = 10 if quick else 50
@@ -225,10 +242,23 @@ def lag_deviation_table(lags=(0, 1, 2, 4, 8, 16, 32, 64), T: int = 3000, d: int 
     dwell 1-8 frames), full covariance off; the smaller the velocity sd relative to the pose sd,
     the smoother the trajectory and the longer the look-ahead it needs. Deviation is the largest
     absolute difference over all frames and dims divided by the largest |y| of the full solve.
-    """
-    from voicepuppet import _core
-    from voicepuppet import trajectory as tr
 
+    Parameters
+    ----------
+    lags : sequence of int
+        The stream's look-aheads.
+    T : int
+        Frames.
+    d : int
+        Dimensions.
+    vel_sd : sequence of float
+        Velocity standard deviations (the pose's is 1).
+
+    Returns
+    -------
+    list of dict
+        ``{"vel_sd", "lag", "max_rel_dev"}`` per model and lag.
+    """
     rows = []
     for v in vel_sd:
         rng = np.random.default_rng(SEED)

@@ -23,12 +23,12 @@ VERB_MODULES = [
     "voicepuppet.cli.features",
     "voicepuppet.cli.render",
     "voicepuppet.cli.export",
-    "voicepuppet.batch.jobs",
-    "voicepuppet.live.server",
-    "voicepuppet.bench",
+    "voicepuppet.cli.batch",
+    "voicepuppet.cli.live",
+    "voicepuppet.cli.bench",
     "voicepuppet.cli.evaluate",
-    "voicepuppet.phonemes.labels",
-    "voicepuppet.phonemes.models",
+    "voicepuppet.cli.align",
+    "voicepuppet.cli.phoneme_puppet",
 ]
 
 

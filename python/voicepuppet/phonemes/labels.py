@@ -20,9 +20,12 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
+from fractions import Fraction
 from typing import Iterable, Sequence
 
 import numpy as np
+
+from voicepuppet._files import atomic_path
 
 __all__ = ["PHONES", "SIL", "BREATH", "N_PHONES", "PHONE_INDEX", "Segment", "to_phone",
            "normalize", "segments", "frame_labels", "read_textgrid", "write_textgrid", "read_hts",
@@ -70,7 +73,14 @@ _ALPHABETS = ("arpabet", "espeak")
 
 @dataclass(frozen=True)
 class Segment:
-    """One phone ``label`` (of :data:`PHONES`) from ``start`` to ``end`` seconds."""
+    """One phone ``label`` (of :data:`PHONES`) from ``start`` to ``end`` seconds.
+
+    Attributes
+    ----------
+    label : str
+    start : float
+    end : float
+    """
     label: str
     start: float
     end: float
@@ -293,6 +303,11 @@ def label_intervals(labels: Sequence[int], fps: float) -> list[Segment]:
     Returns
     -------
     list of Segment
+
+    Raises
+    ------
+    ValueError
+        Labels that are not a non-empty 1-D integer array indexing :data:`PHONES`, a bad ``fps``.
     """
     lab = np.asarray(labels)
     if lab.ndim != 1 or lab.size == 0 or not np.issubdtype(lab.dtype, np.integer):
@@ -327,6 +342,14 @@ def read_textgrid(path, tier: str | None = None, alphabet: str = "arpabet") -> l
     -------
     list of Segment
         Empty intervals are silence.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        Not a readable TextGrid, no such tier or no way to tell which holds the phones, a point
+        tier, unknown phones.
     """
     from praatio import textgrid
 
@@ -368,10 +391,13 @@ def write_textgrid(items, path, tier: str = "phones", alphabet: str = "arpabet")
     tier : str
     alphabet : {"arpabet", "espeak"}
         Alphabet of ``items``.
+
+    Raises
+    ------
+    ValueError
+        No phones, or a path that cannot be written.
     """
     from praatio import textgrid
-
-    from voicepuppet._files import atomic_path
 
     segs = normalize(items, alphabet)
     if not segs:
@@ -399,6 +425,13 @@ def read_hts(path, alphabet: str = "arpabet") -> list[Segment]:
     Returns
     -------
     list of Segment
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        Malformed lines, no labels, unknown phones.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -425,9 +458,22 @@ def read_hts(path, alphabet: str = "arpabet") -> list[Segment]:
 
 
 def write_hts(items, path, alphabet: str = "arpabet") -> None:
-    """Write phones as a mono HTS label file (lower-case labels, 100 ns units), atomically."""
-    from voicepuppet._files import atomic_path
+    """Write phones as a mono HTS label file (lower-case labels, 100 ns units), atomically.
 
+    Parameters
+    ----------
+    items : iterable
+        Phones, as accepted by :func:`normalize`.
+    path : str or os.PathLike
+        Output ``.lab`` path.
+    alphabet : {"arpabet", "espeak"}
+        Alphabet of ``items``.
+
+    Raises
+    ------
+    ValueError
+        No phones, or a path that cannot be written.
+    """
     segs = normalize(items, alphabet)
     if not segs:
         raise ValueError("no phones to write")
@@ -592,8 +638,6 @@ def _transcript_words(text: str) -> list[str]:
 
 def _pcm16k(audio, sample_rate):
     """16 kHz mono int16 bytes of a file or sample array, and the duration in seconds."""
-    from fractions import Fraction
-
     from scipy.signal import resample_poly
 
     if isinstance(audio, (str, os.PathLike)):
@@ -624,50 +668,3 @@ def _pcm16k(audio, sample_rate):
         x = resample_poly(x, f.numerator, f.denominator)
     pcm = (np.clip(x, -1.0, 1.0) * 32767).astype("<i2").tobytes()
     return pcm, duration
-
-
-# --------------------------------------------------------------------------------------------
-# command line: voicepuppet align
-
-
-def _run_align(args) -> int:
-    transcript = args.transcript
-    if args.transcript_file:
-        if transcript:
-            raise ValueError("give --transcript or --transcript-file, not both")
-        with open(args.transcript_file, encoding="utf-8") as fh:
-            transcript = fh.read()
-    out = os.fspath(args.output)
-    low = out.lower()
-    if not (low.endswith(".textgrid") or low.endswith(".lab")):
-        raise ValueError(f"the output must be a .TextGrid or a .lab (HTS) file, got {out!r}")
-    pron = {}
-    for item in args.pronounce or []:
-        word, sep, phones = item.partition("=")
-        if not sep:
-            raise ValueError(f"--pronounce takes WORD='PH PH ...', got {item!r}")
-        pron[word] = phones
-    segs = align(args.audio, transcript, pronunciations=pron)
-    if low.endswith(".lab"):
-        write_hts(segs, out)
-    else:
-        write_textgrid(segs, out)
-    n = sum(s.label != SIL for s in segs)
-    print(f"{n} phones over {segs[-1].end:.2f} s ({'forced alignment' if transcript else 'phone recognition'})"
-          f"; wrote {out}")
-    return 0
-
-
-def add_parser(sub) -> None:
-    p = sub.add_parser("align", help="phone labels of speech (pocketsphinx forced alignment)",
-                       description="Phone segments of speech with pocketsphinx's US English model: "
-                                   "forced alignment to a transcript, or phone recognition without one. "
-                                   "Writes a Praat TextGrid or an HTS label file.")
-    p.add_argument("audio", help="sound file or video with sound")
-    p.add_argument("-t", "--transcript", help="the words spoken")
-    p.add_argument("--transcript-file", metavar="FILE", help="read the words from a text file")
-    p.add_argument("--pronounce", action="append", metavar="WORD='PH PH ...'",
-                   help="phones (ARPAbet) of a word the dictionary lacks, e.g. churl='CH ER L'; repeatable")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.TextGrid|OUT.lab",
-                   help="output: .TextGrid (Praat) or .lab (HTS, 100 ns units)")
-    p.set_defaults(func=_run_align)

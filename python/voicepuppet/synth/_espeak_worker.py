@@ -30,6 +30,7 @@ _CALLBACK = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.POINTER(ctypes.c_short), ctype
 
 
 def main() -> int:
+    """Serve the request on standard input (see the module's docstring); returns the exit code."""
     req = json.loads(sys.stdin.read())
     lib = ctypes.CDLL(ctypes.util.find_library("espeak-ng") or "libespeak-ng.so.1")
     lib.espeak_Info.restype = ctypes.c_char_p

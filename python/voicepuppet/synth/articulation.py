@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from voicepuppet import layout as face_layout
+from voicepuppet.audio.pitch import pitch_frames
 
 __all__ = ["ARTICULATORS", "PARAM_NAMES", "phone_class", "Articulation", "articulator_tracks",
            "articulate", "deform", "lip_gap", "INTERNAL_RATE"]
@@ -103,7 +104,18 @@ _DIPHTHONGS = {"aI": ("vowel_open", "vowel_close_front"), "ay": ("vowel_open", "
 
 
 def phone_class(label: str) -> str:
-    """Articulatory class of a phone label (espeak-ng mnemonic or ARPAbet)."""
+    """Articulatory class of a phone label (espeak-ng mnemonic or ARPAbet).
+
+    Parameters
+    ----------
+    label : str
+
+    Returns
+    -------
+    str
+        A class of the articulatory model (``pause``, ``bilabial``, ``vowel_open``, ...);
+        unknown labels fall back to ``vowel_schwa`` (with a vowel letter) or ``alveolar``.
+    """
     lab = label.strip()
     if lab == "" or lab.startswith("_") or lab.lower() in ("sil", "pau", "sp"):
         return "pause"
@@ -145,6 +157,15 @@ def _critically_damped(x: np.ndarray, tau: float, rate: float) -> np.ndarray:
 def articulator_tracks(phones, duration: float, rate: float = INTERNAL_RATE) -> np.ndarray:
     """Articulator values at ``rate`` Hz from phone timings.
 
+    Parameters
+    ----------
+    phones : iterable
+        Objects with ``.label``, ``.start``, ``.end`` (seconds), or ``(label, start, end)`` rows.
+    duration : float
+        Seconds to cover.
+    rate : float
+        Rate of the tracks in Hz.
+
     Returns
     -------
     ndarray, shape (ceil(duration * rate) + 1, 5)
@@ -174,7 +195,17 @@ _GAP_JAW, _GAP_LIPS, _GAP_SOFT = 0.18, 0.15, 0.008
 
 
 def lip_gap(jaw: np.ndarray, lips: np.ndarray) -> np.ndarray:
-    """Inner-lip gap (inter-ocular units): jaw and lip efforts add, contact clips at zero."""
+    """Inner-lip gap (inter-ocular units): jaw and lip efforts add, contact clips at zero.
+
+    Parameters
+    ----------
+    jaw, lips : ndarray, shape (T,)
+        Jaw opening and lip aperture efforts (0..1).
+
+    Returns
+    -------
+    ndarray, shape (T,)
+    """
     z = (_GAP_JAW * jaw + _GAP_LIPS * lips) / _GAP_SOFT
     return _GAP_SOFT * np.logaddexp(0.0, z)
 
@@ -270,16 +301,26 @@ class Articulation:
 
     @property
     def n_frames(self) -> int:
+        """Frames T."""
         return len(self.points)
 
     def param(self, name: str) -> np.ndarray:
+        """One column of :attr:`params`.
+
+        Parameters
+        ----------
+        name : str
+            One of ``PARAM_NAMES``.
+
+        Returns
+        -------
+        ndarray, shape (T,)
+        """
         return self.params[:, PARAM_NAMES.index(name)]
 
 
 def _prosody(samples: np.ndarray, rate: int, fps: float, n: int) -> np.ndarray:
     """Brow raise 0..1 per frame from the energy and F0 of the audio."""
-    from voicepuppet.audio.pitch import pitch_frames
-
     x = np.asarray(samples, dtype=np.float64)
     centres = (np.arange(n) / fps * rate).astype(int)
     half = int(0.02 * rate)
@@ -331,7 +372,19 @@ def _head_pose(n: int, fps: float, loud: np.ndarray, d: float, rng: np.random.Ge
 
 
 def apply_pose(points: np.ndarray, pose: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """Similarity transform per frame: ``s R (p - centre) + centre + t``."""
+    """Similarity transform per frame: ``s R (p - centre) + centre + t``.
+
+    Parameters
+    ----------
+    points : ndarray, shape (T, P, 2)
+    pose : ndarray, shape (T, 4)
+        Rotation (rad), scale, x and y translation (px) per frame.
+    centre : ndarray, shape (2,)
+
+    Returns
+    -------
+    ndarray, shape (T, P, 2)
+    """
     ang, s, tx, ty = pose.T
     cs, sn = np.cos(ang) * s, np.sin(ang) * s
     p = points - centre

