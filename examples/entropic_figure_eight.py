@@ -18,7 +18,7 @@ import os
 import numpy as np
 
 from voicepuppet import _core
-from voicepuppet.hmm import entropic as E
+from voicepuppet.hmm import diagnostics as D
 from voicepuppet.hmm.entropic import EntropicHMM
 from voicepuppet.hmm.gaussian import GaussianHMM
 from voicepuppet.trajectory import solve_trajectory
@@ -87,7 +87,7 @@ def main(argv=None):
     }
     rows = {}
     for name, m in models.items():
-        d = E.diagnostics(m, X_test)
+        d = D.diagnostics(m, X_test)
         rows[name] = {k: d[k] for k in ("states", "arcs", "perplexity", "context_memory",
                                         "log_likelihood_per_frame", "entropy_rate",
                                         "viterbi_share_per_frame")}

@@ -13,6 +13,7 @@ from scipy.optimize import minimize
 from scipy.special import logsumexp
 
 from voicepuppet import _core
+from voicepuppet.hmm import diagnostics as D
 from voicepuppet.hmm import entropic as E
 from voicepuppet.hmm.entropic import EntropicHMM
 from voicepuppet.hmm.gaussian import GaussianHMM
@@ -159,7 +160,7 @@ def test_entropic_training_recovers_the_planted_machine():
     owner = np.argmin(((ent.means_[:, None, :] - means_true[None]) ** 2).sum(-1), axis=1)
     assert set(owner) == set(range(5))
     # Entropic decoding is far less ambiguous.
-    d_ent, d_ml = E.diagnostics(ent, X), E.diagnostics(ml, X)
+    d_ent, d_ml = D.diagnostics(ent, X), D.diagnostics(ml, X)
     assert d_ent["entropy_rate"] < 0.5 * d_ml["entropy_rate"]
     assert d_ent["perplexity"] < d_ml["perplexity"]
     assert d_ent["viterbi_log_share"] > d_ml["viterbi_log_share"]
@@ -259,8 +260,8 @@ def test_entropy_rate_and_viterbi_share_against_enumeration():
     lp = brute_force_paths(log_b, pi, A)
     p = np.exp(lp[np.isfinite(lp)])
     H = -np.sum(p * np.log(p))
-    assert E.entropy_rate(log_b, pi, A) == pytest.approx(H / T, rel=1e-10)
-    log_share, per_frame = E.viterbi_share(log_b, pi, A)
+    assert D.entropy_rate(log_b, pi, A) == pytest.approx(H / T, rel=1e-10)
+    log_share, per_frame = D.viterbi_share(log_b, pi, A)
     assert log_share == pytest.approx(np.max(lp), rel=1e-10)
     assert per_frame == pytest.approx(math.exp(np.max(lp) / T))
 
@@ -268,17 +269,17 @@ def test_entropy_rate_and_viterbi_share_against_enumeration():
 def test_perplexity_and_context_memory():
     n = 26
     cycle = np.roll(np.eye(n), 1, axis=1)
-    assert E.perplexity(cycle) == pytest.approx(1.0)
-    assert E.context_memory(cycle) == math.inf
-    assert E.perplexity(np.full((n, n), 1 / n)) == pytest.approx(n)
+    assert D.perplexity(cycle) == pytest.approx(1.0)
+    assert D.context_memory(cycle) == math.inf
+    assert D.perplexity(np.full((n, n), 1 / n)) == pytest.approx(n)
     # Brand's footnote: branching factor 2.08 among 26 states ≈ 4.5 frames of context.
     A = np.zeros((n, n))
     for i in range(n):
         A[i, i], A[i, (i + 1) % n] = 0.5, 0.5
-    assert E.perplexity(A) == pytest.approx(2.0)
-    assert E.context_memory(A) == pytest.approx(math.log(26) / math.log(2))
+    assert D.perplexity(A) == pytest.approx(2.0)
+    assert D.context_memory(A) == pytest.approx(math.log(26) / math.log(2))
     with pytest.raises(ValueError, match="rows summing"):
-        E.perplexity(np.ones((2, 2)))
+        D.perplexity(np.ones((2, 2)))
 
 
 def test_progress_bar_is_shown(capsys):

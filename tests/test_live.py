@@ -21,7 +21,7 @@ import pytest
 from voicepuppet.animation import neutral_landmarks
 from voicepuppet import data as samples
 from voicepuppet.audio import load_audio, prepare
-from voicepuppet.audio.stream import speech_level_db
+from voicepuppet.audio.conditioning import speech_level_db
 from voicepuppet.live.puppet import TRUSTED_GUIDE_WEIGHT, LivePuppet, split_lag
 
 SEED = 20261123

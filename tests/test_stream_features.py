@@ -14,8 +14,8 @@ from scipy.signal import resample_poly
 from voicepuppet import data as samples
 from voicepuppet.audio import AudioWarning, extract, load_audio, prepare
 from voicepuppet.audio.extract import reference_extract
-from voicepuppet.audio.stream import (STREAMABLE, StreamingFeatures, StreamResampler,
-                                      pcm_to_float)
+from voicepuppet.audio.conditioning import StreamResampler, pcm_to_float
+from voicepuppet.audio.stream import STREAMABLE, StreamingFeatures
 
 SEED = 20261123
 RATE = 16000
@@ -408,7 +408,7 @@ def test_band_limiter_is_resample_poly_down_and_up_in_any_chunking():
     """band_hz=4000 at 16 kHz: scipy's resample_poly to 8 kHz and back, cut to the input's
     length, whole or pushed in random chunks (zero-length ones included); its stated delay is
     the two filters' half lengths; bad bands are refused."""
-    from voicepuppet.audio.stream import BandLimiter
+    from voicepuppet.audio.conditioning import BandLimiter
 
     rng = np.random.default_rng(SEED + 7)
     x = rng.standard_normal(20011)
@@ -461,8 +461,8 @@ def test_level_db_brings_every_recording_to_one_level_and_its_pauses_to_one_floo
     untouched), so a recording and the same 20 dB quieter give the same features (to rounding),
     digital silence and a quiet noise floor become the dither, a near-silent recording is raised
     by at most MAX_GAIN_DB, and the same input gives the same samples."""
-    from voicepuppet.audio.stream import (DITHER_BELOW_DB, GATE_BELOW_DB, MAX_GAIN_DB, LevelNormalizer,
-                                          speech_level_db)
+    from voicepuppet.audio.conditioning import (DITHER_BELOW_DB, GATE_BELOW_DB, MAX_GAIN_DB, LevelNormalizer,
+                                                speech_level_db)
 
     level = -20.0
     a, b = (prepare(g * speech, RATE, target_rate=None, remove_dc=False) for g in (1.0, 0.1))
@@ -497,7 +497,7 @@ def test_a_stream_at_a_known_level_is_the_recording_and_otherwise_estimates_it(s
     """Given the recording's level the stream is scaled as the recording is (the same frames for
     any chunking); without it the gain is 1 for the first LEVEL_SETTLE_S, then that of the
     LEVEL_PERCENTILE of what has been heard (to the histogram's 0.25 dB)."""
-    from voicepuppet.audio.stream import LEVEL_SETTLE_S, LevelNormalizer, speech_level_db
+    from voicepuppet.audio.conditioning import LEVEL_SETTLE_S, LevelNormalizer, speech_level_db
 
     x = 0.1 * speech
     au = prepare(x, RATE, target_rate=None, remove_dc=False)

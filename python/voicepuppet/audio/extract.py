@@ -18,7 +18,8 @@ from voicepuppet.audio import spectral
 from voicepuppet.audio.featureset import Features, FeatureSet, analysis_window_s, as_feature_set, feature_of
 from voicepuppet.audio.framing import check_fps, n_frames
 from voicepuppet.audio.loading import Audio, AudioWarning, load_audio
-from voicepuppet.audio.stream import BandLimiter, LevelNormalizer, StreamingFeatures
+from voicepuppet.audio.stream import StreamingFeatures
+from voicepuppet.audio.conditioning import BandLimiter, LevelNormalizer
 
 
 def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = None,

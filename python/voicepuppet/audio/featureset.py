@@ -53,10 +53,10 @@ DEFAULT_OPTIONS = {
     "pitch_floor": 75.0,
     "pitch_ceiling": 600.0,
     "band_hz": None,         # limit the audio to this band (Hz) before any analysis, by
-                             # resampling to 2 band_hz and back (stream.BandLimiter): 4000 makes
+                             # resampling to 2 band_hz and back (conditioning.BandLimiter): 4000 makes
                              # a puppet for telephone audio (8 kHz); None: the whole band
     "level_db": None,        # bring each recording's speech level to this (dBFS) and turn its frames
-                             # 35 dB under it into dither, before any analysis (stream.LevelNormalizer):
+                             # 35 dB under it into dither, before any analysis (conditioning.LevelNormalizer):
                              # pauses look alike whatever the noise floor, and so do loud and
                              # quiet recordings; None: the samples as they are
 }

@@ -38,7 +38,8 @@ import numpy as np
 from voicepuppet import _core
 from voicepuppet.audio import extract, load_audio, prepare
 from voicepuppet.audio.extract import reference_extract
-from voicepuppet.audio.stream import StreamingFeatures, speech_level_db
+from voicepuppet.audio.stream import StreamingFeatures
+from voicepuppet.audio.conditioning import speech_level_db
 from voicepuppet.bench.runner import case, print_table, rel_diff, timeit_interleaved
 from voicepuppet.data import cache_dir
 from voicepuppet.evaluation.metrics import err, landmark_rmse_iod

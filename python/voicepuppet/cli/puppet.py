@@ -19,7 +19,7 @@ def _train(args) -> int:
     out = check_output_path(args.output, (".vpp",), "puppet file")
     feature_set = args.feature_set
     if args.audio_band is not None:  # checked here, before any tracking
-        from voicepuppet.audio.stream import BandLimiter
+        from voicepuppet.audio.conditioning import BandLimiter
 
         BandLimiter(args.audio_band, vaudio.loading.DEFAULT_RATE)
         named = vaudio.as_feature_set(feature_set)

@@ -31,7 +31,7 @@ from voicepuppet import audio as vaudio
 from voicepuppet.blas import limited
 from voicepuppet.evaluation import metrics
 from voicepuppet.face import observations
-from voicepuppet.hmm.entropic import entropy_rate
+from voicepuppet.hmm.diagnostics import entropy_rate
 from voicepuppet.puppet.guide import RidgeBaseline
 
 #: The row of a guided puppet animated without its guide (``guide_weight=0``: Brand's solve).
@@ -98,7 +98,7 @@ def decoding_entropy_rate(puppet, features) -> float:
     Returns
     -------
     float
-        :func:`voicepuppet.hmm.entropic.entropy_rate` of each part's vocal HMM, averaged over parts.
+        :func:`voicepuppet.hmm.diagnostics.entropy_rate` of each part's vocal HMM, averaged over parts.
     """
     z = puppet._core.standardize(np.ascontiguousarray(features, dtype=np.float64))
     rates = []

@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from voicepuppet import _core
-from voicepuppet.audio.stream import StreamingFeatures, StreamResampler, pcm_to_float
+from voicepuppet.audio.stream import StreamingFeatures
+from voicepuppet.audio.conditioning import StreamResampler, pcm_to_float
 from voicepuppet.puppet import load
 
 #: Sample rate of the analysis (the rate puppets are trained at: load_audio's default).
@@ -181,7 +182,7 @@ class LivePuppet:
     input_level_db : float, optional
         For a puppet that brings audio to a speech level (feature option ``level_db``, the
         default of training): the live audio's speech level in dBFS, if known
-        (:func:`voicepuppet.audio.stream.speech_level_db` of a recording of the same source),
+        (:func:`voicepuppet.audio.conditioning.speech_level_db` of a recording of the same source),
         so the stream is scaled as ``animate`` scales it from the first sample; without it the
         level is estimated from what has been heard (the first second as it comes).
 

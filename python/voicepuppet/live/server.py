@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from voicepuppet.audio import load_audio
-from voicepuppet.audio.stream import speech_level_db
+from voicepuppet.audio.conditioning import speech_level_db
 from voicepuppet.live.outputs import FaceDriver, OscOut, WebSocketOut, host_port
 from voicepuppet.live.puppet import ANALYSIS_RATE, LiveFrames, LivePuppet
 

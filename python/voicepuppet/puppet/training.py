@@ -21,7 +21,8 @@ from voicepuppet import audio as vaudio
 from voicepuppet._version import __version__
 from voicepuppet.face import FaceSpace, check_landmarks, observations
 from voicepuppet.hmm import distributed
-from voicepuppet.hmm.entropic import EntropicHMM, anneal_schedule, diagnostics
+from voicepuppet.hmm.entropic import EntropicHMM, anneal_schedule
+from voicepuppet.hmm.diagnostics import diagnostics
 from voicepuppet.hmm.gaussian import GaussianHMM
 from voicepuppet.puppet.guide import (GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES, cross_fit_folds,
                                      fit_guide, fit_projection, sequence_runs)
