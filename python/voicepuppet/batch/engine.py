@@ -230,15 +230,24 @@ class FileResult:
     its task warned about on the worker (a stretch where the face was lost, a variable frame
     rate, silent audio), which the one-by-one command would have printed.
 
-    Attributes
+    Parameters
     ----------
     input : str
         The input's path relative to the input folder.
     status : {"done", "skipped", "failed"}
-    outputs : list of str
-    error : str or None
-    media_seconds : float
-    warnings : list of str
+        What became of the input.
+    outputs : list of str, optional
+        Its outputs, as paths relative to OUT_DIR (default: none).
+    error : str or None, optional
+        Why it failed (``None`` unless ``status`` is ``failed``).
+    media_seconds : float, optional
+        Duration of the input's audio or video, for done files (default 0).
+    warnings : list of str, optional
+        What its task warned about on the worker (default: none).
+
+    Notes
+    -----
+    Each parameter is kept as the attribute of the same name.
     """
 
     input: str
@@ -253,14 +262,20 @@ class FileResult:
 class BatchSummary:
     """A run: one :class:`FileResult` per input, in input order, and the wall time.
 
-    Attributes
+    Parameters
     ----------
     verb : str
         ``animate`` or ``track`` (or the name given to :func:`run_batch`).
     files : list of FileResult
+        One result per input, in input order.
     wall_seconds : float
+        Wall time of the run, in seconds.
     workers : int
         Worker threads of the cluster.
+
+    Notes
+    -----
+    Each parameter is kept as the attribute of the same name.
     """
 
     verb: str
@@ -396,6 +411,7 @@ def run_batch(verb: str, jobs: list[tuple[str, Path, tuple]], task: Callable, ou
     verb : str
         Name shown in the progress bar and summary.
     jobs : list of (relative name, input path, args)
+        One entry per input; ``args`` follow the input path in the call of ``task``.
     task : callable
         A module-level function run on a worker; returns ``{"files": {path relative to
         out_dir: bytes}, "media_seconds": float}``.
@@ -405,12 +421,17 @@ def run_batch(verb: str, jobs: list[tuple[str, Path, tuple]], task: Callable, ou
         Everything besides the input that determines the outputs (JSON-able); part of the
         resumability check.
     client : distributed.Client
+        The Dask cluster the tasks run on.
+    progress : bool, optional
+        Show a progress bar (default ``True``).
     clashes : dict, optional
         Relative input name -> reason, for inputs not to run (reported as failed).
 
     Returns
     -------
     BatchSummary
+        One result per job, in job order; also written to ``OUT_DIR/batch-summary.json`` (unless
+        that write fails).
 
     Raises
     ------

@@ -68,7 +68,7 @@ def timeit_interleaved(fns: dict[str, Callable[[], object]], repeats: int) -> tu
 
 
 def rel_diff(a, b) -> float:
-    """Largest relative difference between two arrays (or scalars), scaled by max(|b|, 1e-300).
+    """Largest relative difference between two arrays (or scalars), scaled by ``max(|b|, 1e-300)``.
 
     Parameters
     ----------

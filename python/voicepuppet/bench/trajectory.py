@@ -241,7 +241,7 @@ def lag_deviation_table(lags=(0, 1, 2, 4, 8, 16, 32, 64), T: int = 3000, d: int 
     Diagonal-covariance models with pose sd 1 and velocity sd ``v`` (26 states, means N(0, 1),
     dwell 1-8 frames), full covariance off; the smaller the velocity sd relative to the pose sd,
     the smoother the trajectory and the longer the look-ahead it needs. Deviation is the largest
-    absolute difference over all frames and dims divided by the largest |y| of the full solve.
+    absolute difference over all frames and dims divided by the largest ``|y|`` of the full solve.
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
-"""Live: a puppet driven by streamed audio with bounded latency (:mod:`.puppet`), its frames
-served to a browser page over WebSocket or sent as OSC (:mod:`.outputs`), and a session run from
-a file or standard input (:mod:`.server`)."""
+"""Live: a puppet driven by streamed audio with bounded latency
+(:mod:`~voicepuppet.live.puppet`), its frames served to a browser page over WebSocket or sent as
+OSC (:mod:`.outputs`), and a session run from a file or standard input (:mod:`.server`)."""
 
 from voicepuppet.live.outputs import FaceDriver, OscOut, WebSocketOut, host_port, viewer_page
 from voicepuppet.live.puppet import ANALYSIS_RATE, TRUSTED_GUIDE_WEIGHT, LiveFrames, LivePuppet, split_lag

@@ -45,7 +45,9 @@ __all__ = ["ANALYSIS_RATE", "TRUSTED_GUIDE_WEIGHT", "LiveFrames", "LivePuppet", 
 class LiveFrames:
     """Face frames emitted by :meth:`LivePuppet.push` or :meth:`LivePuppet.flush`.
 
-    Attributes
+    Its ``len`` is the number of frames M.
+
+    Parameters
     ----------
     first_frame : int
         Output index of the first frame.
@@ -55,6 +57,10 @@ class LiveFrames:
         Face coordinates (parts side by side).
     fps : float
         Output frame rate; frame ``k`` shows the sound at ``k / fps`` seconds.
+
+    Notes
+    -----
+    Each parameter is kept as the attribute of the same name.
     """
 
     first_frame: int

@@ -1,7 +1,8 @@
 """Phones and the phoneme-driven peers: the phone set, label files and forced alignment
 (:mod:`.labels`), and the models of Englebienne, Cootes & Rattray (2007): the shared base
 (:mod:`.base`), the per-phone means, Brand's trajectory with phone states and the SLDS
-(:mod:`.models`), the DPDS (:mod:`.dpds`), and a puppet driven by phones (:mod:`.puppet`)."""
+(:mod:`.models`), the DPDS (:mod:`~voicepuppet.phonemes.dpds`), and a puppet driven by phones
+(:mod:`~voicepuppet.phonemes.puppet`)."""
 
 from voicepuppet.phonemes.base import PhonemeModel, check_labels, observations, stack_sequences
 from voicepuppet.phonemes.dpds import DPDS, DPDSStream

@@ -75,11 +75,16 @@ _ALPHABETS = ("arpabet", "espeak")
 class Segment:
     """One phone ``label`` (of :data:`PHONES`) from ``start`` to ``end`` seconds.
 
-    Attributes
+    Parameters
     ----------
     label : str
-    start : float
-    end : float
+        The phone, one of :data:`PHONES`.
+    start, end : float
+        Start and end of the segment, in seconds.
+
+    Notes
+    -----
+    Each parameter is kept as the attribute of the same name (the dataclass is frozen).
     """
     label: str
     start: float

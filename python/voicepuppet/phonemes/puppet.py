@@ -56,22 +56,28 @@ class PhonemePuppet:
         Parameters
         ----------
         points_list : list of ndarray, each shape (T_s, P, 2)
+            The landmark sequences (a single array is taken as one sequence).
         phones_list : list
             Per sequence: phone segments (as accepted by :func:`voicepuppet.phonemes.labels.normalize`)
             or frame labels (int array of shape (T_s,)).
         fps : float
             Frame rate of the landmarks.
         model : {"phoneme-mean", "brand-phoneme", "slds", "dpds"}
+            The model (:data:`voicepuppet.phonemes.models.MODELS`; default ``"dpds"``).
         alphabet : {"arpabet", "espeak"}
             Alphabet of phone segments.
         n_components : int or float
             Face-space size (:meth:`voicepuppet.face.FaceSpace.fit`).
+        progress : bool
+            Show the model's progress bar while fitting, for the models that have one
+            (default ``False``).
         **options
             Passed to the model's constructor.
 
         Returns
         -------
         PhonemePuppet
+            The trained puppet.
 
         Raises
         ------

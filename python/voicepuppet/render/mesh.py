@@ -71,17 +71,21 @@ class FaceMesh:
     uv : ndarray, shape (V, 2)
         texture coordinates (u right, v up) into ``image``.
     image : ndarray, shape (H, W, 3), uint8
+        the texture: the face photo (or a 3-D head's texture).
     n_landmarks : int
+        how many of the first vertices are the landmarks (P).
     fixed : ndarray, shape (V,), bool
         vertices that never move (the image frame).
-    teeth : ndarray, shape (F,), bool
-        the teeth's faces (:func:`voicepuppet.render.interior.mouth_interior`), seen through the cavity.
-    colours : ndarray, shape (F, 3), uint8
-        the flat colour of the mouth's interior's faces (unused for the textured skin).
-    carried : ndarray, shape (V, P)
+    teeth : ndarray, shape (F,), bool, optional
+        the teeth's faces (:func:`voicepuppet.render.interior.mouth_interior`), seen through the cavity
+        (default: none).
+    colours : ndarray, shape (F, 3), uint8, optional
+        the flat colour of the mouth's interior's faces (unused for the textured skin); default
+        :data:`MOUTH_COLOUR` on the ``mouth`` faces, zero elsewhere.
+    carried : ndarray, shape (V, P), optional
         for the vertices that move rigidly with part of the face (the cavity's copies of the
         inner lips, the tongue, the teeth) their rows of :meth:`interpolation_matrix`; zero rows
-        elsewhere.
+        elsewhere (default: all zero).
     canvas : (width, height), optional
         the view's size when it is not the image's: a 3-D head (:mod:`voicepuppet.render.head`), whose
         image is its texture.
@@ -89,6 +93,8 @@ class FaceMesh:
         The interpolation matrix, computed on first use (:meth:`interpolation_matrix`); not to be
         given.
 
+    Notes
+    -----
     The mouth's interior lies behind the skin, in layers below the skin's depth surface
     (:data:`voicepuppet.render.interior.INTERIOR_DEPTH`), the cavity deepest, so a renderer with a
     depth buffer shows it through the lips' opening only, and one without draws it first in

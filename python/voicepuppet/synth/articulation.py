@@ -279,18 +279,26 @@ def deform(neutral: np.ndarray, params: np.ndarray) -> np.ndarray:
 class Articulation:
     """Ground-truth motion of the performer.
 
-    Attributes
+    Parameters
     ----------
     points : ndarray, shape (T, 68, 2)
         Landmarks in pixel coordinates of the video (x, y), head pose applied.
     fps : float
+        Video frame rate.
     params : ndarray, shape (T, 8)
         Per-frame parameters, columns ``PARAM_NAMES``: articulators (0..1 efforts), ``gap``
         (inner-lip gap in inter-ocular units), ``brows`` and ``blink`` (0..1).
     pose : ndarray, shape (T, 4)
         Head pose: rotation (rad), scale, x and y translation (px) about ``centre``.
     centre : ndarray, shape (2,)
+        The centre of the head pose's rotation and scaling (px); :func:`articulate` takes the
+        mean of the neutral landmarks.
     neutral : ndarray, shape (68, 2)
+        The face at rest, in pixel coordinates.
+
+    Notes
+    -----
+    Each parameter is kept as the attribute of the same name.
     """
     points: np.ndarray
     fps: float
@@ -408,14 +416,27 @@ def articulate(phones, samples: np.ndarray, rate: int, neutral: np.ndarray, *,
     neutral : ndarray, shape (68, 2)
         The face at rest in video pixel coordinates.
     fps : float
+        Video frame rate (default 29.97).
     n_frames : int, optional
         Default ``round(duration * fps)``.
     seed : int
         Seeds blinks and head motion.
+    head_motion : bool
+        Move the head by a small smooth similarity transform (default ``True``); without it the
+        pose is the identity in every frame.
+    blinks : bool
+        Blink at seeded random times (default ``True``); without it the ``blink`` parameter is 0.
 
     Returns
     -------
     Articulation
+        The motion, one row per video frame.
+
+    Raises
+    ------
+    ValueError
+        ``fps`` is not a positive number, ``neutral`` is not finite landmarks of shape (68, 2),
+        or the speech lasts less than two frames.
     """
     if not np.isfinite(fps) or fps <= 0:
         raise ValueError(f"fps must be a positive number of frames per second, got {fps}")

@@ -80,7 +80,7 @@ SENTENCES = (
 class Clip:
     """One rendered utterance of the performer.
 
-    Attributes
+    Parameters
     ----------
     video : str
         mp4 path (H.264 + AAC).
@@ -90,14 +90,28 @@ class Clip:
         npz path: ``points`` [T, 68, 2], ``fps``, ``names`` [68], ``params`` [T, 8],
         ``param_names``, ``pose`` [T, 4], ``phones`` (label, start, end rows), ``neutral``.
     fps : float
+        Video frame rate.
     points : ndarray, shape (T, 68, 2)
+        The ground-truth landmarks of every frame, in pixels.
     samples : ndarray, shape (n,)
+        The audio as the wav holds it (float32).
     rate : int
+        Audio sample rate in Hz.
     phones : list of Phone
+        The utterance's phone timings.
     params : ndarray, shape (T, 8)
+        The articulation parameters per frame, columns as
+        :data:`voicepuppet.synth.articulation.PARAM_NAMES`.
     pose : ndarray, shape (T, 4)
+        The head pose per frame: rotation (rad), scale, x and y translation (px).
     text : str
+        What is said.
     source : str
+        Where the speech came from (espeak-ng voice and settings, or the recording).
+
+    Notes
+    -----
+    Each parameter is kept as the attribute of the same name.
     """
     video: str
     audio: str
@@ -131,17 +145,26 @@ class Corpus:
     followed by the real recording CMU ARCTIC a0009 when ``real_test`` is set and it could be
     fetched.
 
-    Attributes
+    Parameters
     ----------
     out_dir : str
+        The folder holding the clips and ``corpus.json``.
     train : Clip
+        The training clip.
     test : list of Clip
+        The held-out clips.
     fps : float
+        Video frame rate.
     size : (int, int)
         Frame (width, height).
     seed : int
+        The seed the corpus was made with.
     photo : str
         Name of the face photo.
+
+    Notes
+    -----
+    Each parameter is kept as the attribute of the same name.
     """
     out_dir: str
     train: Clip
@@ -346,10 +369,13 @@ def make_corpus(out_dir, train_seconds: float = 60.0, n_test: int = 3, seed: int
     real_test : bool
         Also render CMU ARCTIC a0009 (real speech, hand-checked phone labels) as the last
         test clip; skipped with a warning if it cannot be fetched.
+    progress : bool
+        Show progress bars while speaking and rendering (default ``True``).
 
     Returns
     -------
     Corpus
+        The training clip and the held-out clips.
 
     Raises
     ------
@@ -438,10 +464,13 @@ def make_real_corpus(out_dir, seed: int = 0, fps: float = 30000 / 1001, size: tu
         Seeds the pauses, blinks and head motion.
     fps, size
         As in :func:`make_corpus`.
+    progress : bool
+        Show progress bars while rendering (default ``True``).
 
     Returns
     -------
     Corpus
+        The training clip (the LibriVox readings) and the two ARCTIC test clips.
 
     Raises
     ------

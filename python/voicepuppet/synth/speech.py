@@ -34,12 +34,16 @@ VOICES = ("en-us", "en-us+m3", "en-us+f2", "en-gb-x-rp", "en-gb-x-rp+f4", "en-gb
 class Phone:
     """One phone: ``label`` from ``start`` to ``end`` seconds.
 
-    Attributes
+    Parameters
     ----------
     label : str
         An espeak-ng mnemonic or an ARPAbet phone; pauses are ``"_"``.
-    start : float
-    end : float
+    start, end : float
+        Start and end of the phone, in seconds.
+
+    Notes
+    -----
+    Each parameter is kept as the attribute of the same name (the dataclass is frozen).
     """
     label: str
     start: float
@@ -50,16 +54,22 @@ class Phone:
 class Utterance:
     """Mono speech with phone timings.
 
-    Attributes
+    Parameters
     ----------
     samples : ndarray, shape (n,)
         float32 in [-1, 1] at ``rate`` Hz.
     rate : int
-    phones : list of Phone
-        Contiguous phones covering [0, duration]; pauses are labelled ``"_"``.
-    text : str
-    source : str
-        ``"espeak-ng <voice> rate=<wpm> pitch=<0..99>"`` or the recording's name.
+        Sample rate in Hz.
+    phones : list of Phone, optional
+        Contiguous phones covering [0, duration]; pauses are labelled ``"_"`` (default: none).
+    text : str, optional
+        What is said (default ``""``).
+    source : str, optional
+        ``"espeak-ng <voice> rate=<wpm> pitch=<0..99>"`` or the recording's name (default ``""``).
+
+    Notes
+    -----
+    Each parameter is kept as the attribute of the same name.
     """
     samples: np.ndarray
     rate: int

@@ -378,17 +378,35 @@ def render_video(path, photo: FacePhoto, points: np.ndarray, fps: float, samples
     points : ndarray, shape (T, 68, 2)
         Landmarks per frame (pixels of ``photo.image``).
     fps : float
+        Video frame rate.
     samples : ndarray, shape (n,)
         Speech; padded or cut to exactly ``T / fps`` seconds.
     rate : int
-    pose, centre : head pose track (T, 4) and its centre, to move the ring around the face
+        Sample rate of ``samples`` (Hz).
+    pose, centre : ndarray, optional
+        Head pose track (T, 4) and its centre (2,), as :func:`pose_matrices` takes them, to move
+        the ring around the face; without ``pose`` the ring stays in place.
     gap : ndarray, shape (T,), optional
-        Inner-lip gap; the mouth interior is drawn where it is open.
+        Inner-lip gap, in inter-ocular units; the mouth interior is drawn where it is open
+        (only when ``inter_ocular`` is given too).
+    inter_ocular : float, optional
+        The face's inter-ocular distance in pixels, which turns ``gap`` into pixels.
+    progress : bool, optional
+        Show a progress bar while rendering (default ``True``).
+    crf : int, optional
+        x264's constant rate factor (default 20; lower is higher quality and larger).
 
     Returns
     -------
     str
         ``path``.
+
+    Raises
+    ------
+    ValueError
+        ``path`` does not end in ``.mp4`` or its folder does not exist; ``points`` are not
+        finite or not of shape (T, 68, 2); ``fps`` is not positive; or the photo's width or
+        height is odd.
     """
     import av
 
