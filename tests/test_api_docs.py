@@ -26,17 +26,18 @@ def test_api_reference_builds_without_warnings(tmp_path):
 
 
 def test_a_broken_docstring_fails_the_build(tmp_path):
-    """The check itself: a module whose function leaves a parameter undocumented fails."""
+    """The check itself: a module whose function leaves a parameter undocumented fails (named
+    voicepuppet_* so the reference does not take it for a foreign import)."""
     pkg = tmp_path / "pkg"
     pkg.mkdir()
-    (pkg / "demo_mod.py").write_text('def f(a, b):\n    """Sum.\n\n    Parameters\n    ----------\n'
+    (pkg / "voicepuppet_planted.py").write_text('def f(a, b):\n    """Sum.\n\n    Parameters\n    ----------\n'
                                      '    a : int\n\n    Returns\n    -------\n    int\n    """\n'
                                      '    return a + b\n')
     src = tmp_path / "api"
     src.mkdir()
     conf = (API / "conf.py").read_text()
     (src / "conf.py").write_text(f"import sys\nsys.path.insert(0, {str(pkg)!r})\n" + conf)
-    (src / "index.rst").write_text("x\n=\n\n.. automodule:: demo_mod\n   :members:\n")
+    (src / "index.rst").write_text("x\n=\n\n.. automodule:: voicepuppet_planted\n   :members:\n")
     proc = subprocess.run([sys.executable, "-m", "sphinx", "-W", "-q", "-b", "html", str(src),
                            str(tmp_path / "html")], capture_output=True, text=True, timeout=300)
     assert proc.returncode != 0 and "PR01" in proc.stderr
