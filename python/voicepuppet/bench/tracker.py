@@ -21,6 +21,7 @@ import numpy as np
 
 from voicepuppet import _core
 from voicepuppet.bench.runner import case, timeit_interleaved
+from voicepuppet.synth import face_photo
 
 # 26 landmarks on the astronaut's face (frame coordinates after the 1.25x resize below): dlib's
 # 68-point model on that frame, points 0, 4, 8, 12, 16 (jaw), 17, 19, 21, 22, 24, 26 (brows),
@@ -233,3 +234,72 @@ def run(quick: bool, repeats: int) -> list[dict]:
                  frame_ms_p50=float(np.percentile(frame_ms, 50)),
                  frame_ms_p99=float(np.percentile(frame_ms, 99)),
                  opencv=cv2.__version__)]
+
+
+def similarity_ramp(n_frames: int, max_angle: float, max_scale: float, min_scale: float, seed: int,
+                    noise: float = 2.0, canvas: int = 400):
+    """The performer's photo (grey, 320x320, reflect-padded to ``canvas``) seen through a known
+    similarity ramp about the face centre: rotation 0 -> ``max_angle`` degrees -> 0, scale
+    1 -> ``max_scale`` -> ``min_scale`` -> 1, and a translation of up to 20 px, with Gaussian
+    noise (seeded). The 68 landmarks are transformed exactly. Returns (frames [T, H, W] uint8,
+    truth [T, 68, 2], angle [T] rad, scale [T])."""
+    import cv2
+
+    photo = face_photo((320, 320), fallback=False)
+    grey = cv2.cvtColor(photo.image, cv2.COLOR_RGB2GRAY)
+    pad = (canvas - 320) // 2
+    image = cv2.copyMakeBorder(grey, pad, pad, pad, pad, cv2.BORDER_REFLECT).astype(np.float32)
+    points = photo.points + pad
+    centre = points.mean(axis=0)
+    u = np.linspace(0.0, 1.0, n_frames)
+    angle = np.deg2rad(max_angle) * np.sin(np.pi * u)
+    scale = np.interp(u, [0.0, 0.35, 0.75, 1.0], [1.0, max_scale, min_scale, 1.0])
+    shift = np.stack([20 * np.sin(2 * np.pi * u), 10 * np.sin(4 * np.pi * u)], axis=1)
+    rng = np.random.default_rng(seed)
+    frames, truth = [], []
+    for a, s, b in zip(angle, scale, shift):
+        A = s * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        t = centre - A @ centre + b
+        f = cv2.warpAffine(image, np.hstack([A, t[:, None]]), (canvas, canvas), flags=cv2.INTER_CUBIC,
+                           borderMode=cv2.BORDER_REFLECT)
+        frames.append(np.clip(np.round(f + rng.normal(0.0, noise, f.shape)), 0, 255).astype(np.uint8))
+        truth.append(points @ A.T + t)
+    return np.stack(frames), np.stack(truth), angle, scale
+
+
+#: Re-acquisition cases of :func:`planted`: (absent from, absent to, shift x, shift y, cover).
+REACQUIRE_CASES = (
+    (60, 90, 90, 60, "plain"),
+    (60, 90, 90, 60, "card"),
+    (100, 120, 60, 0, "plain"),
+    (40, 80, 100, 80, "card"),
+)
+#: Where :func:`planted` puts the clip, and the canvas beyond it (room for the largest shift).
+PLANT_START = (20, 20)
+PLANT_MARGIN = (110, 90)
+
+
+def planted(frames: np.ndarray, truth: np.ndarray, absent, shift, cover: str, *, start=PLANT_START,
+            margin=PLANT_MARGIN, bg: int | None = None):
+    """``frames`` (T, h, w) at ``start`` in a plain canvas ``margin`` px larger than start + frame,
+    gone for frames ``absent`` = [a, b) (``cover="plain"``: the canvas; ``"card"``: seeded smooth
+    noise where the face was), back ``shift`` px further from frame b on; ``bg``: the canvas grey
+    (default the median of the first frame's outer columns). Returns the canvas frames and
+    ``truth`` moved with them."""
+    import cv2
+
+    n, h, w = frames.shape
+    H, W = h + start[1] + margin[1], w + start[0] + margin[0]
+    if bg is None:
+        bg = int(np.median(np.concatenate([frames[0][:, :4].ravel(), frames[0][:, -4:].ravel()])))
+    out = np.full((n, H, W), bg, np.uint8)
+    moved = np.empty_like(truth)
+    for t in range(n):
+        ox, oy = (start[0] + shift[0], start[1] + shift[1]) if t >= absent[1] else start
+        if not absent[0] <= t < absent[1]:
+            out[t, oy:oy + h, ox:ox + w] = frames[t]
+        elif cover == "card":
+            noise = np.random.default_rng(t).normal(130.0, 40.0, (h, w))
+            out[t, oy:oy + h, ox:ox + w] = np.clip(cv2.GaussianBlur(noise, (0, 0), 3.0), 0, 255).astype(np.uint8)
+        moved[t] = truth[t] + [ox, oy]
+    return out, moved

@@ -542,7 +542,7 @@ def test_cross_validation_baselines_equal_a_direct_fit_on_each_fold(tmp_path):
     from voicepuppet.evaluation.folds import mean_ci
     from voicepuppet.puppet.guide import RIDGE_ALPHAS
 
-    from test_evaluation import _planted_sequences
+    from test_split import _planted_sequences
 
     seqs, feats = _planted_sequences(n_seq=6, T=240)
     noise = np.random.default_rng(SEED + 6)
@@ -603,7 +603,7 @@ def test_cross_validation_baselines_equal_a_direct_fit_on_each_fold(tmp_path):
 
 
 def test_cross_validation_baselines_refuse_bad_features():
-    from test_evaluation import _planted_sequences
+    from test_split import _planted_sequences
 
     seqs, feats = _planted_sequences(n_seq=3, T=120)
     with pytest.raises(ValueError, match=r"features must be one \(T, A\) array per sequence \(3 sequences\)"):

@@ -1,8 +1,8 @@
 """The performer's clips planted in HD frames, tracked at full resolution and at the working
 scale (docs/tracking.md, "Large faces: the working scale"). Run as a script:
 
-    PYTHONPATH=python python3 tests/tracking_scale_hd.py make DIR CLIP_DIR [CLIP_DIR ...]
-    PYTHONPATH=python python3 tests/tracking_scale_hd.py track VIDEO WORKING_SCALE OUT.json
+    python benchmarks/tracking_scale_hd.py make DIR CLIP_DIR [CLIP_DIR ...]
+    python benchmarks/tracking_scale_hd.py track VIDEO WORKING_SCALE OUT.json
 
 ``make`` writes, for each performer clip directory (``train.mp4`` + ``train.npz``), a copy of
 the clip and the clip upscaled 1.5x, 2x and 2.8125x (bicubic), with and without temporal noise

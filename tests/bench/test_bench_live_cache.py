@@ -6,12 +6,12 @@ from types import SimpleNamespace
 import numpy as np
 import soundfile as sf
 
-from test_puppet_cli import FPS, RATE, _performance
+from support import FPS, RATE, performance
 from voicepuppet.bench.live import _cached_puppet
 
 
 def test_cached_puppet_is_keyed_by_corpus_and_options(tmp_path):
-    pts, audio, _ = _performance(np.random.default_rng(5), 300)
+    pts, audio, _ = performance(np.random.default_rng(5), 300)
     sf.write(tmp_path / "train.wav", audio, RATE)
     corpus = SimpleNamespace(out_dir=str(tmp_path),
                              train=SimpleNamespace(points=pts, audio=str(tmp_path / "train.wav"), fps=FPS))

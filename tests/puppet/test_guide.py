@@ -16,7 +16,7 @@ from voicepuppet.puppet.model import Puppet, load
 from voicepuppet.puppet.training import TRAIN_DEFAULTS
 
 FPS = 30.0
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 def _world(rng, T, P=68):

@@ -207,7 +207,7 @@ def test_bad_projection_options(projected, voices):
         fit_projection(np.zeros((60, 2)), np.zeros((60, 1)), [60], context=0, columns=3)
     with pytest.raises(ValueError, match="projection_columns"):
         Puppet(projected.metadata, {**projected.arrays, "audio/projection_columns": np.array([11])})
-    # It streams (tests/test_live.py, cpp/tests/test_streaming.cpp); a look-ahead beyond the
+    # It streams (live/test_live.py, cpp/tests/test_streaming.cpp); a look-ahead beyond the
     # projection's context (3 here) is refused.
     with pytest.raises(ValueError, match="projection_lag must be -1"):
         _core.StreamingPuppet(projected._core, 5, 5, 0.0, False, -1, 4)

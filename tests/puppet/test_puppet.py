@@ -12,32 +12,15 @@ from voicepuppet.face import observations
 from voicepuppet.puppet.model import Puppet, load
 from voicepuppet.puppet.training import TRAIN_DEFAULTS, remap
 
-
-def _planted(rng, T=900, P=12):
-    """Three facial states (rest, open, round) visited in runs; the audio says which one. The
-    world (shapes, audio means) is fixed; ``rng`` draws the sequence and the noise."""
-    world = np.random.default_rng(1)
-    base = np.stack([np.cos(np.linspace(0, 2 * np.pi, P, endpoint=False)),
-                     np.sin(np.linspace(0, 2 * np.pi, P, endpoint=False))], axis=1) * 50 + 160
-    modes = np.zeros((3, P, 2))
-    modes[1, P // 4, 1] = 25.0       # one point drops (jaw open)
-    modes[2, :, 0] = (base[:, 0] - 160) * -0.3  # narrow (rounding)
-    states = np.repeat(rng.integers(0, 3, T // 15), 15)[:T]
-    shape = base + modes[states] + rng.normal(0, 0.3, (T, P, 2))
-    # Smooth the switches a little, as faces do.
-    k = np.array([0.25, 0.5, 0.25])
-    shape = np.apply_along_axis(lambda v: np.convolve(np.pad(v, 1, mode="edge"), k, "valid"), 0, shape)
-    audio_means = world.normal(0, 3, (3, 5))
-    feats = audio_means[states] + rng.normal(0, 1.0, (T, 5))
-    return shape, feats, states
+from support import planted_puppet_data
 
 
 @pytest.fixture(scope="module")
 def trained():
     rng = np.random.default_rng(7)
-    pts, feats, states = _planted(rng)
+    pts, feats, states = planted_puppet_data(rng)
     p = Puppet.train([pts], features_list=[feats], fps=30.0, n_states=8, n_iter=25, n_components=3)
-    test_pts, test_feats, test_states = _planted(np.random.default_rng(8), T=300)
+    test_pts, test_feats, test_states = planted_puppet_data(np.random.default_rng(8), T=300)
     return p, (pts, feats, states), (test_pts, test_feats, test_states)
 
 
@@ -68,7 +51,7 @@ def test_novel_audio_may_start_in_any_state(trained):
     planted = {s: np.bincount(train_states[path == s], minlength=3).argmax() for s in np.unique(path)}
     starts = 0
     for seed in range(20, 40):
-        _, feats, states = _planted(np.random.default_rng(seed), T=90)
+        _, feats, states = planted_puppet_data(np.random.default_rng(seed), T=90)
         if states[0] == train_states[0]:
             continue
         starts += 1
@@ -93,7 +76,7 @@ def test_animate_is_the_kernels_composed(trained):
     model = _core.TrajectoryModel(arr["face_means"][:, :d], arr["face_means"][:, d:],
                                   arr["face_covars"].reshape(-1, 2 * d), "full", 1.0)
     Y = _core.solve_trajectory(model, path)
-    r = p.animate(features=feats, guide_weight=0)  # Brand's solve; with the guide: tests/test_guide.py
+    r = p.animate(features=feats, guide_weight=0)  # Brand's solve; with the guide: test_guide.py
     np.testing.assert_array_equal(r.states[:, 0], path)
     np.testing.assert_allclose(r.animation.points, p.face_space.decode(Y), atol=1e-9)
     # Other output rates: twice the frames; edited states read back give the same animation.
@@ -182,12 +165,12 @@ def test_bad_animation_input(trained):
 
 
 def test_separate_face_parts():
-    pts, feats, states = _planted(np.random.default_rng(7))
+    pts, feats, states = planted_puppet_data(np.random.default_rng(7))
     parts = {"upper": range(0, 6), "lower": range(6, 12)}
     p = Puppet.train([pts], features_list=[feats], fps=30.0, n_states=5, n_iter=10, n_components=2,
                      parts=parts)
     assert p.part_names == ["upper", "lower"] and p._core.n_parts == 2
-    r = p.animate(features=feats, guide_weight=0)  # Brand's solve; with the guide: tests/test_guide.py
+    r = p.animate(features=feats, guide_weight=0)  # Brand's solve; with the guide: test_guide.py
     assert r.states.shape == (len(feats), 2) and r.face.shape == (len(feats), p.face_space.n_dims)
     # Each part is synthesised from its own machine: the whole equals the parts side by side.
     for k, sl in enumerate(p.face_space.part_slices):
@@ -203,7 +186,7 @@ def test_training_on_a_dask_cluster_equals_one_process():
     from voicepuppet.hmm import distributed
 
     rng = np.random.default_rng(11)
-    seqs = [_planted(rng, T=300) for _ in range(3)]
+    seqs = [planted_puppet_data(rng, T=300) for _ in range(3)]
     pts, feats = [s[0] for s in seqs], [s[1] for s in seqs]
     opts = dict(fps=30.0, n_states=6, n_iter=8, n_components=3, anneal=False)
     one = Puppet.train(pts, features_list=feats, **opts)
@@ -243,7 +226,7 @@ def test_remap_tied_is_the_pooled_within_state_covariance(rng):
 def _two_spreads(rng, spreads, T=900, P=12):
     """The planted performer of ``_planted`` with a voice whose audio spread differs per state:
     ``spreads[s]`` is the standard deviation of state s's features (a speaker's own spread)."""
-    pts, _, states = _planted(rng, T=T, P=P)
+    pts, _, states = planted_puppet_data(rng, T=T, P=P)
     world = np.random.default_rng(1)
     audio_means = world.normal(0, 3, (3, 5))
     feats = audio_means[states] + rng.normal(0, 1.0, (T, 5)) * np.asarray(spreads)[states][:, None]
@@ -274,7 +257,7 @@ def test_tied_vocal_covariance_decodes_a_voice_it_never_heard():
 def test_tied_puppet_file_round_trip_and_log_density(tmp_path):
     from scipy.stats import multivariate_normal
 
-    pts, feats, _ = _planted(np.random.default_rng(7), T=600)
+    pts, feats, _ = planted_puppet_data(np.random.default_rng(7), T=600)
     p = Puppet.train([pts], features_list=[feats], fps=30.0, n_states=5, n_iter=10, n_components=3,
                      vocal_covariance="tied")
     q = load(p.save(tmp_path / "tied.vpp"))
@@ -300,7 +283,7 @@ def test_the_band_of_the_training_audio_is_the_puppets(tmp_path):
 
     from voicepuppet.audio import AudioWarning, FeatureSet, extract, prepare
 
-    pts, _, _ = _planted(np.random.default_rng(3), T=600)
+    pts, _, _ = planted_puppet_data(np.random.default_rng(3), T=600)
     g = np.random.default_rng(4)
     narrow = prepare(0.1 * g.standard_normal(20 * 8000), 8000)
     wide = prepare(0.1 * g.standard_normal(20 * 16000), 16000)
@@ -333,7 +316,7 @@ def test_the_band_of_the_training_audio_is_the_puppets(tmp_path):
 def _tone_performer(seed, T=900, fps=30.0, rate=16000):
     """_planted's three facial states, each frame's sound a tone of its state (300 / 1100 / 2600
     Hz, continuous phase): (points [T, P, 2], samples, rate, states)."""
-    pts, _, states = _planted(np.random.default_rng(seed), T=T)
+    pts, _, states = planted_puppet_data(np.random.default_rng(seed), T=T)
     hz = np.array([300.0, 1100.0, 2600.0])[np.repeat(states, rate // int(fps))]
     x = 0.3 * np.sin(2 * np.pi * np.cumsum(hz) / rate)
     return pts, x, rate, states
@@ -344,7 +327,7 @@ def _resting_tone_performer(seed, T=900, fps=30.0, rate=16000, floor_db=None, ga
     ``floor_db`` dBFS: a room's floor, which speech masks and pure tones would not, so it is in the
     rests alone), the others tones of 1100 / 2600 Hz at -13.5 dBFS; times ``gain``: (points
     [T, P, 2], samples, rate, states)."""
-    pts, _, states = _planted(np.random.default_rng(seed), T=T)
+    pts, _, states = planted_puppet_data(np.random.default_rng(seed), T=T)
     per = np.repeat(states, rate // int(fps))
     hz = np.array([0.0, 1100.0, 2600.0])[per]
     x = 0.3 * np.sin(2 * np.pi * np.cumsum(hz) / rate) * (per > 0)

@@ -14,36 +14,17 @@ import soundfile as sf
 from voicepuppet.cli.main import main
 from voicepuppet.puppet.model import load
 
-FPS = 25.0
-RATE = 16000
-TONES = (220.0, 700.0, 1800.0)
-
-
-def _performance(rng, T):
-    """Landmarks of a 10-point face making one of three shapes, and audio: a tone per shape."""
-    P = 10
-    ang = np.linspace(0, 2 * np.pi, P, endpoint=False)
-    base = np.stack([np.cos(ang), np.sin(ang)], axis=1) * 40 + 120
-    jaw = np.zeros((P, 2))
-    jaw[2, 1] = 20.0
-    shapes = np.stack([base, base + jaw, base * [0.7, 1.0] + [36, 0]])
-    states = np.repeat(rng.integers(0, 3, T // 10 + 1), 10)[:T]
-    pts = shapes[states] + rng.normal(0, 0.2, (T, P, 2))
-    n = int(round(T / FPS * RATE))
-    t = np.arange(n) / RATE
-    frame_state = states[np.minimum((t * FPS).astype(int), T - 1)]
-    audio = 0.3 * np.sin(2 * np.pi * np.asarray(TONES)[frame_state] * t) + 0.003 * rng.normal(size=n)
-    return pts, audio, states
+from support import FPS, RATE, performance
 
 
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory):
     d = tmp_path_factory.mktemp("cli")
     rng = np.random.default_rng(3)
-    pts, audio, _ = _performance(rng, 600)
+    pts, audio, _ = performance(rng, 600)
     np.savez(d / "train.npz", points=pts, fps=FPS)
     sf.write(d / "train.wav", audio, RATE)
-    test_pts, test_audio, test_states = _performance(rng, 200)
+    test_pts, test_audio, test_states = performance(rng, 200)
     sf.write(d / "test.wav", test_audio, RATE)
     np.save(d / "test_states.npy", test_states)
     assert main(["train", "--landmarks", str(d / "train.npz"), "--audio", str(d / "train.wav"),
@@ -120,7 +101,7 @@ def test_train_switches_for_voices_never_heard(workdir, capsys):
 
 
 def _example_exe() -> Path:
-    exe = Path(__file__).resolve().parents[1] / "build" / "example" / "voicepuppet_animate"
+    exe = Path(__file__).resolve().parents[2] / "build" / "example" / "voicepuppet_animate"
     if not exe.exists():
         pytest.skip("build examples/cpp first (bash .ci/test does): " + str(exe))
     return exe

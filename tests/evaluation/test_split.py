@@ -6,7 +6,7 @@ from voicepuppet.evaluation import split as evaluation
 from voicepuppet.puppet import guide
 from voicepuppet.puppet.model import Puppet
 
-from test_puppet import _planted
+from support import planted_puppet_data
 
 
 def test_context_stack_edges():
@@ -36,8 +36,8 @@ def test_bits_per_frame_orders_codings(rng):
 
 
 def test_evaluate_split_on_planted_puppet():
-    pts, feats, _ = _planted(np.random.default_rng(7))
-    test_pts, test_feats, _ = _planted(np.random.default_rng(8), T=300)
+    pts, feats, _ = planted_puppet_data(np.random.default_rng(7))
+    test_pts, test_feats, _ = planted_puppet_data(np.random.default_rng(8), T=300)
     p = Puppet.train([pts], features_list=[feats], fps=30.0, n_states=6, n_iter=15, n_components=3)
 
     class Feats:  # animate the planted features through the evaluation's audio path
@@ -61,8 +61,8 @@ def test_evaluate_split_on_planted_puppet():
 def test_evaluate_split_fits_the_ridge_on_the_puppets_landmarks():
     # A puppet trained on noisy landmarks (as tracked ones) is measured against the clean truth;
     # the ridge must learn from the same noisy landmarks, not from the truth the puppet never saw.
-    pts, feats, _ = _planted(np.random.default_rng(7))
-    test_pts, test_feats, _ = _planted(np.random.default_rng(8), T=300)
+    pts, feats, _ = planted_puppet_data(np.random.default_rng(7))
+    test_pts, test_feats, _ = planted_puppet_data(np.random.default_rng(8), T=300)
     noisy = pts + np.random.default_rng(9).normal(scale=0.2 * pts.std(), size=pts.shape)
     p = Puppet.train([noisy], features_list=[feats], fps=30.0, n_states=6, n_iter=15, n_components=3)
 
@@ -86,7 +86,7 @@ def _planted_sequences(n_seq=6, T=240):
 
     seqs, feats = [], []
     for s in range(n_seq):
-        pts, f, _ = _planted(np.random.default_rng(100 + s), T=T)
+        pts, f, _ = planted_puppet_data(np.random.default_rng(100 + s), T=T)
         seqs.append(Sequence(f"s{s}", pts, 30.0, np.zeros(T, np.int64)))
         feats.append(f)
     return seqs, feats

@@ -1,5 +1,5 @@
 """Re-acquisition measured on the synthetic performer's clips (docs/tracking.md, "Re-acquiring a
-lost face"). Usage: python tests/tracking_reacquire_clips.py [--poses] CORPUS_DIR [CORPUS_DIR ...]
+lost face"). Usage: python benchmarks/tracking_reacquire_clips.py [--poses] CORPUS_DIR [CORPUS_DIR ...]
 
 Each clip (train.mp4 + train.npz "points" of a synth corpus) is placed in a larger plain canvas
 (its background grey); for a stretch of frames the face is gone (the plain canvas, or a card of
@@ -18,42 +18,9 @@ import cv2
 import numpy as np
 
 from voicepuppet import tracking
+from voicepuppet.bench.tracker import REACQUIRE_CASES, planted
 from voicepuppet.tracking import reacquire
 from voicepuppet.tracking import video
-
-CASES = (  # (absent from, absent to, shift x, shift y, cover)
-    (60, 90, 90, 60, "plain"),
-    (60, 90, 90, 60, "card"),
-    (100, 120, 60, 0, "plain"),
-    (40, 80, 100, 80, "card"),
-)
-START = (20, 20)
-MARGIN = (110, 90)  # canvas beyond the clip's frame: room for the largest shift
-
-
-def planted(frames: np.ndarray, truth: np.ndarray, absent, shift, cover: str, *, start=START,
-            margin=MARGIN, bg: int | None = None):
-    """``frames`` (T, h, w) at ``start`` in a plain canvas ``margin`` px larger than start + frame,
-    gone for frames ``absent`` = [a, b) (``cover="plain"``: the canvas; ``"card"``: seeded smooth
-    noise where the face was), back ``shift`` px further from frame b on; ``bg``: the canvas grey
-    (default the median of the first frame's outer columns). Returns the canvas frames and
-    ``truth`` moved with them. Also used by tests/test_tracking_reacquire.py."""
-    n, h, w = frames.shape
-    H, W = h + start[1] + margin[1], w + start[0] + margin[0]
-    if bg is None:
-        bg = int(np.median(np.concatenate([frames[0][:, :4].ravel(), frames[0][:, -4:].ravel()])))
-    out = np.full((n, H, W), bg, np.uint8)
-    moved = np.empty_like(truth)
-    for t in range(n):
-        ox, oy = (start[0] + shift[0], start[1] + shift[1]) if t >= absent[1] else start
-        if not absent[0] <= t < absent[1]:
-            out[t, oy:oy + h, ox:ox + w] = frames[t]
-        elif cover == "card":
-            noise = np.random.default_rng(t).normal(130.0, 40.0, (h, w))
-            out[t, oy:oy + h, ox:ox + w] = np.clip(cv2.GaussianBlur(noise, (0, 0), 3.0), 0, 255).astype(np.uint8)
-        moved[t] = truth[t] + [ox, oy]
-    return out, moved
-
 
 def scores(points, truth, frames):
     e = np.linalg.norm(points[frames] - truth[frames], axis=2)
@@ -70,7 +37,7 @@ def main(dirs) -> None:
         n = min(len(frames), len(truth))
         frames, truth = frames[:n], truth[:n]
         plain = tracking.track_frames(frames, truth[0], fps=fps, passes=2)
-        for a, b, sx, sy, cover in CASES:
+        for a, b, sx, sy, cover in REACQUIRE_CASES:
             canvas, moved = planted(frames, truth, (a, b), (sx, sy), cover)
             for on in (False, True):
                 r = tracking.track_frames(canvas, moved[0], fps=fps, passes=2, reacquire=on)

@@ -27,7 +27,7 @@ def photo():
 
 
 def _hum(seconds):
-    """A hum (no espeak-ng needed), as tests/test_tracking.py's blinking performer hums."""
+    """A hum (no espeak-ng needed), as the tracking tests' blinking performer hums."""
     t = np.arange(int(seconds * RATE)) / RATE
     return (0.3 * np.sin(2 * np.pi * (140 + 30 * np.sin(2 * np.pi * 0.7 * t)) * t)
             * (0.5 + 0.5 * np.sin(2 * np.pi * 1.3 * t))).astype(np.float32)
@@ -68,7 +68,7 @@ def _misaligned(a: np.ndarray, offset: int) -> np.ndarray:
 
 def test_render_is_bit_identical_within_one_process(photo, clip, tmp_path):
     # The failing condition of stop 17: one process rendering, tracking, rendering again. Between
-    # renders: the tracker on the decoded clip (as tests/test_tracking.py's blink test does) and
+    # renders: the tracker on the decoded clip (as the tracking tests' blink test does) and
     # allocations of odd sizes; the photo, the landmarks and the audio handed over at other
     # byte offsets (and the landmarks in Fortran order) each time.
     art, hum = clip

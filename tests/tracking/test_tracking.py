@@ -702,7 +702,7 @@ def test_tracking_holds_under_head_rotation_and_scale():
     # stays within a small fraction of the inter-ocular distance. Before (translation-only
     # first-frame templates, springs at first-frame lengths): mean 2.40 px, max 42.9 px (0.38
     # IOD), 5.2 % of point-frames lost; the image frame (frame_points=()) still behaves so.
-    from tracking_pose_ramp import similarity_ramp
+    from voicepuppet.bench.tracker import similarity_ramp
 
     frames, truth, angle, scale = similarity_ramp(90, 25.0, 1.3, 0.8, seed=3)
     print(f"seed 3: rotation up to {np.rad2deg(angle.max()):.1f} deg, scale {scale.min():.2f}-{scale.max():.2f}")

@@ -26,7 +26,7 @@ def _returning(cover: str):
     in a plain canvas: there, then absent (``cover="plain"``: the plain canvas; ``"card"``: a
     textured card, seeded smooth noise, where the face was), then back SHIFT px away. Returns
     frames, truth."""
-    from tracking_reacquire_clips import planted
+    from voicepuppet.bench.tracker import planted
 
     frames, truth, _ = planted_face_sequence(48, seed=0, occlusion=None, blur=None)
     x0, y0, x1, y1 = 170, 60, 400, 270  # the face with > 30 px around its points at all times
