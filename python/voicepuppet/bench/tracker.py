@@ -238,11 +238,37 @@ def run(quick: bool, repeats: int) -> list[dict]:
 
 def similarity_ramp(n_frames: int, max_angle: float, max_scale: float, min_scale: float, seed: int,
                     noise: float = 2.0, canvas: int = 400):
-    """The performer's photo (grey, 320x320, reflect-padded to ``canvas``) seen through a known
-    similarity ramp about the face centre: rotation 0 -> ``max_angle`` degrees -> 0, scale
-    1 -> ``max_scale`` -> ``min_scale`` -> 1, and a translation of up to 20 px, with Gaussian
-    noise (seeded). The 68 landmarks are transformed exactly. Returns (frames [T, H, W] uint8,
-    truth [T, 68, 2], angle [T] rad, scale [T])."""
+    """The performer's photo seen through a known similarity ramp, with its exact landmarks.
+
+    The photo (grey, 320x320, reflect-padded to ``canvas``) turns about the face centre from 0 to
+    ``max_angle`` degrees and back, scales 1 -> ``max_scale`` -> ``min_scale`` -> 1 and
+    translates by up to 20 px, with Gaussian pixel noise; the 68 landmarks move exactly with it.
+
+    Parameters
+    ----------
+    n_frames : int
+        Frames of the ramp.
+    max_angle : float
+        Largest rotation (degrees), at the middle of the ramp.
+    max_scale, min_scale : float
+        Largest and smallest scale, at 35 % and 75 % of the ramp.
+    seed : int
+        Seeds the pixel noise.
+    noise : float
+        Standard deviation of the pixel noise (grey levels, default 2).
+    canvas : int
+        Side of the square frames (px, default 400).
+
+    Returns
+    -------
+    frames : ndarray, shape (T, canvas, canvas), uint8
+    truth : ndarray, shape (T, 68, 2)
+        The landmarks in each frame (px).
+    angle : ndarray, shape (T,)
+        Rotation per frame (radians).
+    scale : ndarray, shape (T,)
+        Scale per frame.
+    """
     import cv2
 
     photo = face_photo((320, 320), fallback=False)
@@ -281,11 +307,38 @@ PLANT_MARGIN = (110, 90)
 
 def planted(frames: np.ndarray, truth: np.ndarray, absent, shift, cover: str, *, start=PLANT_START,
             margin=PLANT_MARGIN, bg: int | None = None):
-    """``frames`` (T, h, w) at ``start`` in a plain canvas ``margin`` px larger than start + frame,
-    gone for frames ``absent`` = [a, b) (``cover="plain"``: the canvas; ``"card"``: seeded smooth
-    noise where the face was), back ``shift`` px further from frame b on; ``bg``: the canvas grey
-    (default the median of the first frame's outer columns). Returns the canvas frames and
-    ``truth`` moved with them."""
+    """A clip whose face leaves and comes back elsewhere: planted truth for re-acquisition.
+
+    ``frames`` are placed at ``start`` in a plain canvas ``margin`` px larger than start + frame;
+    for the frames ``absent`` = [a, b) the face is gone (``cover="plain"``: the bare canvas;
+    ``"card"``: seeded smooth noise where the face was), and from frame b on it is back ``shift``
+    px further on.
+
+    Parameters
+    ----------
+    frames : ndarray, shape (T, h, w), uint8
+        The clip's grey frames.
+    truth : ndarray, shape (T, P, 2)
+        Its landmarks (px).
+    absent : (int, int)
+        First frame without the face and the frame it is back.
+    shift : (int, int)
+        Where the face comes back, relative to where it was (px, x and y).
+    cover : {"plain", "card"}
+        What stands where the face was while it is gone.
+    start : (int, int)
+        Where the clip's frame is placed in the canvas (px).
+    margin : (int, int)
+        Canvas beyond the clip's frame (px): room for the largest shift.
+    bg : int, optional
+        The canvas grey (default the median of the first frame's outer columns).
+
+    Returns
+    -------
+    canvas_frames : ndarray, shape (T, H, W), uint8
+    moved_truth : ndarray, shape (T, P, 2)
+        ``truth`` moved with the face.
+    """
     import cv2
 
     n, h, w = frames.shape
