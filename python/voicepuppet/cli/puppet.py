@@ -40,8 +40,9 @@ def _train(args) -> int:
         except ValueError:
             raise ValueError(f"--audio-level takes a speech level in dBFS between -100 and 0 (e.g. -20) or "
                              f"'none', got {args.audio_level!r}") from None
-    points_list, audio_list, fps = training_sequences(args.video, args.landmarks or [], args.audio or [],
-                                                      init=args.init, progress=not args.quiet)
+    points_list, audio_list, fps, _ = training_sequences(
+        args.video, args.landmarks or [], args.audio or [], init=args.init, progress=not args.quiet,
+        av_offset=None if args.av_offset is None else args.av_offset / 1000.0, report=print)
     options = {k: v for k, v in {"n_states": args.states, "n_iter": args.iterations, "parts": args.parts,
                                   "prior": args.prior, "feature_set": feature_set, "noise_snrs": noise_snrs,
                                   "vocal_features": args.vocal_features,
@@ -165,6 +166,10 @@ def add_parser(sub) -> None:
                    help="bring every recording the puppet hears, in training and after, to this speech level "
                         "(dBFS) and turn its frames 35 dB under that into dither, so pauses rest whatever the noise floor and quiet "
                         "recordings animate as loud ones (default -20; none: audio as recorded; docs/puppet.md)")
+    p.add_argument("--av-offset", type=float, metavar="MS",
+                   help="how late the sound runs against the face in every training recording (ms; negative: "
+                        "early), corrected as given (default: estimated per recording from the mouth's opening "
+                        "and the speech's loudness, and corrected when reliable and a frame or more; 0: none)")
     p.add_argument("--audio-band", type=float, metavar="HZ",
                    help="band-limit the training audio, and all audio the puppet animates, to HZ before analysis: "
                         "4000 for a puppet of telephone audio (sampled at 8 kHz; default: the whole band, or "

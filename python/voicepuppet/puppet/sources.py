@@ -10,6 +10,8 @@ from dataclasses import replace
 import numpy as np
 
 from voicepuppet import audio as vaudio
+from voicepuppet.layout import N_POINTS
+from voicepuppet.puppet.sync import AvOffset, estimate_av_offset, shift_audio
 from voicepuppet.tracking import tracker
 from voicepuppet.tracking.landmarks import load_landmarks, on_uniform_grid
 from voicepuppet.tracking.tracker import VariableFrameRateWarning
@@ -93,7 +95,8 @@ def usable_segments(points, lost=None, audio=None, fps: float = 29.97, where: st
     return out
 
 
-def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", progress: bool = False):
+def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", av_offset=None, progress: bool = False,
+                       report=None):
     """The training sequences of a puppet from videos and/or landmark files with their audio.
 
     Each video is tracked (unless its landmarks are given), its landmarks put on a uniform frame
@@ -111,8 +114,13 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", progre
         One sound per sequence, instead of the videos' own.
     init : str, path or ndarray
         The tracker's initialisation (see :func:`voicepuppet.tracking.tracker.track_video`).
+    av_offset : float, optional
+        How late every recording's sound runs against its face (s), corrected as given; None
+        (default): estimated per recording (68-point landmarks; others are taken as in sync).
     progress : bool
         Progress bars while tracking.
+    report : callable, optional
+        Called with one line per recording saying its offset and what was done about it.
 
     Returns
     -------
@@ -120,6 +128,8 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", progre
     audio_list : list of voicepuppet.audio.Audio
     fps : float
         The frame rate of every sequence.
+    offsets : list of float
+        The offset corrected in each recording (s; 0 where none was).
 
     Raises
     ------
@@ -139,7 +149,9 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", progre
     # Every sound before any tracking: a video without an audio track fails in a second, not
     # after minutes of tracking it (and the ones before it).
     sounds = [vaudio.load_audio(audios[i] if audios else videos[i]) for i in range(n)]
-    points_list, audio_list, fps = [], [], None
+    if av_offset is not None and not (np.isfinite(av_offset) and abs(av_offset) < 10.0):
+        raise ValueError(f"the audio-video offset must be a number of seconds under 10 either way, got {av_offset!r}")
+    points_list, audio_list, fps, offsets = [], [], None, []
     for i in range(n):
         if marks:
             data = load_landmarks(marks[i])
@@ -166,7 +178,34 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", progre
                           + ("the frames after the audio ends are trained on silence" if seen > heard else
                              "the audio after the last frame is not used")
                           + "; check that the two belong together", stacklevel=2)
-        for seg in usable_segments(pts, lost, sounds[i], fps, where):
+        sound, offset = _in_sync(pts, sounds[i], fps, av_offset, where, report)
+        offsets.append(offset)
+        for seg in usable_segments(pts, lost, sound, fps, where):
             points_list.append(seg[0])
             audio_list.append(seg[1])
-    return points_list, audio_list, fps
+    return points_list, audio_list, fps, offsets
+
+
+def _in_sync(points, sound, fps: float, av_offset, where: str, report):
+    """``sound`` shifted into sync with ``points`` (the given offset, or the estimated one when it
+    is reliable and a frame or more: less is within a face's natural lead on its sound and the
+    estimate's spread), with the offset removed (s)."""
+    say = report or (lambda line: None)
+    if av_offset is not None:
+        if av_offset:
+            say(f"{where}audio-video offset {1000 * av_offset:+.0f} ms (given): corrected")
+        return shift_audio(sound, av_offset), float(av_offset)
+    if np.asarray(points).shape[1] != N_POINTS:
+        say(f"{where}audio-video offset not estimated ({np.asarray(points).shape[1]} landmarks, not 68): "
+            "taken as in sync")
+        return sound, 0.0
+    est: AvOffset = estimate_av_offset(points, sound, fps)
+    if not est.reliable:
+        say(f"{where}audio-video offset not estimated reliably ({est.reason}): taken as in sync; "
+            "--av-offset MS sets it")
+        return sound, 0.0
+    if abs(est.seconds * fps) < 1.0:
+        say(f"{where}audio and video {est.describe(fps)}")
+        return sound, 0.0
+    say(f"{where}{est.describe(fps)}: corrected (--av-offset MS overrides)")
+    return shift_audio(sound, est.seconds), est.seconds
