@@ -510,11 +510,7 @@ def test_animator_controls_exaggerate_and_expression_offset(tmp_path):
 def test_a_photo_without_a_face_names_the_option_that_gives_its_points(tmp_path, monkeypatch):
     from PIL import Image
 
-    pytest.importorskip("dlib")
-    from voicepuppet.tracking.detect import DLIB_MODEL_PATHS
-
-    if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
-        pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
+    import dlib  # noqa: F401  (installed with voicepuppet)
     Image.fromarray(np.full((120, 160, 3), 128, np.uint8)).save(tmp_path / "wall.png")
     with pytest.raises(ValueError, match=r"no face found in the photo .*wall\.png.*--face-points points\.json"):
         R.load_face(tmp_path / "wall.png")
@@ -528,13 +524,11 @@ def test_a_photo_without_a_face_names_the_option_that_gives_its_points(tmp_path,
 def test_real_photo_with_dlib_landmarks():
     """A real face (scikit-image's astronaut) with dlib's 68 points: the neutral frame is the
     photo, a planted jaw opening moves the mouth and chin, not the eyes."""
-    dlib = pytest.importorskip("dlib")
+    import dlib  # installed with voicepuppet
     skdata = pytest.importorskip("skimage.data")
-    from voicepuppet.tracking.detect import DLIB_MODEL_PATHS
+    from voicepuppet.tracking.detect import landmark_model
 
-    model = next((p for p in DLIB_MODEL_PATHS if Path(p).is_file()), None)
-    if model is None:
-        pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
+    model = landmark_model()  # installed with voicepuppet
     img = skdata.astronaut()
     rects, scores, _ = dlib.get_frontal_face_detector().run(img, 1)
     shape = dlib.shape_predictor(model)(img, rects[int(np.argmax(scores))])
@@ -564,12 +558,9 @@ def test_a_video_gives_the_face_of_its_first_frame_with_one(tmp_path):
     is neither picture nor video is refused saying what to give."""
     import cv2
 
-    dlib = pytest.importorskip("dlib")
+    import dlib  # installed with voicepuppet
     skdata = pytest.importorskip("skimage.data")
-    from voicepuppet.tracking.detect import DLIB_MODEL_PATHS, auto_init
-
-    if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
-        pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
+    from voicepuppet.tracking.detect import auto_init
     del dlib
     face = cv2.cvtColor(skdata.astronaut()[:256, 128:384], cv2.COLOR_RGB2BGR)
     path = tmp_path / "late.avi"
@@ -605,12 +596,9 @@ def test_a_video_gives_its_face_at_rest_when_the_animation_has_one(tmp_path):
     --face-points landmarks."""
     import cv2
 
-    dlib = pytest.importorskip("dlib")
+    import dlib  # installed with voicepuppet
     skdata = pytest.importorskip("skimage.data")
-    from voicepuppet.tracking.detect import DLIB_MODEL_PATHS, auto_init
-
-    if not any(Path(p).is_file() for p in DLIB_MODEL_PATHS):
-        pytest.skip("dlib's 68-point model is missing (apt-get install libdlib-data)")
+    from voicepuppet.tracking.detect import auto_init
     del dlib
     photo = np.ascontiguousarray(skdata.astronaut()[:256, 128:384])
     rest = auto_init(cv2.cvtColor(photo, cv2.COLOR_RGB2GRAY))

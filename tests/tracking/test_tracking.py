@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from voicepuppet import layout
+from voicepuppet.tracking.detect import landmark_model
 from voicepuppet import tracking
 from voicepuppet.tracking import detect as tracking_detect
 from voicepuppet.tracking import springs
@@ -98,11 +99,9 @@ def test_spring_re_estimation_learns_the_distance_statistics(planted):
     assert gap.max() < 2.5
 
 
-def _dlib_or_skip():
-    dlib = pytest.importorskip("dlib", reason="reference detector: pip install dlib-bin")
-    model = next((p for p in tracking.DLIB_MODEL_PATHS if os.path.isfile(p)), None)
-    if model is None:
-        pytest.skip("reference detector model missing: apt-get install libdlib-data")
+def _dlib():
+    import dlib  # installed with voicepuppet, as its model (landmark_model)
+
     return dlib
 
 
@@ -115,15 +114,15 @@ def _carphone():
 
 
 def test_carphone_against_dlib_reference():
-    _dlib_or_skip()
+    _dlib()
     path = _carphone()
     from voicepuppet.tracking import video
 
     frames, fps = video.read_grey_frames(path)
     assert frames.shape == (120, 144, 176)
-    dlib = _dlib_or_skip()
+    dlib = _dlib()
     detector = dlib.get_frontal_face_detector()
-    predictor = dlib.shape_predictor(next(p for p in tracking.DLIB_MODEL_PATHS if os.path.isfile(p)))
+    predictor = dlib.shape_predictor(landmark_model())
     ref = np.full((len(frames), 68, 2), np.nan)
     for t, f in enumerate(frames):
         faces = detector(f, 1)
@@ -234,7 +233,7 @@ def test_face_leaving_the_frame_is_flagged_lost(planted):
 
 
 def test_auto_init_without_a_face_says_what_to_do():
-    _dlib_or_skip()
+    _dlib()
     with pytest.raises(ValueError, match="no face"):
         tracking.auto_init(np.full((120, 160), 128, np.uint8))
 
@@ -242,7 +241,7 @@ def test_auto_init_without_a_face_says_what_to_do():
 def test_auto_init_takes_the_face_not_the_larger_clutter():
     """The astronaut: dlib detects her face (score 1.5) and, larger, her badge (score 0.05); the
     landmarks are her face's (nose tip and mouth inside the surest detection), not the badge's."""
-    _dlib_or_skip()
+    _dlib()
     skdata = pytest.importorskip("skimage.data")
     img = skdata.astronaut()
     rects, scores, _ = tracking_detect._dlib_detector().run(as_grey(img, 0, None), 0, 0.0)
@@ -261,7 +260,7 @@ def test_auto_init_waits_for_a_face_that_appears_later(tmp_path, write_avi):
     """A video that opens on a blank card: tracking starts on the earliest frame with a face (the
     probes, one frame every AUTO_INIT_STRIDE_S, then the frames since the last faceless one), the
     frames before it are lost, the rest is tracked as if the video began there."""
-    _dlib_or_skip()
+    _dlib()
     from voicepuppet.tracking import video
 
     face, _ = video.read_grey_frames(_carphone())
@@ -298,7 +297,7 @@ def test_auto_init_looks_for_a_face_for_a_minute(tmp_path, write_avi, monkeypatc
     """A title card longer than 10 s: the probes go on to AUTO_INIT_SCAN_S (a minute) and
     tracking starts where the face comes in; a longer video with no face in that time is refused
     with how to cut it where the face is."""
-    _dlib_or_skip()
+    _dlib()
     from voicepuppet.tracking import video
 
     face, _ = video.read_grey_frames(_carphone())
@@ -327,7 +326,7 @@ def test_probes_upsample_the_frame_only_up_to_probe_max_pixels():
     """The carphone face (53 px) needs dlib's first upsampling; on a grey canvas that upsampled
     is just within PROBE_MAX_PIXELS a probe finds it, on one just over it only the first frame's
     full search does."""
-    _dlib_or_skip()
+    _dlib()
     from voicepuppet.tracking import video
 
     face = video.read_grey_frames(_carphone())[0][0]
@@ -406,7 +405,7 @@ def test_auto_init_tracks_a_closed_mouth(tmp_path):
     """The performer at rest (seed 3, mouth closed): dlib puts inner lip points 62 and 66 on one
     pixel, which stopped `track --init auto` ("points 62 and 66 coincide"); now the face is
     tracked from the detection with the two set apart."""
-    dlib = _dlib_or_skip()
+    dlib = _dlib()
     from voicepuppet import synth
     from voicepuppet.tracking import video
 
@@ -434,12 +433,12 @@ def test_auto_init_without_dlib_says_what_to_install(monkeypatch):
     import sys
 
     monkeypatch.setitem(sys.modules, "dlib", None)  # import dlib now raises ImportError
-    with pytest.raises(ValueError, match="pip install dlib-bin.*libdlib-data.*--init points.json"):
+    with pytest.raises(ValueError, match="pip install dlib-bin.*--init points.json"):
         tracking.auto_init(np.full((120, 160), 128, np.uint8))
 
 
 def test_cli_auto_init_on_carphone(tmp_path):
-    _dlib_or_skip()
+    _dlib()
     from voicepuppet.cli.main import main
 
     out = tmp_path / "carphone.npz"

@@ -73,7 +73,7 @@ def add_parser(sub) -> None:
     p.add_argument("--init", default="auto", metavar="POINTS.json|auto",
                    help='first-frame points: JSON {"points": [[x, y], ...]} or CSV x,y rows, or "auto" '
                         "(dlib 68-point detector on the first frame with a face, looked for in the first "
-                        f"{AUTO_INIT_SCAN_S:g} s; needs dlib-bin and libdlib-data). Default: auto")
+                        f"{AUTO_INIT_SCAN_S:g} s). Default: auto")
     p.add_argument("--overlay", metavar="OUT.mp4", help="also write a video with the tracked mesh drawn on it")
     p.add_argument("--passes", type=int, default=2, help="tracking passes with spring re-estimation between them (default 2)")
     p.add_argument("--patch-radius", type=int, default=6, help="SSD patch radius in pixels (default 6: 13x13)")

@@ -2,8 +2,9 @@
 
 ``--init auto`` (:func:`auto_init`) runs dlib's frontal face detector and its 68-point shape
 predictor (iBUG 300-W layout) on a frame; :func:`first_face` looks for the first frame of a
-video with a face when the first has none. dlib (the ``dlib-bin`` wheel) and its model (Debian's
-``libdlib-data``) are optional: they are imported when a face is looked for.
+video with a face when the first has none. dlib comes with ``pip install`` (the ``dlib-bin`` wheel)
+and so does its model (the ``face-recognition-models`` package, :func:`landmark_model`); they are
+loaded when a face is looked for.
 """
 
 from __future__ import annotations
@@ -17,17 +18,20 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from voicepuppet.layout import neutral_landmarks
-from voicepuppet.layout import OUTER_EYE_CORNERS
+from voicepuppet.layout import OUTER_EYE_CORNERS, neutral_landmarks
 from voicepuppet.tracking import video
 from voicepuppet.tracking._checks import as_grey
 
-__all__ = ["NoFaceError", "auto_init", "first_face", "separate_coincident", "DLIB_MODEL_PATHS",
+__all__ = ["NoFaceError", "auto_init", "first_face", "separate_coincident", "landmark_model", "DLIB_MODEL_PATHS",
+           "DLIB_MODEL_NAME",
            "AUTO_INIT_STRIDE_S", "AUTO_INIT_SCAN_S", "PROBE_MAX_PIXELS", "SEPARATE_PX", "SURE_FACE_SCORE"]
 
 
-# Where Debian's libdlib-data puts dlib's 68-point model (override with VOICEPUPPET_DLIB_MODEL).
+# Where Debian's libdlib-data puts dlib's 68-point model, looked at after VOICEPUPPET_DLIB_MODEL
+# and before the copy the face-recognition-models package installs.
 DLIB_MODEL_PATHS = ("/usr/share/dlib/shape_predictor_68_face_landmarks.dat",)
+#: The model's file name, in every place it is looked for.
+DLIB_MODEL_NAME = "shape_predictor_68_face_landmarks.dat"
 # With init="auto" and no face on the first frame (a title card, a fade-in, someone stepping into
 # view), the detector looks at one frame every AUTO_INIT_STRIDE_S seconds of the first
 # AUTO_INIT_SCAN_S seconds; tracking starts on the earliest frame with a face (those between the
@@ -72,6 +76,26 @@ def _dlib_predictor(model: str):
     return dlib.shape_predictor(model)
 
 
+def landmark_model() -> str | None:
+    """The file of dlib's 68-point shape predictor, or None when none is installed.
+
+    Looked for in the environment variable ``VOICEPUPPET_DLIB_MODEL``, then at
+    :data:`DLIB_MODEL_PATHS` (Debian's ``libdlib-data``), then in the ``face-recognition-models``
+    package that ``pip install voicepuppet`` brings (found without importing it).
+
+    Returns
+    -------
+    str or None
+    """
+    import importlib.util
+
+    candidates = [os.environ.get("VOICEPUPPET_DLIB_MODEL", "")] + list(DLIB_MODEL_PATHS)
+    spec = importlib.util.find_spec("face_recognition_models")
+    for folder in (spec.submodule_search_locations or []) if spec else []:
+        candidates.append(os.path.join(folder, "models", DLIB_MODEL_NAME))
+    return next((c for c in candidates if c and Path(c).is_file()), None)
+
+
 def auto_init(frame: np.ndarray, instead: str = "--init points.json",
               max_pixels: int | None = None, min_score: float | None = None) -> np.ndarray:
     """Finds 68 face landmarks on a frame with dlib's shape predictor (iBUG 300-W layout).
@@ -83,9 +107,8 @@ def auto_init(frame: np.ndarray, instead: str = "--init points.json",
     surest: the largest alone took the astronaut's badge (score 0.05) over her face (1.50). With
     ``min_score``, detections scoring less are no face.
 
-    Needs the ``dlib-bin`` (or ``dlib``) wheel and the model file from Debian's ``libdlib-data``
-    (``/usr/share/dlib/shape_predictor_68_face_landmarks.dat``) or the path in the environment
-    variable ``VOICEPUPPET_DLIB_MODEL``.
+    Needs the ``dlib-bin`` (or ``dlib``) wheel and the model file (:func:`landmark_model`), both
+    installed with voicepuppet.
 
     Parameters
     ----------
@@ -116,15 +139,14 @@ def auto_init(frame: np.ndarray, instead: str = "--init points.json",
     try:
         import dlib
     except ImportError:
-        raise ValueError("finding face landmarks automatically needs a detector: pip install dlib-bin and "
-                         "apt-get install libdlib-data (dlib's 68-point model), or pass the points with "
+        raise ValueError("finding face landmarks automatically needs dlib, which installs with voicepuppet: "
+                         "pip install dlib-bin (or reinstall voicepuppet), or pass the points with "
                          f'{instead} ({{"points": [[x, y], ...]}})') from None
-    candidates = [os.environ.get("VOICEPUPPET_DLIB_MODEL", "")] + list(DLIB_MODEL_PATHS)
-    model = next((c for c in candidates if c and Path(c).is_file()), None)
+    model = landmark_model()
     if model is None:
         raise ValueError("finding face landmarks automatically: dlib is installed but not its 68-point model: "
-                         "apt-get install libdlib-data, or set VOICEPUPPET_DLIB_MODEL to "
-                         f"shape_predictor_68_face_landmarks.dat, or pass the points with {instead}")
+                         "pip install face-recognition-models (or reinstall voicepuppet), or set "
+                         f"VOICEPUPPET_DLIB_MODEL to {DLIB_MODEL_NAME}, or pass the points with {instead}")
     g = as_grey(frame, 0, None)
     faces = []
     with _DLIB_LOCK:
