@@ -38,6 +38,9 @@ def _cli(args: argparse.Namespace) -> int:
             raise ValueError("give --format or -o with a suffix")
         out = str(Path(args.animation).with_suffix("")) + ("_arkit" if fmt.startswith("arkit") else "") + \
             ("_cues" if fmt.startswith("rhubarb") else "") + FORMATS[fmt]
+        if Path(out).exists() and Path(out).samefile(args.animation):
+            raise ValueError(f"exporting {args.animation} as {fmt} without -o would overwrite it; give -o "
+                             "another file: voicepuppet never overwrites its input")
     face = resolve_face(args.face, args.face_points, args.palette, original.rest) if args.face else None
     export(anim, out, fmt, face=face, mode=args.mode, sound_file=args.sound_file or "", report=print_summary)
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {out}")

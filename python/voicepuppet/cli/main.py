@@ -1,15 +1,20 @@
 """The ``voicepuppet`` command line.
 
-Each verb lives next to the code it drives: a module exposing ``add_parser(subparsers)`` that
-registers its sub-command and sets ``func`` (called with the parsed arguments, returning an
-exit code). Only verbs that work are listed in ``VERB_MODULES``.
+Each verb (or family of verbs) has its module in :mod:`voicepuppet.cli`, exposing
+``add_parser(subparsers)`` that registers its sub-command and sets ``func`` (called with the
+parsed arguments, returning an exit code); ``VERB_MODULES`` lists them. :func:`main` gives every
+verb one way out: a user's error is one line and exit code 2, Ctrl-C and SIGTERM stop it cleanly,
+and no output may overwrite an input.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
+import threading
 import warnings
 
 from voicepuppet.blas import blas_threads
@@ -30,6 +35,47 @@ VERB_MODULES = [
     "voicepuppet.cli.align",
     "voicepuppet.cli.phoneme_puppet",
 ]
+
+
+#: Options that name what a verb writes; every other option or argument naming an existing file
+#: is something it reads, which no output may overwrite.
+OUTPUT_OPTIONS = ("output", "out", "json", "states_out", "overlay")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, turned into an interruption so that a verb stops as it does on Ctrl-C: its
+    temporary files removed, nothing half-written left (exit code 143)."""
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+def refuse_overwriting_inputs(args) -> None:
+    """Refuse a command whose output would overwrite one of its own inputs.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line.
+
+    Raises
+    ------
+    UserError
+        An option of :data:`OUTPUT_OPTIONS` names the same file as an input, naming both.
+    """
+    values = vars(args)
+    inputs = [v for k, vals in values.items() if k not in OUTPUT_OPTIONS
+              for v in (vals if isinstance(vals, list) else [vals]) if isinstance(v, str) and os.path.isfile(v)]
+    for name in OUTPUT_OPTIONS:
+        out = values.get(name)
+        if not isinstance(out, str) or not os.path.exists(out):
+            continue
+        for src in inputs:
+            if os.path.samefile(out, src):
+                flag = "-o" if name == "output" else f"--{name.replace('_', '-')}"
+                raise UserError(f"{flag} {out} is also what the command reads ({src}); write to another "
+                                "file: voicepuppet never overwrites its input")
 
 
 class UserError(Exception):
@@ -73,11 +119,13 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         The exit code: the verb's (0 for success), 2 for an error of the user's, 130 when
-        interrupted.
+        interrupted, 143 when terminated (SIGTERM).
     """
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() else None
     try:
+        refuse_overwriting_inputs(args)
         with blas_threads(), warnings.catch_warnings():
             # Warnings are news for the user (a dropped stretch of video, a fallback), not for a
             # developer: one line each, without the source line of the code that raised them.
@@ -89,9 +137,15 @@ def main(argv: list[str] | None = None) -> int:
     except (UserError, ValueError, FileNotFoundError) as exc:
         print(f"voicepuppet {args.verb}: error: {exc}", file=sys.stderr)
         return 2
+    except Terminated:
+        print(f"voicepuppet {args.verb}: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"voicepuppet {args.verb}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -157,7 +157,14 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", av_off
             data = load_landmarks(marks[i])
             if "points" not in data:
                 raise ValueError(f"{marks[i]}: no 'points' array; expected landmarks from voicepuppet track")
-            pts, f = data["points"], float(np.asarray(data.get("fps", 29.97)).reshape(-1)[0])
+            if "fps" not in data:
+                raise ValueError(f"{marks[i]}: no 'fps' array: the landmarks' frame rate is needed to pair them "
+                                 "with the audio; save it with the points (np.savez(..., points=..., fps=...))")
+            f = float(np.asarray(data["fps"], dtype=np.float64).reshape(-1)[0])
+            if not (np.isfinite(f) and 1.0 <= f <= 1000.0):
+                raise ValueError(f"{marks[i]}: fps is {f:g}; a frame rate between 1 and 1000 frames per second "
+                                 "is expected")
+            pts = data["points"]
             lost, times = data.get("lost"), data.get("times")
             where = f"{marks[i]}: "
         else:

@@ -1,0 +1,101 @@
+"""The tracker on real recordings of people talking, against an independent reference
+(docs/tracking.md, "Real recordings"). Usage:
+
+    python benchmarks/real_tracking.py [REAL_DIR] [--json OUT.json]
+
+REAL_DIR (default ``../shared/data/real`` beside the repository) holds the clips and, in
+``reference/``, MediaPipe Face Mesh's 478 points for every frame (SOURCES.md there). Each clip is
+tracked from dlib's points on its first frame (``voicepuppet track --init auto``), and compared in
+layout-free measures per frame: the mouth's opening (inner lips' middle points) and width (mouth
+corners) over the inter-ocular distance, correlated with the reference's (Pearson r), and the
+share of frames whose inner lips cross (an upper inner-lip point more than 0.01 inter-ocular
+distances below its lower partner, along the face's own vertical: from the eyes' midpoint to the
+lower lip).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from voicepuppet.tracking import track_video
+
+#: Inner-lip pairs (upper, lower) of the 68-point layout.
+INNER_PAIRS = ((61, 67), (62, 66), (63, 65))
+#: An overlap of the inner lips beyond this (inter-ocular distances) is a crossing.
+CROSS_IOD = 0.01
+#: MediaPipe Face Mesh indices: outer eye corners, inner lips' middles, mouth corners.
+MP_EYES, MP_LIPS, MP_CORNERS = (33, 263), (13, 14), (61, 291)
+
+
+def measures(op_a, op_b):
+    ok = np.isfinite(op_a) & np.isfinite(op_b)
+    return float(np.corrcoef(op_a[ok], op_b[ok])[0, 1]) if ok.sum() > 2 else float("nan")
+
+
+def ours(points):
+    """Opening, width (over the inter-ocular distance) and crossed inner lips of 68-point tracks."""
+    iod = np.linalg.norm(points[:, 36] - points[:, 45], axis=1)
+    opening = np.linalg.norm(points[:, 62] - points[:, 66], axis=1) / iod
+    width = np.linalg.norm(points[:, 60] - points[:, 64], axis=1) / iod
+    down = points[:, 57] - 0.5 * (points[:, 36] + points[:, 45])  # eyes' midpoint to the lower lip
+    down /= np.linalg.norm(down, axis=1, keepdims=True)
+    crossed = np.zeros(len(points), bool)
+    for up, lo in INNER_PAIRS:
+        crossed |= np.einsum("ij,ij->i", points[:, lo] - points[:, up], down) < -CROSS_IOD * iod
+    return opening, width, crossed
+
+
+def reference(ref):
+    iod = np.linalg.norm(ref[:, MP_EYES[0]] - ref[:, MP_EYES[1]], axis=1)
+    opening = np.linalg.norm(ref[:, MP_LIPS[0]] - ref[:, MP_LIPS[1]], axis=1) / iod
+    width = np.linalg.norm(ref[:, MP_CORNERS[0]] - ref[:, MP_CORNERS[1]], axis=1) / iod
+    return opening, width
+
+
+def clips(real: Path):
+    for index in sorted((real / "reference").rglob("index.json")):
+        folder = index.parent.relative_to(real / "reference")
+        for name, info in json.loads(index.read_text())["clips"].items():
+            yield f"{folder}/{name}", real / folder / info["file"], index.parent / f"{name}.npy"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("real", nargs="?", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
+    ap.add_argument("--json", metavar="OUT.json")
+    args = ap.parse_args(argv)
+    real = Path(args.real)
+    if not (real / "reference").is_dir():
+        print(f"no reference landmarks in {real / 'reference'}", file=sys.stderr)
+        return 2
+    rows = []
+    print(f"{'clip':<28}{'frames':>7}{'crossed %':>10}{'opening r':>10}{'width r':>9}{'s':>7}")
+    for name, video, ref_path in clips(real):
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = track_video(video, init="auto", progress=False)
+        seconds = time.perf_counter() - t0
+        ref = np.load(ref_path).astype(np.float64)
+        n = min(len(ref), len(res.points))
+        o, w, crossed = ours(res.points[:n])
+        ro, rw = reference(ref[:n])
+        row = {"clip": name, "frames": n, "crossed": float(crossed.mean()), "opening_r": measures(o, ro),
+               "width_r": measures(w, rw), "seconds": seconds}
+        rows.append(row)
+        print(f"{name:<28}{n:>7}{100 * row['crossed']:>10.1f}{row['opening_r']:>10.2f}{row['width_r']:>9.2f}"
+              f"{seconds:>7.1f}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

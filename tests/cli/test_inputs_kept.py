@@ -1,0 +1,77 @@
+"""No verb overwrites what it reads, a stray temporary-looking file of the user's survives, and
+SIGTERM stops a verb as Ctrl-C does, leaving nothing half-written."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from voicepuppet.animation import procedural_animation, save_animation
+from voicepuppet.cli.main import main
+
+
+def test_export_without_output_does_not_overwrite_its_input(tmp_path, capsys):
+    src = tmp_path / "t.npz"
+    save_animation(procedural_animation(10, 10.0), src)
+    np.savez(src, **dict(np.load(src)), params=np.arange(3))  # the user's extra array
+    before = src.read_bytes()
+    assert main(["export", str(src), "--format", "npz"]) == 2
+    assert "never overwrites its input" in capsys.readouterr().err
+    assert src.read_bytes() == before
+
+
+def test_an_output_that_names_an_input_is_refused(tmp_path, capsys):
+    anim = tmp_path / "a.npz"
+    save_animation(procedural_animation(10, 10.0), anim)
+    before = anim.read_bytes()
+    assert main(["render", str(anim), "--renderer", "2d", "-o", str(anim)]) == 2
+    err = capsys.readouterr().err
+    assert "-o" in err and str(anim) in err and "never overwrites its input" in err
+    assert anim.read_bytes() == before
+    assert main(["export", str(anim), "--format", "npz", "-o", str(tmp_path / "." / "a.npz")]) == 2
+    assert anim.read_bytes() == before
+
+
+def test_features_leaves_a_users_file_beside_its_output(tmp_path):
+    import soundfile as sf
+
+    rng = np.random.default_rng(0)
+    sf.write(tmp_path / "x.wav", 0.1 * rng.normal(size=16000), 16000)
+    mine = tmp_path / "g.tmp.npz"
+    mine.write_bytes(b"the user's")
+    assert main(["features", str(tmp_path / "x.wav"), "-o", str(tmp_path / "g.npz")]) == 0
+    assert mine.read_bytes() == b"the user's"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["g.npz", "g.tmp.npz", "x.wav"]
+
+
+def test_sigterm_stops_a_render_and_leaves_nothing_half_written(tmp_path):
+    anim = tmp_path / "long.npz"
+    save_animation(procedural_animation(3000, 30.0), anim)
+    out = tmp_path / "out.mp4"
+    proc = subprocess.Popen([sys.executable, "-m", "voicepuppet.cli.main", "render", str(anim), "-o", str(out),
+                             "--renderer", "2d"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and not any(p.name.endswith(".partial.mp4") for p in tmp_path.iterdir()):
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143 and "terminated" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["long.npz"]
+
+
+def test_landmarks_without_a_frame_rate_are_refused(tmp_path, capsys):
+    import soundfile as sf
+
+    pts = np.random.default_rng(0).normal(100, 5, (50, 68, 2))
+    np.savez(tmp_path / "nofps.npz", points=pts)
+    np.savez(tmp_path / "zero.npz", points=pts, fps=0.0)
+    sf.write(tmp_path / "a.wav", 0.1 * np.random.default_rng(1).normal(size=16000), 16000)
+    for name, what in (("nofps.npz", "no 'fps'"), ("zero.npz", "fps is 0")):
+        assert main(["train", "--landmarks", str(tmp_path / name), "--audio", str(tmp_path / "a.wav"),
+                     "-o", str(tmp_path / "p.vpp")]) == 2
+        assert what in capsys.readouterr().err
+    assert not (tmp_path / "p.vpp").exists()
