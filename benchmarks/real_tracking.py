@@ -10,7 +10,8 @@ layout-free measures per frame: the mouth's opening (inner lips' middle points) 
 corners) over the inter-ocular distance, correlated with the reference's (Pearson r), and the
 share of frames whose inner lips cross (an upper inner-lip point more than 0.01 inter-ocular
 distances below its lower partner, along the face's own vertical: from the eyes' midpoint to the
-lower lip).
+lower lip). Beside it, OpenCV's pyramidal Lucas-Kanade from the same first-frame points with the
+same patch and pyramid (:func:`voicepuppet.bench.tracker.track_lk`), the peer to beat.
 """
 
 from __future__ import annotations
@@ -24,7 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from voicepuppet.bench.tracker import track_lk
 from voicepuppet.tracking import track_video
+from voicepuppet.tracking.video import read_grey_frames
 
 #: Inner-lip pairs (upper, lower) of the 68-point layout.
 INNER_PAIRS = ((61, 67), (62, 66), (63, 65))
@@ -43,7 +46,7 @@ def ours(points):
     """Opening, width (over the inter-ocular distance) and crossed inner lips of 68-point tracks."""
     iod = np.linalg.norm(points[:, 36] - points[:, 45], axis=1)
     opening = np.linalg.norm(points[:, 62] - points[:, 66], axis=1) / iod
-    width = np.linalg.norm(points[:, 60] - points[:, 64], axis=1) / iod
+    width = np.linalg.norm(points[:, 48] - points[:, 54], axis=1) / iod  # outer corners, as MP_CORNERS
     down = points[:, 57] - 0.5 * (points[:, 36] + points[:, 45])  # eyes' midpoint to the lower lip
     down /= np.linalg.norm(down, axis=1, keepdims=True)
     crossed = np.zeros(len(points), bool)
@@ -76,7 +79,8 @@ def main(argv=None) -> int:
         print(f"no reference landmarks in {real / 'reference'}", file=sys.stderr)
         return 2
     rows = []
-    print(f"{'clip':<28}{'frames':>7}{'crossed %':>10}{'opening r':>10}{'width r':>9}{'s':>7}")
+    print(f"{'clip':<28}{'frames':>7}{'crossed %':>10}{'opening r':>10}{'width r':>9}{'s':>7}"
+          f"{'LK crossed %':>14}{'LK opening r':>13}{'LK width r':>11}")
     for name, video, ref_path in clips(real):
         t0 = time.perf_counter()
         with warnings.catch_warnings():
@@ -87,11 +91,15 @@ def main(argv=None) -> int:
         n = min(len(ref), len(res.points))
         o, w, crossed = ours(res.points[:n])
         ro, rw = reference(ref[:n])
+        frames, _ = read_grey_frames(video)
+        lk = track_lk(frames[:n], res.points[0])
+        lo, lw, lcrossed = ours(lk)
         row = {"clip": name, "frames": n, "crossed": float(crossed.mean()), "opening_r": measures(o, ro),
-               "width_r": measures(w, rw), "seconds": seconds}
+               "width_r": measures(w, rw), "seconds": seconds, "lk_crossed": float(lcrossed.mean()),
+               "lk_opening_r": measures(lo, ro), "lk_width_r": measures(lw, rw)}
         rows.append(row)
         print(f"{name:<28}{n:>7}{100 * row['crossed']:>10.1f}{row['opening_r']:>10.2f}{row['width_r']:>9.2f}"
-              f"{seconds:>7.1f}")
+              f"{seconds:>7.1f}{100 * row['lk_crossed']:>14.1f}{row['lk_opening_r']:>13.2f}{row['lk_width_r']:>11.2f}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
     return 0
