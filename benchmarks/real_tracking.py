@@ -26,11 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from voicepuppet.bench.tracker import track_lk
+from voicepuppet.layout import INNER_LIP_PAIRS
 from voicepuppet.tracking import track_video
 from voicepuppet.tracking.video import read_grey_frames
 
-#: Inner-lip pairs (upper, lower) of the 68-point layout.
-INNER_PAIRS = ((61, 67), (62, 66), (63, 65))
 #: An overlap of the inner lips beyond this (inter-ocular distances) is a crossing.
 CROSS_IOD = 0.01
 #: MediaPipe Face Mesh indices: outer eye corners, inner lips' middles, mouth corners.
@@ -50,7 +49,7 @@ def ours(points):
     down = points[:, 57] - 0.5 * (points[:, 36] + points[:, 45])  # eyes' midpoint to the lower lip
     down /= np.linalg.norm(down, axis=1, keepdims=True)
     crossed = np.zeros(len(points), bool)
-    for up, lo in INNER_PAIRS:
+    for up, lo in INNER_LIP_PAIRS:
         crossed |= np.einsum("ij,ij->i", points[:, lo] - points[:, up], down) < -CROSS_IOD * iod
     return opening, width, crossed
 

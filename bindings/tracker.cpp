@@ -83,7 +83,10 @@ void bind_tracker(py::module_& m) {
       .def_readwrite("reference_points", &TrackerOptions::reference_points)
       .def_readwrite("reference_sides", &TrackerOptions::reference_sides)
       .def_readwrite("reference_search_radius", &TrackerOptions::reference_search_radius)
-      .def_readwrite("reference_search_ncc", &TrackerOptions::reference_search_ncc);
+      .def_readwrite("reference_search_ncc", &TrackerOptions::reference_search_ncc)
+      .def_readwrite("order_pairs", &TrackerOptions::order_pairs)
+      .def_readwrite("order_axis", &TrackerOptions::order_axis)
+      .def_readwrite("order_margin", &TrackerOptions::order_margin);
 
   py::class_<TrackerFrame>(m, "TrackerFrame", "One frame's answer of SpringMeshTracker.track.")
       .def_readonly("points", &TrackerFrame::points, "#P by 2 positions (x, y)")

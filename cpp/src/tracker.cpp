@@ -1215,6 +1215,27 @@ struct SpringMeshTracker::Impl {
     cut_first_templates(&first_pyr);
   }
 
+  // The `order_pairs` back in order: a pair whose lower point lies above its upper one along
+  // the order axis (in the face frame) by more than the margin is moved apart onto it, each
+  // point half the way.
+  void enforce_order() {
+    const Index K = opt.order_pairs.rows();
+    if (K == 0) return;
+    const Eigen::Vector2d axis = opt.order_axis.normalized();
+    const Eigen::Matrix2d to_image = to_face.inverse();
+    for (Index k = 0; k < K; ++k) {
+      const Index up = opt.order_pairs(k, 0), lo = opt.order_pairs(k, 1);
+      const Eigen::Vector2d d(pts(lo, 0) - pts(up, 0), pts(lo, 1) - pts(up, 1));
+      const double s = (to_face * d).dot(axis) + opt.order_margin;
+      if (!(s < 0)) continue;
+      const Eigen::Vector2d half = to_image * (axis * (-0.5 * s));
+      pts(lo, 0) += half(0);
+      pts(lo, 1) += half(1);
+      pts(up, 0) -= half(0);
+      pts(up, 1) -= half(1);
+    }
+  }
+
   // Joint Gauss–Newton relaxation over levels [l_hi .. l_lo] against `tpls`; updates pts.
   Index relax(Index l_hi, Index l_lo, const std::vector<Template>& tpls) {
     const Index n = 2 * P;
@@ -1271,6 +1292,7 @@ struct SpringMeshTracker::Impl {
           pts(v / 2, v % 2) += d;
           max_step = std::max(max_step, std::abs(d) * scale);
         }
+        enforce_order();
         // Coarse levels only need to land within the next level's reach.
         if (max_step < (l > l_lo ? std::max(opt.tolerance, 0.1) : opt.tolerance)) break;
       }
@@ -1347,6 +1369,21 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
   }
   check_mesh(mesh, points.rows());
   check_frame_points(options.frame_points, points.rows(), "options.frame_points");
+  for (Index k = 0; k < options.order_pairs.rows(); ++k) {
+    const Index up = options.order_pairs(k, 0), lo = options.order_pairs(k, 1);
+    if (up < 0 || lo < 0 || up >= points.rows() || lo >= points.rows() || up == lo) {
+      fail_argument("options.order_pairs row ", k, " = (", up, ", ", lo, ") must be two different point "
+                    "indices in [0, ", points.rows() - 1, "]");
+    }
+  }
+  if (!(std::isfinite(options.order_margin) && options.order_margin >= 0)) {
+    fail_argument("options.order_margin must be a finite number of pixels >= 0, got ", options.order_margin);
+  }
+  if (options.order_pairs.rows() != 0 &&
+      !(options.order_axis.allFinite() && options.order_axis.norm() > 0)) {
+    fail_argument("options.order_axis must be a finite non-zero direction, got (", options.order_axis(0), ", ",
+                  options.order_axis(1), ")");
+  }
   if (options.reference_sides.size() != 0 &&
       (options.reference_sides.rows() != points.rows() || options.reference_sides.cols() != 2 ||
        !options.reference_sides.allFinite())) {
@@ -1512,6 +1549,8 @@ TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
     out.lost[i] = outside || conf < s.opt.lost_confidence;
     s.prev_lost[static_cast<size_t>(i)] = out.lost[i] ? 1 : 0;
   }
+  // Points that kept their stage-A answer beside others that took stage B's may be out of order.
+  s.enforce_order();
   out.points = s.pts;
   return out;
 }

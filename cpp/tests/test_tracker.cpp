@@ -941,3 +941,59 @@ TEST_CASE("tracker: relocate restarts lost points where the texture came back, a
     CHECK_THROWS_WITH_AS(stays.relocate(nan), doctest::Contains("points"), std::invalid_argument);
   }
 }
+
+// Texture A on the left half of a 200 x 140 frame, texture B on the right half raised by `rise` px.
+Frame render_halves(const Texture& ta, const Texture& tb, double rise) {
+  return render_with(200, 140, [&](double x, double y) { return x < 100 ? ta(x, y) : tb(x, y + rise); });
+}
+
+TEST_CASE("tracker: ordered points never cross, whatever their data say") {
+  const Texture ta(21), tb(22);
+  // Three points on each half; point 0 (left, y 50) is to stay above point 3 (right, y 60).
+  RowMatrixXd p(6, 2);
+  p << 40, 50, 40, 95, 65, 72, 160, 54, 160, 105, 135, 82;
+  const SpringMesh mesh = springs_from_points(p, delaunay_edges(p), 0.5);  // weak springs
+  EdgeMatrix order(1, 2);
+  order << 0, 3;
+  // The right half rises 8 px: point 3 ends 4 px above point 0.
+  const Frame f0 = render_halves(ta, tb, 0), f1 = render_halves(ta, tb, 8);
+  SpringMeshTracker loose(f0.view(), p, mesh);  // control: free, the pair crosses
+  const TrackerFrame a = loose.track(f1.view());
+  CHECK(std::abs(a.points(3, 1) - 46) < 0.5);
+  CHECK(std::abs(a.points(0, 1) - 50) < 0.5);
+  TrackerOptions ordered;
+  ordered.order_pairs = order;
+  SpringMeshTracker tracker(f0.view(), p, mesh, ordered);
+  const TrackerFrame b = tracker.track(f1.view());
+  CHECK(b.points(3, 1) >= b.points(0, 1) - 1e-9);  // on the order
+  CHECK(b.points(3, 1) - b.points(0, 1) < 1.0);    // held at it, not pushed apart
+  CHECK(std::abs(b.points(0, 0) - 40) < 2);
+  CHECK(std::abs(b.points(3, 0) - 160) < 2);
+  // Along another axis only that axis's component is ordered: along x the pair (point 3 to the
+  // right of point 0) is in order and tracks as the free one does.
+  TrackerOptions sideways = ordered;
+  sideways.order_axis = Eigen::Vector2d(1.0, 0.0);
+  SpringMeshTracker side(f0.view(), p, mesh, sideways);
+  const TrackerFrame c = side.track(f1.view());
+  CHECK(std::abs(c.points(3, 1) - 46) < 0.5);
+  // Bad orders are refused with a reason.
+  TrackerOptions bad = ordered;
+  bad.order_pairs(0, 1) = 9;
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("order_pairs"),
+                       std::invalid_argument);
+  bad = ordered;
+  bad.order_axis = Eigen::Vector2d(0.0, 0.0);
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("order_axis"),
+                       std::invalid_argument);
+  bad = ordered;
+  bad.order_margin = -1.0;
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("order_margin"),
+                       std::invalid_argument);
+  // A margin lets the pair overlap by that much and no more.
+  TrackerOptions loose_order = ordered;
+  loose_order.order_margin = 2.0;
+  SpringMeshTracker margin(f0.view(), p, mesh, loose_order);
+  const TrackerFrame m = margin.track(f1.view());
+  CHECK(m.points(3, 1) >= m.points(0, 1) - 2.0 - 1e-9);
+  CHECK(m.points(3, 1) - m.points(0, 1) < -1.0);
+}

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["N_POINTS", "GROUPS", "NAMES", "MOUTH", "UPPER_FACE", "LOWER_FACE", "OUTER_EYE_CORNERS",
-           "EYE_CORNERS", "RIGID", "LIP_GAP", "inter_ocular_distance", "neutral_landmarks"]
+           "EYE_CORNERS", "RIGID", "LIP_GAP", "INNER_LIP_PAIRS", "inter_ocular_distance", "neutral_landmarks"]
 
 N_POINTS = 68
 
@@ -43,6 +43,8 @@ EYE_CORNERS = (36, 39, 42, 45)
 RIGID = (27, 28, 29, 30, 31, 32, 33, 34, 35) + EYE_CORNERS
 #: the middle points of the upper and lower inner lip: the lips' gap
 LIP_GAP = (62, 66)
+#: the inner lips' facing points, (upper, lower): the lower never lies above the upper
+INNER_LIP_PAIRS = ((61, 67), LIP_GAP, (63, 65))
 
 
 def inter_ocular_distance(points: np.ndarray) -> np.ndarray:

@@ -199,6 +199,18 @@ struct TrackerOptions {
   RowMatrixXd reference_sides;
   double reference_search_radius = 0.0;  ///< px (0: no reference search)
   double reference_search_ncc = 0.7;     ///< acceptance correlation of a reference search move
+  /// #K by 2 point index pairs (upper, lower) kept in order along `order_axis` in the face
+  /// frame: the lower point never above the upper one (the inner lips of a 68-point face do not
+  /// cross). After every Gauss–Newton step, and on the frame's answer, a pair out of order is
+  /// moved apart onto the order, equally and oppositely along the axis (its midpoint kept), so
+  /// the next step's springs and data work from a mouth that is possible. Empty: no order.
+  EdgeMatrix order_pairs;
+  /// the face frame's direction from an upper to a lower point (the first frame's axes: from
+  /// the eyes down to the mouth); non-zero, normalised by the tracker
+  Eigen::Vector2d order_axis = Eigen::Vector2d(0.0, 1.0);
+  /// face-frame px a lower point may lie above its upper one before the pair is moved (>= 0):
+  /// closed lips whose points meet within the tracker's noise are left as they are
+  double order_margin = 0.0;
 };
 
 /// One frame's answer.

@@ -28,6 +28,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from voicepuppet import _core
+from voicepuppet.layout import INNER_LIP_PAIRS
 from voicepuppet.tracking import video
 from voicepuppet.tracking._checks import as_grey, check_inside, check_points
 from voicepuppet.tracking.detect import NoFaceError, first_face
@@ -39,6 +40,10 @@ from voicepuppet.tracking.springs import (FACE_FRAME_POINTS, LIP_GROUP_SEARCH_IO
                                           OUTER_MOUTH_CORNERS, OUTER_UPPER_LIP, checked_lip_edges,
                                           delaunay_edges, eye_corner_sides, lip_patch_sides, lip_springs,
                                           soften_opening)
+
+#: How far (inter-ocular distances) an inner lip may overlap its partner before the tracker moves
+#: the pair apart: closed lips meet within this of each other in the tracker's noise.
+INNER_LIP_OVERLAP_IOD = 0.005
 
 __all__ = ["track_frames", "track_video", "VariableFrameRateWarning"]
 
@@ -52,7 +57,7 @@ _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "inten
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
                  "damping", "patch_sides", "search_radius", "frame_points", "spring_outlier", "outlier_edges",
                  "search_groups", "group_search_radius", "reference_points", "reference_sides",
-                 "reference_search_radius", "reference_search_ncc")
+                 "reference_search_radius", "reference_search_ncc", "order_pairs", "order_axis", "order_margin")
 
 
 def _options(opts: dict) -> "_core.TrackerOptions":
@@ -151,6 +156,10 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         reference_sides[list(OUTER_UPPER_LIP)] = lip_patch_sides(init)[62]  # up the face
         options.setdefault("reference_sides", reference_sides)
         options.setdefault("reference_search_radius", LIP_SEARCH_IOD * iod)
+        # The inner lips never cross: ordered along the face's vertical (eyes to mouth).
+        options.setdefault("order_pairs", np.asarray(INNER_LIP_PAIRS, dtype=np.int64))
+        options.setdefault("order_axis", init[48:68].mean(axis=0) - 0.5 * (init[36] + init[45]))
+        options.setdefault("order_margin", INNER_LIP_OVERLAP_IOD * iod)
         lip_floor = LIP_SPRING_FLOOR_IOD * iod
     if passes < 1:
         raise ValueError(f"passes must be >= 1 (tracking passes with spring re-estimation), got {passes}")
