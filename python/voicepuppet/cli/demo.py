@@ -212,7 +212,6 @@ def run(out_dir="voicepuppet-demo", *, train_seconds: float = 180.0, n_test: int
 
 def _cli(args) -> int:
     from voicepuppet.evaluation import report
-    from voicepuppet.evaluation import split as evaluation
 
     s = run(args.out, train_seconds=args.train_seconds, n_test=args.n_test, seed=args.seed,
             n_states=args.states, train_on=args.train_on, compare_conventional=not args.no_conventional,

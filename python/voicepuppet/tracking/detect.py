@@ -137,7 +137,7 @@ def auto_init(frame: np.ndarray, instead: str = "--init points.json",
         No face was found (a ``ValueError``). Both messages name ``instead``.
     """
     try:
-        import dlib
+        import dlib  # noqa: F401  (here only to say what to install; the detector loads it)
     except ImportError:
         raise ValueError("finding face landmarks automatically needs dlib, which installs with voicepuppet: "
                          "pip install dlib-bin (or reinstall voicepuppet), or pass the points with "
