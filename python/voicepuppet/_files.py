@@ -16,7 +16,7 @@ from typing import Iterator
 
 import numpy as np
 
-__all__ = ["check_output_path", "publish", "atomic_path", "write_npz"]
+__all__ = ["check_output_path", "publish", "atomic_path", "remove_stale_temporaries", "write_npz"]
 
 
 def check_output_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Path:
@@ -85,13 +85,60 @@ def publish(tmp, path) -> None:
     os.replace(tmp, path)
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True  # someone else's process (or a number no process can have: left alone)
+    return True
+
+
+def remove_stale_temporaries(path) -> list[Path]:
+    """Removes the temporaries of ``path`` that runs killed before they finished left behind.
+
+    :func:`atomic_path` names its temporary ``.NAME.PID.XXXX.partial.SUFFIX`` beside the output;
+    one whose process no longer runs is debris (a run killed with SIGKILL, or a crash), and the
+    next write to the same output removes it. Temporaries of running processes are left alone.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The temporaries removed.
+    """
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    start = f".{p.name}."
+    removed = []
+    try:
+        candidates = [c for c in folder.iterdir() if c.name.startswith(start) and ".partial" in c.name]
+    except OSError:
+        return removed
+    for c in candidates:
+        pid = c.name[len(start):].split(".", 1)[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            try:
+                c.unlink()
+                removed.append(c)
+            except OSError:
+                pass
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Iterator[Path]:
     """Yields a temporary path next to ``path``; on success it is renamed onto ``path``.
 
     On any exception the temporary file is removed and ``path`` is untouched, so a reader never
     sees a half-written file. The temporary name keeps the suffix (writers that dispatch on it
-    still work).
+    still work) and carries the process id, so that temporaries a killed run left behind are
+    removed by the next write to the same output (:func:`remove_stale_temporaries`).
 
     Parameters
     ----------
@@ -113,7 +160,9 @@ def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "outp
         ``path`` cannot be written (see :func:`check_output_path`).
     """
     p = check_output_path(path, suffixes, what)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".partial{p.suffix}", dir=p.parent or ".")
+    remove_stale_temporaries(p)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.{os.getpid()}.", suffix=f".partial{p.suffix}",
+                               dir=p.parent or ".")
     os.close(fd)
     tmp_path = Path(tmp)
     try:

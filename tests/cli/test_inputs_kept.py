@@ -75,3 +75,31 @@ def test_landmarks_without_a_frame_rate_are_refused(tmp_path, capsys):
                      "-o", str(tmp_path / "p.vpp")]) == 2
         assert what in capsys.readouterr().err
     assert not (tmp_path / "p.vpp").exists()
+
+
+def test_temporaries_of_killed_runs_are_removed_by_the_next_write(tmp_path):
+    """A run killed with SIGKILL leaves its temporary; the next write to that output removes it
+    (its process is gone), and leaves a running process's temporary alone."""
+    done = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead = int(done.stdout)
+    stale = tmp_path / f".a.npz.{dead}.x1y2.partial.npz"
+    live = tmp_path / f".a.npz.{os.getpid()}.z3w4.partial.npz"
+    other = tmp_path / f".b.npz.{dead}.q5r6.partial.npz"  # another output's: not this write's business
+    for f in (stale, live, other):
+        f.write_bytes(b"half")
+    save_animation(procedural_animation(4, 10.0), tmp_path / "a.npz")
+    assert not stale.exists() and live.exists() and other.exists()
+    assert (tmp_path / "a.npz").exists()
+    # what a killed run leaves now carries its process id
+    proc = subprocess.Popen([sys.executable, "-c",
+                             "import time, sys\n"
+                             "from voicepuppet._files import atomic_path\n"
+                             f"with atomic_path({str(tmp_path / 'c.npz')!r}) as t:\n"
+                             "    print(t.name, flush=True); time.sleep(60)\n"], stdout=subprocess.PIPE, text=True)
+    name = proc.stdout.readline().strip()
+    assert name.startswith(f".c.npz.{proc.pid}.") and (tmp_path / name).exists()
+    proc.kill()
+    proc.wait()
+    proc.stdout.close()
+    save_animation(procedural_animation(4, 10.0), tmp_path / "c.npz")
+    assert not (tmp_path / name).exists()
