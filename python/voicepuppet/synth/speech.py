@@ -12,11 +12,11 @@ import re
 import subprocess
 import sys
 from dataclasses import dataclass, field
-from fractions import Fraction
 
 import numpy as np
 
 from voicepuppet import data
+from voicepuppet.audio.loading import resample
 from voicepuppet.phonemes.labels import align
 
 __all__ = ["SAMPLE_RATE", "Phone", "Utterance", "speak", "espeak_available", "espeak_version",
@@ -149,15 +149,6 @@ def espeak_version() -> str:
     return _info()["version"]
 
 
-def _resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
-    from scipy.signal import resample_poly
-
-    if rate_in == rate_out:
-        return x.astype(np.float64)
-    f = Fraction(int(rate_out), int(rate_in))
-    return resample_poly(x.astype(np.float64), f.numerator, f.denominator)
-
-
 def _contiguous(events: list[tuple[float, str]], duration: float) -> list[Phone]:
     """Phones from (start, label) events: each ends where the next starts; zero-length phones
     are dropped; a leading gap becomes a pause."""
@@ -214,7 +205,7 @@ def speak(text: str, *, voice: str = "en-us", rate: int = 160, pitch: int = 50,
         raise RuntimeError(f"espeak-ng could not speak {text!r}: {head['error']}")
     sr = int(head["rate"])
     raw = np.frombuffer(pcm, dtype="<i2").astype(np.float64) / 32768.0
-    x = _resample(raw, sr, int(sample_rate)).astype(np.float32)
+    x = resample(np.asarray(raw, dtype=np.float64), sr, int(sample_rate)).astype(np.float32)
     duration = len(x) / float(sample_rate)
     phones = _contiguous([(s / sr, lab) for s, lab in head["events"]], duration)
     return Utterance(x, int(sample_rate), phones, text,
@@ -269,7 +260,7 @@ def recording_utterance(recording, sample_rate: int = SAMPLE_RATE) -> Utterance:
     import soundfile
 
     x, sr = soundfile.read(recording.wav, dtype="float64", always_2d=True)
-    x = _resample(x.mean(axis=1), sr, int(sample_rate)).astype(np.float32)
+    x = resample(x.mean(axis=1), sr, int(sample_rate)).astype(np.float32)
     duration = len(x) / float(sample_rate)
     if recording.labels:
         rows = [(s, p) for s, _, p in read_hts_labels(recording.labels)]
