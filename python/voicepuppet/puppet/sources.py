@@ -11,12 +11,13 @@ import numpy as np
 
 from voicepuppet import audio as vaudio
 from voicepuppet.layout import N_POINTS
-from voicepuppet.puppet.sync import AvOffset, estimate_av_offset, shift_audio
+from voicepuppet.puppet.sync import AvOffset, estimate_av_offset, estimate_shared_av_offset, shift_audio
 from voicepuppet.tracking import tracker
 from voicepuppet.tracking.landmarks import load_landmarks, on_uniform_grid
 from voicepuppet.tracking.tracker import VariableFrameRateWarning
 
-__all__ = ["MAX_LOST_SHARE", "MIN_SEGMENT", "MAX_AV_MISMATCH_S", "usable_segments", "training_sequences"]
+__all__ = ["MAX_LOST_SHARE", "MIN_SEGMENT", "MAX_AV_MISMATCH_S", "usable_segments", "training_sequences",
+           "av_offsets"]
 
 #: A frame whose share of lost points exceeds this is not used for training.
 MAX_LOST_SHARE = 0.3
@@ -151,7 +152,7 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", av_off
     sounds = [vaudio.load_audio(audios[i] if audios else videos[i]) for i in range(n)]
     if av_offset is not None and not (np.isfinite(av_offset) and abs(av_offset) < 10.0):
         raise ValueError(f"the audio-video offset must be a number of seconds under 10 either way, got {av_offset!r}")
-    points_list, audio_list, fps, offsets = [], [], None, []
+    recordings, fps = [], None
     for i in range(n):
         if marks:
             data = load_landmarks(marks[i])
@@ -185,34 +186,79 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", av_off
                           + ("the frames after the audio ends are trained on silence" if seen > heard else
                              "the audio after the last frame is not used")
                           + "; check that the two belong together", stacklevel=2)
-        sound, offset = _in_sync(pts, sounds[i], fps, av_offset, where, report)
-        offsets.append(offset)
-        for seg in usable_segments(pts, lost, sound, fps, where):
+        recordings.append((pts, lost, sounds[i], where))
+    offsets = av_offsets([(p, a, w) for p, _, a, w in recordings], fps, av_offset, report)
+    points_list, audio_list = [], []
+    for (pts, lost, sound, where), offset in zip(recordings, offsets):
+        for seg in usable_segments(pts, lost, shift_audio(sound, offset), fps, where):
             points_list.append(seg[0])
             audio_list.append(seg[1])
     return points_list, audio_list, fps, offsets
 
 
-def _in_sync(points, sound, fps: float, av_offset, where: str, report):
-    """``sound`` shifted into sync with ``points`` (the given offset, or the estimated one when it
-    is reliable and a frame or more: less is within a face's natural lead on its sound and the
-    estimate's spread), with the offset removed (s)."""
+def av_offsets(recordings, fps: float, av_offset=None, report=None) -> list:
+    """The audio-video offset to correct in each recording of one speaker.
+
+    The given offset for all, or each recording's estimate (:func:`voicepuppet.puppet.sync.estimate_av_offset`)
+    where it is reliable; the recordings whose own estimate is not reliable are judged together
+    (:func:`voicepuppet.puppet.sync.estimate_shared_av_offset`: sentence cuts of one source share
+    its offset), and that estimate is used for them when it is reliable. An estimate under a
+    frame is not corrected: it is within a face's natural lead on its sound and the estimate's
+    spread. Recordings whose landmarks are not of the 68-point layout are taken as in sync.
+
+    Parameters
+    ----------
+    recordings : sequence of (points, audio, where)
+        Each recording's landmarks (T_i, P, 2) on a uniform grid at ``fps``, its sound
+        (:class:`voicepuppet.audio.Audio`, starting with frame 0), and the prefix of the
+        messages naming it (e.g. ``"clip.mp4: "``).
+    fps : float
+        The landmarks' frame rate.
+    av_offset : float, optional
+        How late every recording's sound runs (s), corrected as given; None (default): estimated.
+    report : callable, optional
+        Called with one line per recording saying its offset and what was done about it.
+
+    Returns
+    -------
+    list of float
+        The offset to correct in each recording (s; 0 where none is).
+    """
     say = report or (lambda line: None)
     if av_offset is not None:
-        if av_offset:
-            say(f"{where}audio-video offset {1000 * av_offset:+.0f} ms (given): corrected")
-        return shift_audio(sound, av_offset), float(av_offset)
-    if np.asarray(points).shape[1] != N_POINTS:
-        say(f"{where}audio-video offset not estimated ({np.asarray(points).shape[1]} landmarks, not 68): "
-            "taken as in sync")
-        return sound, 0.0
-    est: AvOffset = estimate_av_offset(points, sound, fps)
-    if not est.reliable:
-        say(f"{where}audio-video offset not estimated reliably ({est.reason}): taken as in sync; "
+        for _, _, where in recordings:
+            if av_offset:
+                say(f"{where}audio-video offset {1000 * av_offset:+.0f} ms (given): corrected")
+        return [float(av_offset)] * len(recordings)
+    offsets, unsure = [0.0] * len(recordings), []
+    for i, (points, sound, where) in enumerate(recordings):
+        if np.asarray(points).shape[1] != N_POINTS:
+            say(f"{where}audio-video offset not estimated ({np.asarray(points).shape[1]} landmarks, not 68): "
+                "taken as in sync")
+            continue
+        est: AvOffset = estimate_av_offset(points, sound, fps)
+        if est.reliable:
+            offsets[i] = _act_on(est, fps, where, say)
+        else:
+            unsure.append((i, est))
+    if len(unsure) > 1:
+        shared = estimate_shared_av_offset([(recordings[i][0], recordings[i][1], fps) for i, _ in unsure])
+        if shared.reliable:
+            for i, _ in unsure:
+                offsets[i] = _act_on(shared, fps, recordings[i][2], say,
+                                     f" (judged with the {len(unsure) - 1} other recording(s) too short or "
+                                     "unclear to judge alone)")
+            return offsets
+    for i, est in unsure:
+        say(f"{recordings[i][2]}audio-video offset not estimated reliably ({est.reason}): taken as in sync; "
             "--av-offset MS sets it")
-        return sound, 0.0
+    return offsets
+
+
+def _act_on(est: AvOffset, fps: float, where: str, say, together: str = "") -> float:
+    """The offset to correct for a reliable estimate (none under a frame), said."""
     if abs(est.seconds * fps) < 1.0:
-        say(f"{where}audio and video {est.describe(fps)}")
-        return sound, 0.0
-    say(f"{where}{est.describe(fps)}: corrected (--av-offset MS overrides)")
-    return shift_audio(sound, est.seconds), est.seconds
+        say(f"{where}audio and video {est.describe(fps)}{together}")
+        return 0.0
+    say(f"{where}{est.describe(fps)}{together}: corrected (--av-offset MS overrides)")
+    return est.seconds

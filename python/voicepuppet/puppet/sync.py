@@ -18,6 +18,12 @@ An estimate is *reliable* when the recording is at least :data:`MIN_SECONDS` lon
 syllables give chance peaks), the peak lies inside the search range (not at its edge) and its
 correlation reaches :data:`MIN_CORRELATION`; training corrects only reliable offsets of a frame
 or more (:func:`voicepuppet.puppet.sources.training_sequences`).
+
+Recordings too short to be judged alone (sentence cuts of a few seconds) are judged together
+when they come from one source and so share its offset (:func:`estimate_shared_av_offset`): the
+correlation at each lag pools every recording's products of opening and loudness (each about
+its own means), as if they were one long recording, and the same rules decide whether it is
+reliable.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ from voicepuppet.audio.loading import Audio
 from voicepuppet.layout import LIP_GAP, N_POINTS, inter_ocular_distance
 
 __all__ = ["MAX_OFFSET_S", "MIN_SECONDS", "MIN_CORRELATION", "AvOffset", "mouth_opening", "speech_loudness",
-           "estimate_av_offset", "shift_audio"]
+           "estimate_av_offset", "estimate_shared_av_offset", "shift_audio"]
 
 #: The largest offset looked for (s), either way.
 MAX_OFFSET_S = 0.3
@@ -110,7 +116,7 @@ def mouth_opening(points) -> np.ndarray:
         return np.linalg.norm(p[:, LIP_GAP[0]] - p[:, LIP_GAP[1]], axis=1) / inter_ocular_distance(p)
 
 
-def speech_loudness(audio: Audio, fps: float, n_frames: int) -> np.ndarray:
+def speech_loudness(audio: Audio, fps: float, n_frames: int, *, shift_s: float = 0.0) -> np.ndarray:
     """The speech's log energy (dB) in windows centred on each video frame, floor raised.
 
     Parameters
@@ -121,6 +127,8 @@ def speech_loudness(audio: Audio, fps: float, n_frames: int) -> np.ndarray:
         The video's frame rate.
     n_frames : int
         Frames to give (past the end of the sound: the floor).
+    shift_s : float
+        Centre the windows this much later than the frames (s; default 0).
 
     Returns
     -------
@@ -129,7 +137,7 @@ def speech_loudness(audio: Audio, fps: float, n_frames: int) -> np.ndarray:
     x, rate = np.asarray(audio.samples, dtype=np.float64), int(audio.rate)
     half = max(int(round(0.5 * LOUDNESS_WINDOW_S * rate)), 1)
     c = np.cumsum(np.concatenate([[0.0], x * x]))
-    centre = np.round(np.arange(n_frames) / fps * rate).astype(np.int64)
+    centre = np.round((np.arange(n_frames) / fps + shift_s) * rate).astype(np.int64)
     lo, hi = np.clip(centre - half, 0, len(x)), np.clip(centre + half, 0, len(x))
     n = np.maximum(hi - lo, 1)
     db = 10.0 * np.log10((c[hi] - c[lo]) / n + 1e-12)
@@ -138,13 +146,27 @@ def speech_loudness(audio: Audio, fps: float, n_frames: int) -> np.ndarray:
     return np.maximum(db, top - LOUDNESS_RANGE_DB)
 
 
-def _correlation(a: np.ndarray, b: np.ndarray) -> float:
-    ok = np.isfinite(a) & np.isfinite(b)
-    if ok.sum() < 10:
-        return np.nan
-    a, b = a[ok] - a[ok].mean(), b[ok] - b[ok].mean()
-    d = np.sqrt((a * a).sum() * (b * b).sum())
-    return float((a * b).sum() / d) if d > 0 else np.nan
+def _check_rate(fps, name: str = "fps") -> None:
+    if not (fps > 0 and np.isfinite(fps)):
+        raise ValueError(f"{name} must be positive, got {fps!r}")
+
+
+def _lag_sums(points, audio: Audio, fps: float, lags_s: np.ndarray) -> np.ndarray:
+    """Per lag s: the sums (Σxy, Σxx, Σyy) of the opening x at frame t and the loudness y at
+    t/fps + s, each about its mean, over the frames whose shifted time lies on the recording."""
+    opening = mouth_opening(points)
+    T = len(opening)
+    t = np.arange(T)
+    sums = np.zeros((len(lags_s), 3))
+    for j, s in enumerate(lags_s):
+        loud = speech_loudness(audio, fps, T, shift_s=float(s))
+        moved = t + s * fps
+        ok = np.isfinite(opening) & np.isfinite(loud) & (moved > -0.5) & (moved < T - 0.5)
+        if ok.sum() < 10:
+            continue
+        a, b = opening[ok] - opening[ok].mean(), loud[ok] - loud[ok].mean()
+        sums[j] = (a * b).sum(), (a * a).sum(), (b * b).sum()
+    return sums
 
 
 def estimate_av_offset(points, audio: Audio, fps: float, *, max_offset_s: float = MAX_OFFSET_S) -> AvOffset:
@@ -171,18 +193,46 @@ def estimate_av_offset(points, audio: Audio, fps: float, *, max_offset_s: float 
         The landmarks are not of the 68-point layout, or ``fps`` or ``max_offset_s`` is not
         positive.
     """
-    if not (fps > 0 and np.isfinite(fps)):
-        raise ValueError(f"fps must be positive, got {fps!r}")
-    if not (max_offset_s > 0 and np.isfinite(max_offset_s)):
-        raise ValueError(f"max_offset_s must be positive, got {max_offset_s!r}")
-    opening = mouth_opening(points)
-    T = len(opening)
-    loud = speech_loudness(audio, fps, T)
-    K = max(int(np.ceil(max_offset_s * fps)), 1)
+    return estimate_shared_av_offset([(points, audio, fps)], max_offset_s=max_offset_s)
+
+
+def estimate_shared_av_offset(recordings, *, max_offset_s: float = MAX_OFFSET_S) -> AvOffset:
+    """The one offset of recordings from one source, judged together (see the module's
+    description): lags on the first recording's frame grid, correlation pooled over all.
+
+    Parameters
+    ----------
+    recordings : sequence of (points, audio, fps)
+        Each recording's landmarks (T_i, 68, 2), its sound (:class:`voicepuppet.audio.Audio`,
+        starting with frame 0) and its frame rate.
+    max_offset_s : float
+        The largest offset looked for, either way (s).
+
+    Returns
+    -------
+    AvOffset
+        The offset, reliable by the rules of :func:`estimate_av_offset` applied to the pooled
+        correlation and the recordings' total duration.
+
+    Raises
+    ------
+    ValueError
+        No recordings, landmarks not of the 68-point layout, or an ``fps`` or ``max_offset_s``
+        that is not positive.
+    """
+    recordings = list(recordings)
+    if not recordings:
+        raise ValueError("no recordings to estimate an audio-video offset from")
+    _check_rate(max_offset_s, "max_offset_s")
+    for _, _, fps in recordings:
+        _check_rate(fps)
+    fps0 = float(recordings[0][2])
+    K = max(int(np.ceil(max_offset_s * fps0)), 1)
     lags = np.arange(-K, K + 1)
-    # r(k): the face at frame t against the sound at frame t + k (k > 0: the sound is late)
-    r = np.array([_correlation(opening[max(0, -k):T - max(0, k)], loud[max(0, k):T - max(0, -k)])
-                  for k in lags])
+    # r(k): the face at frame t against the sound at time t + k frames (k > 0: the sound is late)
+    sums = sum(_lag_sums(p, a, float(f), lags / fps0) for p, a, f in recordings)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(sums[:, 1] * sums[:, 2] > 0, sums[:, 0] / np.sqrt(sums[:, 1] * sums[:, 2]), np.nan)
     in_sync = float(r[K]) if np.isfinite(r[K]) else 0.0
     if not np.isfinite(r).any():
         return AvOffset(0.0, 0.0, in_sync, False, "too few frames with a face and sound to compare")
@@ -192,10 +242,12 @@ def estimate_av_offset(points, audio: Audio, fps: float, *, max_offset_s: float 
         den = r[i - 1] - 2 * r[i] + r[i + 1]
         if den < 0:
             shift = float(np.clip(0.5 * (r[i - 1] - r[i + 1]) / den, -0.5, 0.5))
-    seconds, best = (lags[i] + shift) / fps, float(r[i])
+    seconds, best = (lags[i] + shift) / fps0, float(r[i])
+    duration = sum(len(p) / float(f) for p, _, f in recordings)
+    what = "the recording is" if len(recordings) == 1 else f"the {len(recordings)} recordings are"
     reason = ""
-    if T / fps < MIN_SECONDS:
-        reason = f"the recording is {T / fps:.1f} s long, under {MIN_SECONDS:g} s"
+    if duration < MIN_SECONDS:
+        reason = f"{what} {duration:.1f} s long, under {MIN_SECONDS:g} s"
     elif i in (0, len(r) - 1):
         reason = f"the best match lies at the edge of the +-{1000 * max_offset_s:.0f} ms searched"
     elif best < MIN_CORRELATION:
