@@ -414,3 +414,40 @@ def test_ill_conditioned_system_reports_condition_estimate():
     var = np.array([[1e10, 1e-6]])  # pose almost free, velocity pinned: the level is unidentified
     with pytest.raises(RuntimeError, match="condition estimate"):
         tr.solve_trajectory(np.zeros(50, int), np.zeros((1, 1)), np.zeros((1, 1)), var, covariance_type="diag")
+
+
+def test_widen_motion_scales_each_coordinate_about_its_own_mean(rng):
+    """Each coordinate's deviations from its mean are multiplied by its gain: the mean is kept,
+    the standard deviation multiplied; gains outside [1, MAX_MOTION_GAIN] are refused."""
+    from voicepuppet.trajectory import MAX_MOTION_GAIN, widen_motion
+
+    Y = rng.normal(size=(200, 3)) * np.array([0.1, 0.5, 2.0]) + np.array([1.0, -2.0, 0.0])
+    gain = np.array([1.0, 2.0, MAX_MOTION_GAIN])
+    out = widen_motion(Y, gain)
+    np.testing.assert_allclose(out.mean(axis=0), Y.mean(axis=0), atol=1e-12)
+    np.testing.assert_allclose(out.std(axis=0), gain * Y.std(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(out[:, 0], Y[:, 0], atol=1e-15)
+    np.testing.assert_allclose(out[5] - out[9], gain * (Y[5] - Y[9]), rtol=1e-12)  # no smoothing, no shift
+    assert widen_motion(Y[:0], gain).shape == (0, 3)
+    with pytest.raises(ValueError, match="one value per coordinate"):
+        widen_motion(Y, gain[:2])
+    for bad in (0.5, MAX_MOTION_GAIN + 0.1, np.nan):
+        with pytest.raises(ValueError, match="every gain"):
+            widen_motion(Y, np.array([1.0, 1.0, bad]))
+
+
+def test_close_crossed_lips_meets_crossed_pairs_and_leaves_the_rest():
+    from voicepuppet.layout import INNER_LIP_PAIRS, close_crossed_lips, neutral_landmarks
+
+    face = neutral_landmarks()
+    crossed = face.copy()
+    up, lo = INNER_LIP_PAIRS[1]
+    crossed[lo], crossed[up] = face[up] - [0, 3], face[lo] + [0, 3]  # the lower above the upper
+    out = close_crossed_lips(np.stack([face, crossed]))
+    np.testing.assert_array_equal(out[0], face)  # in order: untouched
+    np.testing.assert_allclose(out[1, up], out[1, lo], atol=1e-9)  # crossed: met in the middle
+    np.testing.assert_allclose(out[1, up] + out[1, lo], crossed[up] + crossed[lo], atol=1e-9)
+    others = [i for i in range(68) if i not in (up, lo)]
+    np.testing.assert_array_equal(out[1, others], crossed[others])
+    with pytest.raises(ValueError, match="68-point"):
+        close_crossed_lips(face[None, :10])

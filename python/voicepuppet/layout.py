@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["N_POINTS", "GROUPS", "NAMES", "MOUTH", "UPPER_FACE", "LOWER_FACE", "OUTER_EYE_CORNERS",
-           "EYE_CORNERS", "RIGID", "LIP_GAP", "INNER_LIP_PAIRS", "inter_ocular_distance", "neutral_landmarks"]
+           "EYE_CORNERS", "RIGID", "LIP_GAP", "INNER_LIP_PAIRS", "inter_ocular_distance", "close_crossed_lips",
+           "neutral_landmarks"]
 
 N_POINTS = 68
 
@@ -72,6 +73,43 @@ def inter_ocular_distance(points: np.ndarray) -> np.ndarray:
                          "distance explicitly for other layouts")
     a, b = OUTER_EYE_CORNERS
     return np.linalg.norm(points[..., a, :] - points[..., b, :], axis=-1)
+
+
+def close_crossed_lips(points: np.ndarray) -> np.ndarray:
+    """68-point faces whose inner lips do not pass each other.
+
+    Along each face's own vertical (from the eyes' outer corners' midpoint to the lower lip's
+    middle, point 57), a lower inner-lip point (``INNER_LIP_PAIRS``) that lies above its upper
+    partner is moved with it to the middle of the two: the lips meet, closed, instead of
+    crossing.
+
+    Parameters
+    ----------
+    points : array_like, shape (T, 68, 2)
+        Faces, pixel coordinates (x, y).
+
+    Returns
+    -------
+    ndarray, shape (T, 68, 2)
+        A copy, the crossed pairs closed.
+
+    Raises
+    ------
+    ValueError
+        The points are not 68-point faces.
+    """
+    p = np.array(points, dtype=np.float64)
+    if p.ndim != 3 or p.shape[1:] != (N_POINTS, 2):
+        raise ValueError(f"closing crossed lips needs 68-point faces of shape (T, {N_POINTS}, 2), got {p.shape}")
+    a, b = OUTER_EYE_CORNERS
+    down = p[:, 57] - 0.5 * (p[:, a] + p[:, b])
+    down /= np.maximum(np.linalg.norm(down, axis=1, keepdims=True), 1e-12)
+    for up, lo in INNER_LIP_PAIRS:
+        gap = np.einsum("ij,ij->i", p[:, lo] - p[:, up], down)
+        shut = np.minimum(gap, 0.0)[:, None] * down  # zero where the pair is in order
+        p[:, up] += 0.5 * shut
+        p[:, lo] -= 0.5 * shut
+    return p
 
 
 def _arc(cx, cy, rx, ry, a0, a1, n):

@@ -23,6 +23,8 @@ from voicepuppet import _core
 
 __all__ = [
     "FixedLagTrajectory",
+    "MAX_MOTION_GAIN",
+    "widen_motion",
     "make_model",
     "resample_states",
     "resample_weights",
@@ -467,3 +469,49 @@ class FixedLagTrajectory:
             The frames not yet emitted, from the full solve.
         """
         return self._stream.flush()
+
+
+
+#: The most :func:`widen_motion` widens a coordinate's motion (a factor on its deviations).
+MAX_MOTION_GAIN = 3.0
+
+
+def widen_motion(Y, gain) -> np.ndarray:
+    """A trajectory's motion widened about its own mean, per coordinate.
+
+    The most probable trajectory is an average of what the model thinks likely, so it moves less
+    than real faces do (with a guide, it leans towards the ridge's prediction, itself shrunk
+    towards the mean). Each coordinate's deviation from its mean over the trajectory is
+    multiplied by its ``gain``: with the gains a puppet learns at training (how much less its
+    animations of held-out training audio moved than the faces did), the animation moves as much
+    as the training faces, as statistical speech synthesis restores the variance of its
+    parameter trajectories (the variance-scaling post-filter, Silén et al., Interspeech 2012,
+    after Toda & Tokuda's global variance).
+
+    Parameters
+    ----------
+    Y : array_like, shape (T, D)
+        The trajectory.
+    gain : array_like, shape (D,)
+        Factor per coordinate, in [1, :data:`MAX_MOTION_GAIN`].
+
+    Returns
+    -------
+    ndarray, shape (T, D)
+        The widened trajectory (``Y`` as float when it has no frame).
+
+    Raises
+    ------
+    ValueError
+        ``gain`` not of shape (D,) or outside [1, :data:`MAX_MOTION_GAIN`].
+    """
+    Y = np.asarray(Y, dtype=np.float64)
+    g = np.asarray(gain, dtype=np.float64)
+    if Y.ndim != 2 or g.shape != (Y.shape[1],):
+        raise ValueError(f"gain must have one value per coordinate of Y {Y.shape}, got shape {g.shape}")
+    if not (np.isfinite(g).all() and (g >= 1.0).all() and (g <= MAX_MOTION_GAIN).all()):
+        raise ValueError(f"every gain must lie in [1, {MAX_MOTION_GAIN:g}]")
+    if not len(Y):
+        return Y
+    mean = Y.mean(axis=0)
+    return mean + (Y - mean) * g

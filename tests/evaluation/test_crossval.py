@@ -245,10 +245,14 @@ def test_voice_puppet_on_the_same_folds():
     assert "| voice-puppet |" in report.format_table(res)
     # its baselines on the same folds, from the features computed from each sequence's audio, and
     # the same (guided) puppet without its guide
-    assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face", ev.UNGUIDED]
+    assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face", ev.MOST_PROBABLE, ev.UNGUIDED]
     assert res["models"][ev.UNGUIDED]["frames"] == m["frames"]
     assert res["models"][ev.UNGUIDED]["err"]["folds"] != m["err"]["folds"]
     assert f"| {ev.UNGUIDED} |" in report.format_table(res)
+    # and its most probable trajectory, not widened to the training motion, paired with it
+    assert res["models"][ev.MOST_PROBABLE]["frames"] == m["frames"]
+    assert res["models"][ev.MOST_PROBABLE]["err"]["folds"] != m["err"]["folds"]
+    assert ev.MOST_PROBABLE in res["differences"]["voice-puppet"]
     np.testing.assert_allclose(res["models"]["mean-face"]["err"]["folds"], 1.0, atol=1e-12)
     assert {"err", "lve", "rmse_iod", "closed"} <= set(res["differences"]["voice-puppet"]["ridge"])
     # a fold without B, P, M (its labels made AA): one fold left has a closed share, too few to
@@ -558,7 +562,7 @@ def test_cross_validation_baselines_equal_a_direct_fit_on_each_fold(tmp_path):
     results = {}
     for label, ss in (("truth", seqs), ("tracked", tracked)):
         res = results[label] = run(ss)
-        assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face", ev.UNGUIDED]
+        assert list(res["models"]) == ["voice-puppet", "ridge", "mean-face", ev.MOST_PROBABLE, ev.UNGUIDED]
         direct = _direct_baselines(ss, feats, 3, 0, 3)
         for name, rows in direct.items():
             for m in ("l1", "rms", "linf", "err"):

@@ -96,7 +96,7 @@ def test_large_lags_give_the_offline_animation(puppet, speech, posterior, fps):
     offline one (same frames, same points), whatever the chunking."""
     p, _ = puppet
     x = speech[:40000]  # 2.5 s: silence, speech
-    ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False), fps=fps,
+    ref = p.animate(full_motion=False, audio=prepare(x, 16000, target_rate=None, remove_dc=False), fps=fps,
                     posterior=posterior).animation.points
     live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, delta_lag=-1,
                       decode_lag=2000, trajectory_lag=2000, input_level_db=speech_level_db(x, 16000))
@@ -131,7 +131,7 @@ def test_bounded_lag_emits_within_the_latency(puppet, speech):
         assert n_out >= max(0, math.floor((t - live.latency_s) * FPS + 1e-9) + 1), (t, n_out)
     frames.append(live.flush().points)
     got = np.concatenate(frames)
-    ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False)).animation.points
+    ref = p.animate(full_motion=False, audio=prepare(x, 16000, target_rate=None, remove_dc=False)).animation.points
     assert got.shape == ref.shape
     assert np.all(np.isfinite(got))
     # the mouth moves with the speech in both
@@ -176,7 +176,7 @@ def test_other_input_rate_is_resampled_on_the_stream(puppet, speech):
     p, _ = puppet
     y = resample_poly(speech[:24000], 3, 1)  # 48 kHz
     au = prepare(y, 48000, remove_dc=False)
-    ref = p.animate(au).animation.points
+    ref = p.animate(full_motion=False, audio=au).animation.points
     live = LivePuppet(p, rate=48000, formant_lag=-1, delta_lag=-1, decode_lag=1000,
                       trajectory_lag=1000, input_level_db=speech_level_db(au.samples, 16000))
     got = stream_all(live, y, random_chunks(y.shape[0], np.random.default_rng(SEED + 1)))
@@ -210,8 +210,8 @@ def test_guide_weight_zero_streams_brands_trajectory(puppet, speech):
     p, _ = puppet
     x = speech[:40000]
     au = prepare(x, 16000, target_rate=None, remove_dc=False)
-    ref0 = p.animate(au, guide_weight=0).animation.points
-    guided = p.animate(au).animation.points
+    ref0 = p.animate(full_motion=False, audio=au, guide_weight=0).animation.points
+    guided = p.animate(full_motion=False, audio=au).animation.points
     assert np.abs(guided - ref0).max() > 0.05
     level = speech_level_db(x, 16000)
     live = LivePuppet(p, guide_weight=0, formant_lag=-1, delta_lag=-1, decode_lag=2000,
@@ -220,7 +220,7 @@ def test_guide_weight_zero_streams_brands_trajectory(puppet, speech):
     got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED + 5)))
     np.testing.assert_allclose(got, ref0, rtol=0, atol=1e-8 * np.abs(ref0).max())
     # another weight is the offline solve with that weight
-    ref2 = p.animate(au, guide_weight=2.5).animation.points
+    ref2 = p.animate(full_motion=False, audio=au, guide_weight=2.5).animation.points
     live = LivePuppet(p, guide_weight=2.5, posterior=False, formant_lag=-1, delta_lag=-1,
                       decode_lag=2000, trajectory_lag=2000, input_level_db=level)
     got = stream_all(live, x, random_chunks(x.shape[0], np.random.default_rng(SEED + 6)))
@@ -310,7 +310,7 @@ def test_cli_file_json_lines(puppet, speech, tmp_path):
     lines = r.stdout.decode().splitlines()
     recs = [json.loads(s) for s in lines]
     x_loaded = load_audio(str(wav)).samples
-    ref = p.animate(prepare(x_loaded, 16000, target_rate=None, remove_dc=False)).animation.points
+    ref = p.animate(full_motion=False, audio=prepare(x_loaded, 16000, target_rate=None, remove_dc=False)).animation.points
     assert [r_["frame"] for r_ in recs] == list(range(ref.shape[0]))
     pts = np.array([r_["points"] for r_ in recs])
     assert pts.shape == ref.shape
@@ -675,7 +675,7 @@ def test_projected_puppet_core_stream_is_the_offline_projection_and_animation(pr
 def test_projected_puppet_large_lags_give_the_offline_animation(projected, speech, posterior, fps):
     p, _ = projected
     x = speech[:40000]
-    ref = p.animate(prepare(x, 16000, target_rate=None, remove_dc=False), fps=fps,
+    ref = p.animate(full_motion=False, audio=prepare(x, 16000, target_rate=None, remove_dc=False), fps=fps,
                     posterior=posterior).animation.points
     live = LivePuppet(p, fps=fps, posterior=posterior, formant_lag=-1, delta_lag=-1,
                       projection_lag=-1, decode_lag=2000, trajectory_lag=2000,

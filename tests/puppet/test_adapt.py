@@ -317,8 +317,8 @@ def test_a_guided_puppets_guide_reads_the_inputs_own_features(guided):
     assert guided._core.guided and not guided._core.projected
     pts, heard, _ = _performer(np.random.default_rng(8), 900, VOICE)
     truth, _ = guided.face_space.encode(pts)
-    plain = guided.animate(features=heard)
-    r = guided.animate(features=heard, adapt="full", adapt_tau=5.0, adapt_iter=8)
+    plain = guided.animate(full_motion=False, features=heard)
+    r = guided.animate(full_motion=False, features=heard, adapt="full", adapt_tau=5.0, adapt_iter=8)
     assert np.sum((r.face - truth) ** 2) < 0.8 * np.sum((plain.face - truth) ** 2)
     core = guided._core
     (t,) = r.transforms
@@ -330,5 +330,5 @@ def test_a_guided_puppets_guide_reads_the_inputs_own_features(guided):
     adapted = _core.solve_trajectory(model, r.states[:, 0], np.asarray(core.guide_predict(
         z @ np.asarray(t["A"]).T + np.asarray(t["b"]))), W)
     assert np.abs(adapted - face).max() > 1e-3  # the two readings differ: the test tells them apart
-    inf = guided.animate(features=heard, adapt="full", adapt_tau=np.inf)
+    inf = guided.animate(full_motion=False, features=heard, adapt="full", adapt_tau=np.inf)
     np.testing.assert_array_equal(inf.face, plain.face)

@@ -37,6 +37,25 @@ def test_planted_machine_is_recovered(trained):
     assert p.n_states() <= 8 and p.metadata["training"]["parts"][0]["states"] == p.n_states()
 
 
+def test_full_motion_widens_the_trajectory_by_the_gains_learnt_in_training(trained):
+    """Training learns per face coordinate how much less its cross-validated animations of the
+    training audio moved than the faces (at the chosen guide weight); animate's default widens
+    the most probable trajectory by it, full_motion=False or another guide weight does not."""
+    from voicepuppet.trajectory import MAX_MOTION_GAIN
+
+    p, _, (_, feats, _) = trained
+    gain = p.arrays["face/motion_gain"]
+    assert gain.shape == (p.face_space.n_dims,) and np.all(gain >= 1) and np.all(gain <= MAX_MOTION_GAIN)
+    assert np.any(gain > 1.01), "this puppet's animations are not timid: nothing tested"
+    plain, full = p.animate(features=feats, full_motion=False), p.animate(features=feats)
+    np.testing.assert_allclose(full.face.std(axis=0), gain * plain.face.std(axis=0), rtol=1e-9)
+    np.testing.assert_allclose(full.face.mean(axis=0), plain.face.mean(axis=0), atol=1e-9)
+    np.testing.assert_allclose(full.animation.points, p.face_space.decode(full.face), atol=1e-9)
+    np.testing.assert_array_equal(full.states, plain.states)
+    other = p.animate(features=feats, guide_weight=p.guide_weight)  # a weight given: not widened
+    np.testing.assert_allclose(other.face, plain.face, atol=1e-12)
+
+
 def test_novel_audio_may_start_in_any_state(trained):
     # Audio starts anywhere in the performer's manner, not where the training video began: a
     # start vector learned from one training sequence is a point mass on its first state; the
@@ -76,14 +95,14 @@ def test_animate_is_the_kernels_composed(trained):
     model = _core.TrajectoryModel(arr["face_means"][:, :d], arr["face_means"][:, d:],
                                   arr["face_covars"].reshape(-1, 2 * d), "full", 1.0)
     Y = _core.solve_trajectory(model, path)
-    r = p.animate(features=feats, guide_weight=0)  # Brand's solve; with the guide: test_guide.py
+    r = p.animate(full_motion=False, features=feats, guide_weight=0)  # Brand's solve; with the guide: test_guide.py
     np.testing.assert_array_equal(r.states[:, 0], path)
     np.testing.assert_allclose(r.animation.points, p.face_space.decode(Y), atol=1e-9)
     # Other output rates: twice the frames; edited states read back give the same animation.
-    assert p.animate(features=feats, fps=60.0).animation.n_frames == 2 * len(feats)
-    again = p.animate(states=r.states)
+    assert p.animate(full_motion=False, features=feats, fps=60.0).animation.n_frames == 2 * len(feats)
+    again = p.animate(full_motion=False, states=r.states)
     np.testing.assert_allclose(again.animation.points, r.animation.points, atol=1e-12)
-    post = p.animate(features=feats, posterior=True)
+    post = p.animate(full_motion=False, features=feats, posterior=True)
     assert post.animation.n_frames == len(feats) and post.log_likelihood >= r.log_likelihood - 1e-6
 
 
@@ -170,7 +189,7 @@ def test_separate_face_parts():
     p = Puppet.train([pts], features_list=[feats], fps=30.0, n_states=5, n_iter=10, n_components=2,
                      parts=parts)
     assert p.part_names == ["upper", "lower"] and p._core.n_parts == 2
-    r = p.animate(features=feats, guide_weight=0)  # Brand's solve; with the guide: test_guide.py
+    r = p.animate(full_motion=False, features=feats, guide_weight=0)  # Brand's solve; with the guide: test_guide.py
     assert r.states.shape == (len(feats), 2) and r.face.shape == (len(feats), p.face_space.n_dims)
     # Each part is synthesised from its own machine: the whole equals the parts side by side.
     for k, sl in enumerate(p.face_space.part_slices):
@@ -179,7 +198,7 @@ def test_separate_face_parts():
         model = _core.TrajectoryModel(arr["face_means"][:, :d], arr["face_means"][:, d:],
                                       arr["face_covars"].reshape(-1, 2 * d), "full", 1.0)
         np.testing.assert_allclose(r.face[:, sl], _core.solve_trajectory(model, r.states[:, k]), atol=1e-9)
-    np.testing.assert_allclose(p.animate(states=r.states).animation.points, r.animation.points, atol=1e-12)
+    np.testing.assert_allclose(p.animate(full_motion=False, states=r.states).animation.points, r.animation.points, atol=1e-12)
 
 
 def test_training_on_a_dask_cluster_equals_one_process():
@@ -444,3 +463,11 @@ def test_the_package_gives_the_puppet_api_design_md_names():
     assert {"Puppet", "load"} <= set(voicepuppet.__all__)
     with pytest.raises(AttributeError, match="no attribute 'Pupet'"):
         voicepuppet.Pupet
+
+
+def test_a_damaged_motion_gain_is_refused_at_load(trained):
+    p = trained[0]
+    for bad in (p.arrays["face/motion_gain"][:-1], np.full_like(p.arrays["face/motion_gain"], 0.5),
+                np.full_like(p.arrays["face/motion_gain"], np.nan)):
+        with pytest.raises(ValueError, match="face/motion_gain"):
+            Puppet(p.metadata, {**p.arrays, "face/motion_gain": bad})

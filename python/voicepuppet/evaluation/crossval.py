@@ -43,7 +43,7 @@ from voicepuppet.puppet.guide import RidgeBaseline
 from voicepuppet.puppet.model import Puppet
 from voicepuppet.puppet.training import TRAIN_DEFAULTS, training_feature_set
 
-__all__ = ["METRICS", "BASELINES", "UNGUIDED", "COMPARE_MEASURES", "cross_validate", "compare_training"]
+__all__ = ["METRICS", "BASELINES", "UNGUIDED", "MOST_PROBABLE", "COMPARE_MEASURES", "cross_validate", "compare_training"]
 
 #: measure -> (column title, better: "lower" or "higher")
 METRICS = {
@@ -97,12 +97,16 @@ def _puppet_predictions(train, test, face_space, feats_train, feats_test, *, n_s
 
 #: The model of a guided voice puppet animated without its guide (``guide_weight=0``).
 UNGUIDED = "voice-puppet, unguided (Brand §4.5)"
+#: The voice puppet's most probable trajectory, not widened to the training motion
+#: (``full_motion=False``).
+MOST_PROBABLE = "voice-puppet, most probable"
 
 
-def _unguided_predictions(puppet, test, face_space, feats_test):
-    """The same puppet's test predictions with Brand's unguided solve (as _puppet_predictions)."""
-    return [_as_face(puppet.animate(features=f, fps=s.fps, guide_weight=0).animation.points, len(s.points),
-                     face_space) for s, f in zip(test, feats_test)]
+def _variant_predictions(puppet, test, face_space, feats_test, **how):
+    """The same puppet's test predictions animated another way (``how``: options of
+    :meth:`voicepuppet.puppet.model.Puppet.animate`), as _puppet_predictions."""
+    return [_as_face(puppet.animate(features=f, fps=s.fps, **how).animation.points, len(s.points), face_space)
+            for s, f in zip(test, feats_test)]
 
 
 def _baseline_predictions(puppet, Ytr, feats_train, feats_test, lengths):
@@ -214,9 +218,11 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
             f_tr, f_te = [features_of(i) for i in tr_idx], [features_of(i) for i in te_idx]
             preds, pup = _puppet_predictions(train, test, fs, f_tr, f_te, n_states=n_states, seed=seed)
             per_fold["voice-puppet"].append(_fold_metrics(preds, Yte, fs, None, shut))
+            per_fold.setdefault(MOST_PROBABLE, []).append(
+                _fold_metrics(_variant_predictions(pup, test, fs, f_te, full_motion=False), Yte, fs, None, shut))
             if pup.guided:
                 per_fold.setdefault(UNGUIDED, []).append(
-                    _fold_metrics(_unguided_predictions(pup, test, fs, f_te), Yte, fs, None, shut))
+                    _fold_metrics(_variant_predictions(pup, test, fs, f_te, guide_weight=0), Yte, fs, None, shut))
             bar.update()
             base, alpha = _baseline_predictions(pup, Ytr, f_tr, f_te, [len(y) for y in Yte])
             alphas.append(alpha)
@@ -249,7 +255,7 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
             name: {m: v for m in METRICS
                    if (v := over_folds([(i, a[m] - b[m]) for i, (a, b) in enumerate(zip(voice, per_fold[name]))
                                          if m in a and m in b], len(voice), m))}
-            for name in BASELINES}
+            for name in (*BASELINES, MOST_PROBABLE)}
     return result
 
 

@@ -36,6 +36,9 @@ from voicepuppet.puppet.guide import RidgeBaseline
 
 #: The row of a guided puppet animated without its guide (``guide_weight=0``: Brand's solve).
 UNGUIDED_ROW = "voice, unguided (Brand §4.5)"
+#: The row of the puppet's most probable trajectory, not widened to the training motion
+#: (``full_motion=False``).
+MOST_PROBABLE_ROW = "voice, most probable"
 
 
 def facial_states(puppet, points) -> np.ndarray:
@@ -212,6 +215,7 @@ def evaluate_split(puppet, train, tests, *, fit_points=None, posterior: bool = T
             preds = {
                 "states": puppet.animate(states=states).face,
                 "voice": puppet.animate(features=raw).face,
+                MOST_PROBABLE_ROW: puppet.animate(features=raw, full_motion=False).face,
                 "mean-face": np.broadcast_to(mean_face, (T, fs.n_dims)),
                 "ridge": ridge.predict(puppet.ridge_input(raw)),
             }

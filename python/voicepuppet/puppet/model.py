@@ -50,8 +50,10 @@ from voicepuppet.audio import AudioWarning, FeatureSet
 from voicepuppet.audio.loading import DEFAULT_RATE
 from voicepuppet.blas import limited
 from voicepuppet.face import FaceSpace
+from voicepuppet.layout import N_POINTS, close_crossed_lips
 from voicepuppet.puppet import training
 from voicepuppet.puppet.training import TrainOptions
+from voicepuppet.trajectory import MAX_MOTION_GAIN, widen_motion
 
 _D = TrainOptions()  # the defaults of Puppet.train's options
 
@@ -128,6 +130,12 @@ class Puppet:
         self.arrays = {k: np.asarray(v) for k, v in arrays.items()}
         self._core = _core.Puppet(json.dumps(self.metadata), self.arrays)
         self.face_space = FaceSpace.from_arrays(self.arrays, self.metadata["parts"])
+        gain = self.arrays.get("face/motion_gain")
+        if gain is not None and not (gain.shape == (self.face_space.n_dims,) and np.isfinite(gain).all()
+                                     and (gain >= 1).all() and (gain <= MAX_MOTION_GAIN).all()):
+            raise ValueError(f"the puppet's face/motion_gain must hold {self.face_space.n_dims} gains in "
+                             f"[1, {MAX_MOTION_GAIN:g}] (one per face coordinate), got shape {gain.shape}; "
+                             "the file is damaged: retrain")
         self._rest: np.ndarray | bool | None = None  # rest_face(), found once
 
     # ------------------------------------------------------------------------- properties
@@ -396,7 +404,7 @@ class Puppet:
                 features=None, states=None, states_fps: float | None = None,
                 adapt: str | None = None, adapt_tau: float = ADAPT_DEFAULTS["tau"],
                 adapt_iter: int = ADAPT_DEFAULTS["n_iter"], guide_weight: float | None = None,
-                progress: bool = False) -> Animated:
+                full_motion: bool = True, progress: bool = False) -> Animated:
         """Facial animation for novel audio (any voice, any language).
 
         Parameters
@@ -440,6 +448,16 @@ class Puppet:
             voice the puppet never heard may want a larger λ (docs/results.md, "The guide's
             weight chosen at training by cross-validation").
             Given states without audio are synthesised unguided.
+        full_motion : bool
+            Widen the trajectory's motion (default True): each face coordinate's deviation from
+            its mean over the animation is multiplied by the gain the puppet learnt at training,
+            how much less its animations of held-out training audio moved than the faces did
+            (:func:`voicepuppet.trajectory.widen_motion`), so the mouth moves as much as the
+            speaker's did instead of the most probable trajectory's timid average. False: the
+            most probable trajectory as it is. The gains were learnt for the puppet's guided
+            animation of audio: with another ``guide_weight`` or states without their audio the
+            trajectory is not widened, nor by puppets without gains (a fixed guide weight or no
+            guide, or trained before they were stored).
         progress : bool
             Show a progress bar while extracting features from ``audio`` (default False).
 
@@ -508,8 +526,13 @@ class Puppet:
             r = self._core.animate(np.ascontiguousarray(features, dtype=np.float64), out_fps, posterior,
                                    adapt or "none", float(adapt_tau), _count(adapt_iter, "adapt_iter"), lam)
             sf = self.fps
-        pts = r["points"].reshape(len(r["points"]), -1, 2)
-        return Animated(Animation(pts, out_fps, neutral=self.rest_face()), r["face"], r["states"], sf,
+        face, pts = r["face"], r["points"].reshape(len(r["points"]), -1, 2)
+        if full_motion and sound and guide_weight is None and "face/motion_gain" in self.arrays:
+            face = widen_motion(face, self.arrays["face/motion_gain"])
+            pts = self.face_space.decode(face)
+            if pts.shape[1] == N_POINTS:  # widened about its mean, a closed mouth must not cross
+                pts = close_crossed_lips(pts)
+        return Animated(Animation(pts, out_fps, neutral=self.rest_face()), face, r["states"], sf,
                         float(r["log_likelihood"]), list(r.get("transforms", [])))
 
     # ---------------------------------------------------------------------------- storage

@@ -26,6 +26,7 @@ from voicepuppet.hmm.diagnostics import diagnostics
 from voicepuppet.hmm.gaussian import GaussianHMM
 from voicepuppet.puppet.guide import (GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES, cross_fit_folds,
                                      fit_guide, fit_projection, sequence_runs)
+from voicepuppet.trajectory import MAX_MOTION_GAIN
 
 __all__ = ["TrainOptions", "TRAIN_DEFAULTS", "VOCAL_COVARIANCES", "train", "training_feature_set", "remap"]
 
@@ -277,9 +278,10 @@ def train(points_list, audio_list=None, *, features_list=None, fps: float = 29.9
                     "options": _jsonable(opt), "parts": report}}
     metadata["training"].update(vocal_info)
     if opt["guide"] == "ridge" and opt["guide_weight"] == "cv":
-        lam, mse = _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt,
-                                                 noisy=noisy, progress=progress)
+        lam, mse, gain = _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt,
+                                                       noisy=noisy, progress=progress)
         arrays["guide/weight"] = np.array([lam])
+        arrays["face/motion_gain"] = gain
         metadata["training"]["guide"]["weight"] = lam
         metadata["training"]["guide"]["weight_cv"] = {"weights": list(GUIDE_WEIGHTS), "mse": mse}
     return metadata, arrays
@@ -412,12 +414,16 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
     Gaussians: :func:`_fit_vocal_side`) is refitted on the other folds, with the facial HMMs and
     their occupancies of the training frames kept, and each held-out run of frames is animated
     from its raw features ``raw``: decoded once (Viterbi), its trajectory solved at every λ.
-    Returns the λ and the mean squared error per frame for each λ (in the face coordinates of
-    all parts)."""
+    Returns the λ, the mean squared error per frame for each λ (in the face coordinates of all
+    parts) and, per face coordinate, how much less the held-out animations at that λ move than
+    the training faces: the square root of the ratio of the two's variances about each held-out
+    run's own mean, at least 1 (what ``Puppet.animate(full_motion=True)`` widens by)."""
     seq = np.repeat(np.arange(len(lengths)), lengths)
     bounds = np.concatenate([[0], np.cumsum(lengths)])
     weights = [float(lam) for lam in GUIDE_WEIGHTS]
     sse = np.zeros(len(weights))
+    moved = np.zeros((len(weights), Y.shape[1]))  # Σ over held-out runs of (face - its mean)²
+    truth_moved = np.zeros(Y.shape[1])
     folds = cross_fit_folds(lengths)
     for fold in tqdm(folds, desc="guide weight (cross-validation)", unit="fold", disable=not progress,
                      leave=False):
@@ -435,8 +441,13 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
             x = np.ascontiguousarray(raw[s][piece - bounds[s]], dtype=np.float64)
             faces = core.animate_faces(x, weights)
             sse += [float(np.sum((face - Y[piece]) ** 2)) for face in faces]
+            moved += [np.sum((face - face.mean(axis=0)) ** 2, axis=0) for face in faces]
+            truth_moved += np.sum((Y[piece] - Y[piece].mean(axis=0)) ** 2, axis=0)
     mse = [float(v) / len(A) for v in sse]
-    return weights[int(np.argmin(sse))], mse
+    best = int(np.argmin(sse))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = np.sqrt(np.where(moved[best] > 0, truth_moved / moved[best], 1.0))
+    return weights[best], mse, np.clip(gain, 1.0, MAX_MOTION_GAIN)
 
 
 def _start_distribution(gamma: np.ndarray, lengths) -> np.ndarray:
