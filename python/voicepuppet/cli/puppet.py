@@ -97,7 +97,18 @@ def _animate(args) -> int:
                          f"video, render it: voicepuppet animate ... -o anim.npz, then voicepuppet render "
                          f"anim.npz --audio AUDIO [--face PHOTO_OR_VIDEO] -o {args.output}")
     out = check_output_path(args.output, (".npz", ".csv"), "animation file")
-    puppet = load(palette_puppet(args.palette, args.puppet) if args.palette else args.puppet)
+    if args.sample:
+        from voicepuppet.evaluation.real import sample_puppet
+
+        if args.palette or (args.puppet and args.audio):
+            raise ValueError("--sample is the puppet: give only the AUDIO (voicepuppet animate --sample "
+                             "speech.wav -o anim.npz)")
+        args.audio = args.audio or args.puppet
+        puppet = sample_puppet(progress=not args.quiet)
+    elif args.puppet is None:
+        raise ValueError("give the PUPPET file (or --sample) and the AUDIO")
+    else:
+        puppet = load(palette_puppet(args.palette, args.puppet) if args.palette else args.puppet)
     adapt = {k: v for k, v in (("adapt", args.adapt), ("adapt_tau", args.adapt_tau),
                                 ("adapt_iter", args.adapt_iter)) if v is not None}
     if adapt and args.adapt is None:
@@ -113,12 +124,13 @@ def _animate(args) -> int:
                              "AUDIO is synthesised unguided: give the AUDIO the states go with, or drop --guide-weight")
         states, sfps = load_states(args.states_in)
         result = puppet.animate(args.audio, states=states, states_fps=sfps, fps=args.fps,
-                                guide_weight=args.guide_weight, progress=not args.quiet)
+                                guide_weight=args.guide_weight, full_motion=not args.most_probable,
+                                progress=not args.quiet)
     else:
         if args.audio is None:
             raise ValueError("give the AUDIO to animate (or --states-in)")
         result = puppet.animate(args.audio, fps=args.fps, posterior=args.posterior, progress=not args.quiet,
-                                guide_weight=args.guide_weight, **adapt)
+                                guide_weight=args.guide_weight, full_motion=not args.most_probable, **adapt)
     anim = result.animation
     if args.exaggerate is not None:
         anim = exaggerate(anim, args.exaggerate)
@@ -200,13 +212,22 @@ def add_parser(sub) -> None:
 
     a = sub.add_parser("animate", help="animate a puppet from audio",
                        description="Analyse the audio with the puppet's vocal HMM (Viterbi, or posteriors) "
-                                   "and synthesise the most probable facial trajectory (§4.4-4.5).")
-    a.add_argument("puppet", help="puppet file (.vpp), or a puppet's name with --palette")
+                                   "and synthesise the most probable facial trajectory (§4.4-4.5), its motion "
+                                   "widened as much as the puppet's animations of its training audio fell short.")
+    a.add_argument("puppet", nargs="?", help="puppet file (.vpp), or a puppet's name with --palette")
+    a.add_argument("--sample", action="store_true",
+                   help="animate with the sample puppet instead of a PUPPET file: a real speaker (Barack "
+                        "Obama) trained on the recordings inside voicepuppet, made on first use (about a minute) "
+                        "and kept in the cache")
     a.add_argument("--palette", metavar="DIR", help="folder of puppets (NAME.vpp) to pick PUPPET from by name")
     a.add_argument("audio", nargs="?", help="audio file or video with sound")
     a.add_argument("-o", "--output", required=True, metavar="ANIM.npz", help="landmark animation (.npz or .csv)")
     a.add_argument("--fps", type=float, help="output frame rate (default: the puppet's)")
     a.add_argument("--posterior", action="store_true", help="posterior-weighted synthesis instead of the Viterbi path")
+    a.add_argument("--most-probable", action="store_true",
+                   help="the most probable trajectory as it is (default: its motion widened by the gains the "
+                        "puppet learnt in training, per face coordinate, so that the mouth moves as much as "
+                        "the speaker's did)")
     a.add_argument("--exaggerate", type=float, help="scale the motion about the mean face (default: as is, 1)")
     a.add_argument("--adapt", choices=["full"],
                    help="adapt the audio features to the puppet's vocal model before decoding (test-time "

@@ -1,0 +1,548 @@
+"""Real people: the voice puppet trained on a real speaker's video, measured against an
+independent reference (``voicepuppet evaluate --corpus real``).
+
+Data: the real recordings that ship inside the package (:data:`RECORDINGS`, credited in
+third_party_notes.md): Barack Obama in four sessions (an Oval Office address, a White House
+address, a weekly address, seven sentence cuts of weekly addresses; 83 s, 25-30 fps, 256² to
+1280x720), Ronald Reagan (26 s) and five GRID corpus speakers (3 s each), with their own voices.
+The truth is no tracker of ours: MediaPipe Face Mesh run on every frame, kept as layout-free
+measures per frame, the mouth's opening (inner lips' middles) and width (mouth corners) over the
+inter-ocular distance (``recordings/reference.npz``; ``benchmarks/make_recordings.py`` builds it).
+
+Protocol:
+
+* **Leave one session out** (:func:`leave_one_session_out`): for each of the speaker's sessions,
+  the models learn from the other sessions as ``voicepuppet train`` would (the clips tracked by
+  the spring-mesh tracker from dlib's first-frame points, put on the first clip's frame grid,
+  each recording's audio-video offset estimated and corrected,
+  :func:`voicepuppet.puppet.sources.training_sequences`) and animate the held-out session's
+  audio (its offset estimated the same way, from its own video: the truth is then in sync with
+  the sound every model hears).
+* **Any voice** (:func:`any_voice`): the models learn from all of the speaker's sessions and
+  animate other speakers' recordings.
+
+Models, each giving the mouth's opening per video frame: the voice puppet (entropic, guided,
+full motion; also its most probable trajectory, not widened, its animation without its guide,
+Brand's solve, and the puppet trained by conventional Baum-Welch), the
+ridge regression from ±5 frames of the same standardised audio features to the face
+coordinates (:class:`voicepuppet.puppet.guide.RidgeBaseline`), a mouth that opens with the
+speech's loudness (linear in its log energy, fitted on the training frames: what many avatar
+apps do) and the training mean (the mean face). The tracker's opening is not the reference's
+(different points, a different scale), so every model's opening is mapped to the reference's by
+the straight line fitted between the two on the training clips' frames, never the held-out ones.
+
+Measures per held-out clip against the reference opening: Pearson r, RMSE (inter-ocular
+distances), spread (the model's standard deviation over the truth's), the best lag (frames
+within ±6; positive: the model late) and, for the models that give landmarks, the share of
+frames whose inner lips cross. The summary weighs clips by their frames; the puppet's paired
+per-clip differences from the other models come with 95% intervals
+(:func:`voicepuppet.evaluation.folds.mean_ci`; none for one clip).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from voicepuppet import audio as vaudio
+from voicepuppet._version import __version__
+from voicepuppet.blas import limited
+from voicepuppet.evaluation.folds import mean_ci
+from voicepuppet.evaluation.report import markdown_table
+from voicepuppet.layout import INNER_LIP_PAIRS, inter_ocular_distance
+from voicepuppet.puppet.guide import RidgeBaseline
+from voicepuppet.puppet.model import Puppet, load
+from voicepuppet.puppet.sources import av_offsets, training_sequences
+from voicepuppet.puppet.sync import mouth_opening, shift_audio, speech_loudness
+from voicepuppet.tracking.landmarks import load_landmarks, save_landmarks
+from voicepuppet.tracking.tracker import VariableFrameRateWarning, track_video
+
+__all__ = ["RECORDINGS", "MODELS", "CROSSED_IOD", "MAX_LAG", "RealClip", "real_clips", "tracked_clip",
+           "crossed_lips", "opening_measures", "leave_one_session_out", "any_voice", "evaluate_real",
+           "format_real", "sample_puppet"]
+
+#: The real recordings inside the package: ``index.json``, ``reference.npz`` and the videos.
+RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
+#: The models compared, in table order.
+MODELS = ("voice puppet", "voice puppet, most probable", "voice puppet, unguided", "voice puppet, conventional",
+          "ridge", "loudness mouth", "mean face")
+#: An overlap of the inner lips beyond this (inter-ocular distances) counts as crossed.
+CROSSED_IOD = 0.01
+#: The largest lag (frames) the best-lag search looks at, either way.
+MAX_LAG = 6
+
+
+@dataclass(frozen=True)
+class RealClip:
+    """One real recording and its reference.
+
+    Each parameter is kept as the attribute of the same name.
+
+    Parameters
+    ----------
+    key : str
+        ``speaker-folder/clip``, e.g. ``"obama/oval_office_20s"``.
+    speaker : str
+        Who speaks.
+    session : str
+        The recording session (clips of one session share room, camera and sound).
+    video : pathlib.Path
+        The video with its sound.
+    fps : float
+        Its frame rate.
+    opening : ndarray, shape (T,)
+        The reference's mouth opening per video frame (inter-ocular distances).
+    width : ndarray, shape (T,)
+        The reference's mouth width per video frame (inter-ocular distances).
+    """
+
+    key: str
+    speaker: str
+    session: str
+    video: Path
+    fps: float
+    opening: np.ndarray
+    width: np.ndarray
+
+
+def real_clips(root=None, speaker: str | None = None) -> list:
+    """The real recordings with their reference.
+
+    Parameters
+    ----------
+    root : path, optional
+        A folder made as :data:`RECORDINGS` (``index.json``, ``reference.npz``, the videos);
+        default: the recordings inside the package.
+    speaker : str, optional
+        Only this speaker's folder (``"obama"``, ``"reagan"``, ``"grid"``); default: all.
+
+    Returns
+    -------
+    list of RealClip
+        In the index's order.
+
+    Raises
+    ------
+    ValueError
+        ``root`` holds no index or reference, a clip's video is missing, or no clip is of
+        ``speaker``.
+    """
+    root = Path(RECORDINGS if root is None else root)
+    index, ref = root / "index.json", root / "reference.npz"
+    if not index.is_file() or not ref.is_file():
+        raise ValueError(f"{root} holds no real recordings (index.json and reference.npz); give the folder "
+                         "made by benchmarks/make_recordings.py, or leave it out for the ones in the package")
+    arrays = np.load(ref)
+    out = []
+    for key, info in json.loads(index.read_text())["clips"].items():
+        if speaker is not None and key.split("/")[0] != speaker:
+            continue
+        video = root / info["file"]
+        if not video.is_file():
+            raise ValueError(f"{video}: the video of {key} is missing from {root}")
+        out.append(RealClip(key, info["speaker"], info["session"], video, float(info["fps"]),
+                            np.asarray(arrays[f"{key}/opening"], np.float64),
+                            np.asarray(arrays[f"{key}/width"], np.float64)))
+    if not out:
+        raise ValueError(f"no recordings of {speaker!r} in {root}")
+    return out
+
+
+def _cache_dir(cache_dir) -> Path:
+    if cache_dir is not None:
+        return Path(cache_dir)
+    base = os.environ.get("VOICEPUPPET_CACHE") or Path.home() / ".cache" / "voicepuppet"
+    return Path(base) / "real-tracks"
+
+
+def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False) -> Path:
+    """The clip tracked as ``voicepuppet track --init auto`` does (a landmark file, cached).
+
+    Parameters
+    ----------
+    clip : RealClip
+        The recording.
+    cache_dir : path, optional
+        Where tracks are kept (default: ``real-tracks`` in ``$VOICEPUPPET_CACHE`` or
+        ``~/.cache/voicepuppet``); a track is reused while the video and voicepuppet's version
+        are the same.
+    progress : bool
+        Progress bars while tracking.
+
+    Returns
+    -------
+    pathlib.Path
+        The landmark file (``points``, ``fps``, ``times``, ``lost``).
+    """
+    digest = hashlib.sha256(clip.video.read_bytes()).hexdigest()[:16]
+    path = _cache_dir(cache_dir) / f"{clip.key.replace('/', '-')}-{digest}-{__version__}.npz"
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with warnings.catch_warnings():  # the training sequences resample, saying so
+            warnings.simplefilter("ignore", VariableFrameRateWarning)
+            result = track_video(str(clip.video), init="auto", progress=progress)
+        save_landmarks(path, result, csv=False)  # through a temporary file and a rename
+    return path
+
+
+def crossed_lips(points) -> np.ndarray:
+    """Per frame, whether the inner lips cross: an upper inner-lip point more than
+    :data:`CROSSED_IOD` inter-ocular distances below its lower partner, along the face's own
+    vertical (from the eyes' midpoint to the lower lip).
+
+    Parameters
+    ----------
+    points : array_like, shape (T, 68, 2)
+        Landmarks in the 68-point layout.
+
+    Returns
+    -------
+    ndarray of bool, shape (T,)
+    """
+    p = np.asarray(points, dtype=np.float64)
+    iod = inter_ocular_distance(p)
+    down = p[:, 57] - 0.5 * (p[:, 36] + p[:, 45])
+    down /= np.linalg.norm(down, axis=1, keepdims=True)
+    crossed = np.zeros(len(p), bool)
+    for up, lo in INNER_LIP_PAIRS:
+        crossed |= np.einsum("ij,ij->i", p[:, lo] - p[:, up], down) < -CROSSED_IOD * iod
+    return crossed
+
+
+def _best_lag(pred: np.ndarray, truth: np.ndarray) -> int:
+    n, best, lag = len(truth), -np.inf, 0
+    for k in range(-MAX_LAG, MAX_LAG + 1):  # the prediction at t + k against the truth at t
+        a, b = (pred[k:], truth[:n - k]) if k >= 0 else (pred[:n + k], truth[-k:])
+        if a.std() > 0 and b.std() > 0:
+            r = float(np.corrcoef(a, b)[0, 1])
+            if r > best:
+                best, lag = r, k
+    return lag
+
+
+def opening_measures(pred, truth) -> dict:
+    """How a predicted mouth opening follows the true one (both in inter-ocular distances).
+
+    Parameters
+    ----------
+    pred : array_like, shape (T,)
+        The prediction per frame (cut or padded with its last value to the truth's length).
+    truth : array_like, shape (T,)
+        The reference per frame.
+
+    Returns
+    -------
+    dict
+        ``r`` (Pearson; NaN for a constant prediction), ``rmse``, ``spread`` (standard deviation
+        over the truth's) and ``lag`` (frames, the prediction's best lag within ±:data:`MAX_LAG`).
+    """
+    truth = np.asarray(truth, dtype=np.float64)
+    pred = _fit_length(np.asarray(pred, dtype=np.float64), len(truth))
+    flat = pred.std() <= 1e-12 * (1.0 + abs(pred.mean()))
+    return {"r": float("nan") if flat else float(np.corrcoef(pred, truth)[0, 1]),
+            "rmse": float(np.sqrt(np.mean((pred - truth) ** 2))),
+            "spread": float(pred.std() / truth.std()),
+            "lag": 0 if flat else _best_lag(pred, truth)}
+
+
+def _fit_length(x: np.ndarray, n: int) -> np.ndarray:
+    if len(x) >= n:
+        return x[:n]
+    return np.concatenate([x, np.repeat(x[-1:], n - len(x), axis=0)])
+
+
+def _in_sync(clips, cache_dir, progress) -> list:
+    """Each clip's sound, shifted into sync with its face (offsets per session, as train does)."""
+    sounds = [vaudio.load_audio(c.video) for c in clips]
+    by_session: dict = {}
+    for i, c in enumerate(clips):
+        by_session.setdefault(c.session, []).append(i)
+    for idx in by_session.values():
+        fps = clips[idx[0]].fps
+        recs = [(load_landmarks(tracked_clip(clips[i], cache_dir, progress))["points"], sounds[i], "") for i in idx]
+        for i, off in zip(idx, av_offsets(recs, fps)):
+            sounds[i] = shift_audio(sounds[i], off)
+    return sounds
+
+
+@dataclass
+class _Models:
+    """What one training set gives: the puppets, the baselines and the map to the reference."""
+
+    puppets: dict
+    ridge: RidgeBaseline
+    loudness: np.ndarray  # opening = polyval(loudness, dB)
+    mean: float
+    to_reference: np.ndarray  # reference opening = polyval(to_reference, tracker opening)
+    fps: float
+    offsets: list
+
+
+def _train(train: list, options: dict, cache_dir, progress: bool) -> _Models:
+    tracks = [tracked_clip(c, cache_dir, progress) for c in train]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # resampled frame grids and dropped frames, said in train
+        points, sounds, fps, offsets = training_sequences(landmarks=tracks, audio=[c.video for c in train])
+    puppets = {"voice puppet": Puppet.train(points, sounds, fps=fps, **options),
+               "voice puppet, conventional": Puppet.train(points, sounds, fps=fps, **{**options, "prior": "ml"})}
+    main = puppets["voice puppet"]
+    feats = [main.audio_features(a, n_out=len(p)) for p, a in zip(points, sounds)]
+    ridge = RidgeBaseline().fit([main.ridge_input(f) for f in feats], [main.face_space.encode(p)[0] for p in points])
+    loud = np.concatenate([speech_loudness(a, fps, len(p)) for p, a in zip(points, sounds)])
+    opening = np.concatenate([mouth_opening(p) for p in points])
+    ours, theirs = [], []
+    for c, t in zip(train, tracks):  # on the video frames, where the reference is
+        o = mouth_opening(load_landmarks(t)["points"])
+        n = min(len(o), len(c.opening))
+        ok = np.isfinite(o[:n]) & np.isfinite(c.opening[:n])
+        ours.append(o[:n][ok])
+        theirs.append(c.opening[:n][ok])
+    return _Models(puppets, ridge, np.polyfit(loud, opening, 1), float(np.nanmean(opening)),
+                   np.polyfit(np.concatenate(ours), np.concatenate(theirs), 1), fps, offsets)
+
+
+def _predict(models: _Models, clip: RealClip, sound) -> dict:
+    """Each model's opening for ``clip`` at its frames (reference units), and crossed shares."""
+    n, out, crossed = len(clip.opening), {}, {}
+    main = models.puppets["voice puppet"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # short or quiet test audio is animated as it is
+        runs = {"voice puppet": main.animate(sound, fps=clip.fps),
+                "voice puppet, most probable": main.animate(sound, fps=clip.fps, full_motion=False),
+                "voice puppet, unguided": main.animate(sound, fps=clip.fps, guide_weight=0),
+                "voice puppet, conventional": models.puppets["voice puppet, conventional"].animate(sound, fps=clip.fps)}
+        feats = main.audio_features(sound)
+    for name, run in runs.items():
+        pts = run.animation.points
+        out[name] = mouth_opening(pts)
+        crossed[name] = float(crossed_lips(pts).mean())
+    ridge_pts = main.face_space.decode(models.ridge.predict(main.ridge_input(feats)))
+    t = np.arange(n) / clip.fps
+    out["ridge"] = np.interp(t, np.arange(len(ridge_pts)) / models.fps, mouth_opening(ridge_pts))
+    crossed["ridge"] = float(crossed_lips(ridge_pts).mean())
+    out["loudness mouth"] = np.polyval(models.loudness, speech_loudness(sound, clip.fps, n))
+    out["mean face"] = np.full(n, models.mean)
+    preds = {k: np.polyval(models.to_reference, _fit_length(v, n)) for k, v in out.items()}
+    return {k: {**opening_measures(preds[k], clip.opening), "crossed": crossed.get(k, 0.0), "frames": n}
+            for k in MODELS}
+
+
+@limited
+def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir=None,
+                          progress: bool = False) -> dict:
+    """Leave-one-session-out over one speaker's clips (see the module's description).
+
+    Parameters
+    ----------
+    clips : list of RealClip
+        One speaker's recordings, in at least two sessions.
+    options : dict, optional
+        Training options of the puppets (:meth:`voicepuppet.puppet.model.Puppet.train`; default
+        its defaults; ``prior`` is set to ``"ml"`` for the conventional one).
+    cache_dir : path, optional
+        Where tracks are cached (:func:`tracked_clip`).
+    progress : bool
+        Progress bars.
+
+    Returns
+    -------
+    dict
+        ``clips``: per held-out clip, ``key``, ``session`` and per model its measures
+        (:func:`opening_measures` plus ``crossed`` and ``frames``); ``sessions``: per held-out
+        session, the offsets corrected in its training recordings (s).
+
+    Raises
+    ------
+    ValueError
+        Fewer than two sessions.
+    """
+    sessions = list(dict.fromkeys(c.session for c in clips))
+    if len(sessions) < 2:
+        raise ValueError(f"leaving one session out needs two or more sessions, got {sessions}")
+    sounds = _in_sync(clips, cache_dir, progress)
+    rows, info = [], {}
+    for s in tqdm(sessions, desc="sessions", disable=not progress):
+        models = _train([c for c in clips if c.session != s], dict(options or {}), cache_dir, progress)
+        info[s] = {"training_offsets_s": [float(o) for o in models.offsets]}
+        for c, sound in zip(clips, sounds):
+            if c.session == s:
+                rows.append({"key": c.key, "session": s, "models": _predict(models, c, sound)})
+    return {"clips": rows, "sessions": info}
+
+
+@limited
+def any_voice(train: list, tests: list, *, options: dict | None = None, cache_dir=None,
+              progress: bool = False) -> dict:
+    """The models trained on all of ``train`` animate other speakers' recordings.
+
+    Parameters
+    ----------
+    train : list of RealClip
+        The speaker the models learn.
+    tests : list of RealClip
+        Other speakers' recordings (their own offsets corrected per session).
+    options : dict, optional
+        Training options of the puppets (as :func:`leave_one_session_out`).
+    cache_dir : path, optional
+        Where tracks are cached (:func:`tracked_clip`).
+    progress : bool
+        Progress bars.
+
+    Returns
+    -------
+    dict
+        ``clips``: per test clip, ``key``, ``session`` and per model its measures (as
+        :func:`leave_one_session_out`).
+    """
+    models = _train(train, dict(options or {}), cache_dir, progress)
+    sounds = _in_sync(tests, cache_dir, progress)
+    return {"clips": [{"key": c.key, "session": c.session, "models": _predict(models, c, s)}
+                      for c, s in zip(tests, sounds)]}
+
+
+def _summary(rows: list) -> dict:
+    """Per model: frame-weighted means of r, rmse and spread, the median lag and the largest
+    crossed share; per other model, the puppet's paired per-clip differences (mean, 95% CI)."""
+    w = np.array([r["models"]["voice puppet"]["frames"] for r in rows], float)
+    out = {}
+    for m in MODELS:
+        vals = {k: np.array([r["models"][m][k] for r in rows], float) for k in ("r", "rmse", "spread", "lag", "crossed")}
+        out[m] = {"r": float(np.average(vals["r"], weights=w)) if np.isfinite(vals["r"]).all() else float("nan"),
+                  "rmse": float(np.average(vals["rmse"], weights=w)),
+                  "spread": float(np.average(vals["spread"], weights=w)),
+                  "lag": float(np.median(vals["lag"])), "crossed": float(vals["crossed"].max())}
+        if m != "voice puppet":
+            diff = {}
+            for k in ("r", "rmse"):
+                d = np.array([r["models"]["voice puppet"][k] - r["models"][m][k] for r in rows], float)
+                if np.isfinite(d).all():
+                    mean, lo, hi = mean_ci(d) if len(d) > 1 else (float(d[0]), float("nan"), float("nan"))
+                    diff[k] = {"mean": mean, "lo": lo, "hi": hi}
+            out[m]["puppet_minus"] = diff
+    return out
+
+
+def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = None, cache_dir=None,
+                  progress: bool = False) -> dict:
+    """Both protocols on the real recordings: leave one of ``speaker``'s sessions out, and
+    ``speaker``'s models animating every other speaker.
+
+    Parameters
+    ----------
+    root : path, optional
+        The recordings (:func:`real_clips`; default: the ones in the package).
+    speaker : str
+        The speaker the models learn (a folder of the recordings; default ``"obama"``).
+    options : dict, optional
+        Training options of the puppets.
+    cache_dir : path, optional
+        Where tracks are cached (:func:`tracked_clip`).
+    progress : bool
+        Progress bars.
+
+    Returns
+    -------
+    dict
+        ``loso`` and ``any_voice``: each ``clips`` (per clip and model, the measures) and
+        ``summary`` (per model, see :func:`format_real`); ``speaker`` and ``options``.
+    """
+    own = real_clips(root, speaker)
+    others = [c for c in real_clips(root) if c.key.split("/")[0] != speaker]
+    loso = leave_one_session_out(own, options=options, cache_dir=cache_dir, progress=progress)
+    loso["summary"] = _summary(loso["clips"])
+    result = {"speaker": speaker, "options": dict(options or {}), "loso": loso}
+    if others:
+        voices = any_voice(own, others, options=options, cache_dir=cache_dir, progress=progress)
+        voices["summary"] = _summary(voices["clips"])
+        by_speaker: dict = {}
+        for row in voices["clips"]:
+            by_speaker.setdefault(row["key"].split("/")[0], []).append(row)
+        voices["by_speaker"] = {k: _summary(v) for k, v in by_speaker.items()}
+        result["any_voice"] = voices
+    return result
+
+
+def _table(summary: dict) -> list:
+    def ci(d):
+        if not d:
+            return "–"
+        return f"{d['mean']:+.3f} [{d['lo']:+.3f}, {d['hi']:+.3f}]" if np.isfinite(d["lo"]) else f"{d['mean']:+.3f}"
+
+    rows = []
+    for m in MODELS:
+        s = summary[m]
+        diff = s.get("puppet_minus", {})
+        rows.append([m, "–" if not np.isfinite(s["r"]) else f"{s['r']:.3f}", f"{s['rmse']:.4f}", f"{s['spread']:.2f}",
+                     f"{s['lag']:+.0f}", f"{100 * s['crossed']:.1f}" if m not in ("loudness mouth", "mean face") else "–",
+                     "" if m == "voice puppet" else ci(diff.get("r")),
+                     "" if m == "voice puppet" else ci(diff.get("rmse"))])
+    return markdown_table(["model", "opening r", "RMSE / IOD", "spread", "lag", "crossed %",
+                           "puppet − model: r", "puppet − model: RMSE"], rows)
+
+
+def format_real(result: dict) -> str:
+    """The tables of :func:`evaluate_real` as Markdown.
+
+    Parameters
+    ----------
+    result : dict
+        What :func:`evaluate_real` returns.
+
+    Returns
+    -------
+    str
+        One table per protocol (and per other speaker): per model, the opening's correlation
+        with the reference, its RMSE (inter-ocular distances), spread (model / truth), median
+        best lag (frames), the largest share of a clip's frames with crossed inner lips, and the
+        puppet's paired per-clip differences from the model (mean [95% CI]).
+    """
+    n = len(result["loso"]["clips"])
+    lines = [f"Leave one session out ({result['speaker']}, {n} held-out clips, "
+             f"{len(result['loso']['sessions'])} sessions)", ""]
+    lines += _table(result["loso"]["summary"])
+    if "any_voice" in result:
+        for who, summary in result["any_voice"]["by_speaker"].items():
+            k = sum(1 for r in result["any_voice"]["clips"] if r["key"].startswith(who + "/"))
+            lines += ["", f"Any voice: the {result['speaker']} models animate {who} ({k} clip{'s' * (k != 1)})", ""]
+            lines += _table(summary)
+    return "\n".join(lines) + "\n"
+
+
+def sample_puppet(cache_dir=None, progress: bool = False) -> Puppet:
+    """A puppet of a real speaker, ready to animate any audio: Barack Obama, trained with the
+    defaults on all four sessions of the recordings inside the package (83 s).
+
+    Made on first use (the videos tracked and the puppet trained: about a minute) and kept.
+
+    Parameters
+    ----------
+    cache_dir : path, optional
+        Where the puppet and the tracks are kept (default: ``$VOICEPUPPET_CACHE`` or
+        ``~/.cache/voicepuppet``); remade when voicepuppet's version changes.
+    progress : bool
+        Progress bars and a line saying it is being made.
+
+    Returns
+    -------
+    Puppet
+    """
+    base = Path(cache_dir) if cache_dir is not None else _cache_dir(None).parent
+    path = base / f"sample-obama-{__version__}.vpp"
+    if not path.is_file():
+        if progress:
+            print(f"making the sample puppet (Barack Obama, 83 s of video; once): {path}")
+        clips = real_clips(speaker="obama")
+        tracks = [tracked_clip(c, base / "real-tracks", progress) for c in clips]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # resampled frame grids, said in train
+            points, sounds, fps, _ = training_sequences(landmarks=tracks, audio=[c.video for c in clips])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        Puppet.train(points, sounds, fps=fps, progress=progress).save(path)
+    return load(path)
