@@ -136,12 +136,17 @@ META_MUTANTS = [
     ("feature set a list", _set("feature_set", [1, 2]), "feature_set must be JSON text"),
     ("feature set of another shape", _set("feature_set", "[1, 2]"), "feature_set does not describe"),
     ("feature set not JSON", _set("feature_set", "{"), "feature_set does not describe"),
+    ("a feature set of 1e9 mel bands", lambda m: m.update(feature_set=json.dumps(
+        {**json.loads(m["feature_set"]), "options": {"n_mels": 10 ** 9}})), "n_mels must be a whole number"),
     ("feature names a string", _set("feature_names", "mfcc"), "feature_names must be a list of 5 names"),
     ("fps disagrees", _set("fps", 1e9), "fps must be the arrays' frame rate 30"),
     ("n_points a string", _set("n_points", "12"), "n_points must be the arrays' 12 points"),
     ("training a list", _set("training", [1]), "training must be an object"),
     ("huge state count", _part_entry("states", 1e308), r"training.parts\[0\].states must be a whole number"),
     ("state count text", _part_entry("states", "six"), r"training.parts\[0\].states must be a whole number"),
+    ("state count of 400 digits", _part_entry("states", 10 ** 400), r"training.parts\[0\].states must be a whole"),
+    ("perplexity of 400 digits", _part_entry("perplexity", 10 ** 400), r"parts\[0\].perplexity must be a number"),
+    ("fps of 400 digits", _set("fps", 10 ** 400), "fps must be the arrays' frame rate 30"),
     ("perplexity text", _part_entry("perplexity", "high"), r"training.parts\[0\].perplexity must be a number"),
     ("no part name", _part_entry("part", None), r"training.parts\[0\].part must be the part's name"),
     ("cv lists of two lengths", lambda m: m["training"].setdefault("guide", {}).update(

@@ -33,12 +33,23 @@ def _show(value) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def _real(value) -> float | None:
+    """``value`` as a float if it is a number a float holds (JSON integers can be longer), else None."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        return None
+    try:
+        return float(value)
+    except OverflowError:
+        return None
+
+
 def _number(value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+    return _real(value) is not None
 
 
 def _whole(where: str, key: str, value, lo: float, hi: float) -> int:
-    if not (_number(value) and math.isfinite(value) and float(value).is_integer() and lo <= value <= hi):
+    x = _real(value)
+    if x is None or not (math.isfinite(x) and x.is_integer() and lo <= x <= hi):
         raise ValueError(f"{where}{key} must be a whole number in [{lo:g}, {hi:g}], got {_show(value)}")
     return int(value)
 
@@ -125,7 +136,7 @@ def check_metadata(metadata, *, n_parts: int, n_features: int, n_points: int, fp
                               or not all(isinstance(n, str) for n in names)):
         raise ValueError(f"{where}feature_names must be a list of {n_features} names (one per audio feature "
                          f"column), got {_show(names)}")
-    if "fps" in metadata and not (_number(metadata["fps"]) and math.isclose(metadata["fps"], fps, rel_tol=1e-9)):
+    if "fps" in metadata and not math.isclose(_real(metadata["fps"]) or 0.0, fps, rel_tol=1e-9):
         raise ValueError(f"{where}fps must be the arrays' frame rate {fps:g}, got {_show(metadata['fps'])}")
     if "n_points" in metadata and not (_number(metadata["n_points"]) and metadata["n_points"] == n_points):
         raise ValueError(f"{where}n_points must be the arrays' {n_points} points, got {_show(metadata['n_points'])}")
