@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <sstream>
 #include <string>
 #include <utility>
 
@@ -49,6 +50,13 @@ void check_array(const std::string& name, F&& check) {
 }
 
 constexpr const char* kDamaged = "the file is damaged or from an incompatible tool";
+
+/// "<n> frames at <fps> fps", for the messages of the frame limits.
+std::string frames_at(Index n, double fps) {
+  std::ostringstream os;
+  os << n << " frames at " << fps << " fps";
+  return os.str();
+}
 
 /// The context map stored as the arrays `map`, `offset`, `context` (int) and `columns` (int):
 /// columns in [1, n_columns], context in [0, 100], map rows columns·(2·context+1), `outputs`
@@ -353,7 +361,7 @@ Index Puppet::out_frames(Index n, double out) const {
   if (n < 1) fail_argument("no audio feature frames (the audio is empty)");
   check_range<Index>("audio feature frames", n, 1, kMaxFrames, "animate long audio in pieces");
   const Index m = out == fps_ ? n : resampled_length(n, fps_, out);
-  check_range<Index>("output frames (" + std::to_string(n) + " at " + std::to_string(out) + " fps)", m, 1,
+  check_range<Index>("output frames (" + frames_at(n, fps_) + " resampled to " + frames_at(m, out) + ")", m, 1,
                      kMaxFrames, "animate long audio in pieces, or at a lower output fps");
   return m;
 }
@@ -500,8 +508,8 @@ void Puppet::check_states(const Eigen::Ref<const IndexMatrix>& states, double st
   }
   check_range<Index>("state frames", states.rows(), 1, kMaxFrames);
   const Index m = states_fps == out ? states.rows() : resampled_length(states.rows(), states_fps, out);
-  check_range<Index>("output frames (" + std::to_string(states.rows()) + " states at " + std::to_string(states_fps) +
-                     " fps, at " + std::to_string(out) + " fps)", m, 1, kMaxFrames, "synthesise at a lower output fps");
+  check_range<Index>("output frames (" + frames_at(states.rows(), states_fps) + " of states resampled to " +
+                     frames_at(m, out) + ")", m, 1, kMaxFrames, "synthesise at a lower output fps");
 }
 
 AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
