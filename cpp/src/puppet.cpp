@@ -238,6 +238,18 @@ void Puppet::check_state_faces() const {
   }
 }
 
+void Puppet::check_reach(const RowMatrixXd& points) const {
+  if (points.size() == 0) return;
+  Index t, j;
+  const double reach = points.cwiseAbs().maxCoeff(&t, &j);
+  if (!(reach <= kMaxPixel)) {
+    fail_argument("the animation puts point ", j / 2, " of frame ", t, " at ", points(t, j), " px, outside [",
+                  -kMaxPixel, ", ", kMaxPixel, "]: the features are not of the kind the puppet was trained on, "
+                  "or its velocity means (hmm/part*/face_means), guide (guide/map, guide/offset) or audio "
+                  "standardisation (audio/mean, audio/std) are damaged");
+  }
+}
+
 void Puppet::read_guide(Index n_columns) {
   const auto& f = file_;
   if (!f.arrays.count("guide/map")) {
@@ -477,6 +489,7 @@ AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOption
   AnimateResult r = std::move(a.result);
   r.face = synthesise(a, lambda);
   r.points = to_points(r.face);
+  check_reach(r.points);
   return r;
 }
 
@@ -528,6 +541,7 @@ AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states
   }
   r.face = side_by_side(faces, n_dims());
   r.points = to_points(r.face);
+  check_reach(r.points);
   return r;
 }
 
@@ -565,6 +579,7 @@ AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states
   r.states = states;
   r.face = synthesise(a, lambda);
   r.points = to_points(r.face);
+  check_reach(r.points);
   return r;
 }
 

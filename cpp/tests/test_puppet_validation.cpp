@@ -105,6 +105,15 @@ TEST_CASE("validation: output rates and frame counts are limited before anything
                                            "states_fps = 1e+09 is outside [1, 1000]"));
 }
 
+TEST_CASE("validation: an animation beyond the pixel range is refused, not returned") {
+  PuppetFile f = tiny_puppet();
+  f.arrays["hmm/part0/face_means"] = arr({2, 2}, {0, 0, 4, 1e9});  // state 1 moves 1e9 a frame
+  const Puppet p(f);
+  const IndexMatrix states = IndexMatrix::Ones(10, 1);
+  CHECK(throws_with<std::invalid_argument>([&] { p.animate_states(states, 30); }, "the animation puts point 2 of frame"));
+  CHECK(Puppet(tiny_puppet()).animate_states(states, 30).points.cwiseAbs().maxCoeff() < 100);
+}
+
 TEST_CASE("format 3: the checksum covers the header; versions 1 and 2 keep their payload check") {
   const PuppetFile f = tiny_puppet();
   const std::string bytes = encode_puppet(f);

@@ -139,6 +139,7 @@ META_MUTANTS = [
     ("a feature set of 1e9 mel bands", lambda m: m.update(feature_set=json.dumps(
         {**json.loads(m["feature_set"]), "options": {"n_mels": 10 ** 9}})), "n_mels must be a whole number"),
     ("feature names a string", _set("feature_names", "mfcc"), "feature_names must be a list of 5 names"),
+    ("feature names null", _set("feature_names", None), "feature_names must be a list of 5 names"),
     ("fps disagrees", _set("fps", 1e9), "fps must be the arrays' frame rate 30"),
     ("n_points a string", _set("n_points", "12"), "n_points must be the arrays' 12 points"),
     ("training a list", _set("training", [1]), "training must be an object"),
@@ -226,6 +227,17 @@ def test_a_version_1_header_on_a_guided_file_is_refused(good, tmp_path):
     data[8] = 2
     path.write_bytes(bytes(data))
     assert load(path).guided
+
+
+@pytest.mark.parametrize("key", ["guide/offset", "audio/std"])
+def test_an_animation_beyond_the_pixel_range_is_refused(good, tmp_path, key):
+    # the guide's prediction (scaled up) or the standardised features (the std scaled down) carry
+    # the face 1e10 px away: animate says so instead of returning it
+    path = tmp_path / "m.vpp"
+    path.write_bytes(reencode(good[0], edit_arrays=_scale(key, 1e10 if key == "guide/offset" else 1e-10)))
+    p = load(path)
+    with pytest.raises(ValueError, match=r"the animation puts point \d+ of frame \d+ at .* px, outside"):
+        p.animate(features=good[1])
 
 
 def test_what_loads_animates_and_output_rates_are_limited(good, tmp_path):

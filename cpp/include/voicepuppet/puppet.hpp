@@ -189,6 +189,9 @@ class Puppet {
   RowMatrixXd to_points(const MatrixRef& face) const;
 
   /// Analysis and synthesis from raw audio feature frames at the puppet's rate.
+  /// @throws std::invalid_argument on a column mismatch, an output rate outside [kMinFps,
+  /// kMaxFps], more than kMaxFrames input or output frames, or landmarks beyond ±kMaxPixel
+  /// (limits.hpp; animate_states likewise).
   AnimateResult animate(const MatrixRef& raw_features, const AnimateOptions& options = {}) const;
   /// The face coordinates (#T' by K) animate(raw_features, options) gives at each λ of
   /// `guide_weights` (options.guide_weight is not used; each λ as AnimateOptions::guide_weight,
@@ -215,6 +218,9 @@ class Puppet {
   double out_rate(double fps) const;
   /// Throws unless every state's mean face (at the mean pose) lies within ±kMaxPixel.
   void check_state_faces() const;
+  /// Throws std::invalid_argument unless every coordinate of an animation's pixel landmarks is
+  /// finite and within ±kMaxPixel.
+  void check_reach(const RowMatrixXd& points) const;
   void read_guide(Index n_columns);
   /// λ for an AnimateOptions::guide_weight (negative/NaN: the file's), validated.
   double guide_lambda(double weight) const;

@@ -131,9 +131,8 @@ def check_metadata(metadata, *, n_parts: int, n_features: int, n_points: int, fp
     except (ValueError, KeyError, TypeError, AttributeError, OverflowError) as exc:
         raise ValueError(f"{where}feature_set does not describe a feature set ({type(exc).__name__}: "
                          f"{_show(str(exc))})") from None
-    names = metadata.get("feature_names")
-    if names is not None and (not isinstance(names, list) or len(names) != n_features
-                              or not all(isinstance(n, str) for n in names)):
+    names = metadata.get("feature_names", [""] * n_features)
+    if not isinstance(names, list) or len(names) != n_features or not all(isinstance(n, str) for n in names):
         raise ValueError(f"{where}feature_names must be a list of {n_features} names (one per audio feature "
                          f"column), got {_show(names)}")
     if "fps" in metadata and not math.isclose(_real(metadata["fps"]) or 0.0, fps, rel_tol=1e-9):
