@@ -77,6 +77,18 @@ ContextMap read_context_map(const PuppetFile& f, const std::string& map, const s
   return m;
 }
 
+/// Whether a coordinate of pixel landmarks #T by 2P is not finite or beyond ±kMaxPixel; if so,
+/// (t, j) is the first that is not finite, or else the farthest.
+bool beyond_pixels(const RowMatrixXd& points, Index& t, Index& j) {
+  if (points.size() == 0) return false;
+  if (points.allFinite()) return points.cwiseAbs().maxCoeff(&t, &j) > kMaxPixel;
+  const double* d = points.data();  // NaN is not ordered: maxCoeff may pass over it
+  const Index k = std::find_if(d, d + points.size(), [](double v) { return !std::isfinite(v); }) - d;
+  t = k / points.cols();
+  j = k % points.cols();
+  return true;
+}
+
 /// The parts' face coordinates side by side.
 RowMatrixXd side_by_side(const std::vector<RowMatrixXd>& faces, Index n_dims) {
   RowMatrixXd out(faces.front().rows(), n_dims);
@@ -228,9 +240,8 @@ void Puppet::check_state_faces() const {
     face.middleCols(col, pt.n_dims()) = pt.face_means.leftCols(pt.n_dims());
     col += pt.n_dims();
     const RowMatrixXd points = to_points(face);
-    Index n, j;
-    const double reach = points.cwiseAbs().maxCoeff(&n, &j);
-    if (!(reach <= kMaxPixel)) {
+    Index n = 0, j = 0;
+    if (beyond_pixels(points, n, j)) {
       fail_argument("puppet part ", p, " state ", n, " puts point ", j / 2, " at ", points(n, j),
                     " px, outside [", -kMaxPixel, ", ", kMaxPixel, "] (face/mean_shape, face/part", p,
                     "/basis, hmm/part", p, "/face_means and face/mean_pose together); ", kDamaged);
@@ -239,15 +250,12 @@ void Puppet::check_state_faces() const {
 }
 
 void Puppet::check_reach(const RowMatrixXd& points) const {
-  if (points.size() == 0) return;
-  Index t, j;
-  const double reach = points.cwiseAbs().maxCoeff(&t, &j);
-  if (!(reach <= kMaxPixel)) {
-    fail_argument("the animation puts point ", j / 2, " of frame ", t, " at ", points(t, j), " px, outside [",
-                  -kMaxPixel, ", ", kMaxPixel, "]: the features are not of the kind the puppet was trained on, "
-                  "or its velocity means (hmm/part*/face_means), guide (guide/map, guide/offset) or audio "
-                  "standardisation (audio/mean, audio/std) are damaged");
-  }
+  Index t = 0, j = 0;
+  if (!beyond_pixels(points, t, j)) return;
+  fail_argument("the animation puts point ", j / 2, " of frame ", t, " at ", points(t, j), " px, outside [",
+                -kMaxPixel, ", ", kMaxPixel, "]: the features are not of the kind the puppet was trained on, "
+                "or its velocity means (hmm/part*/face_means), guide (guide/map, guide/offset) or audio "
+                "standardisation (audio/mean, audio/std) are damaged");
 }
 
 void Puppet::read_guide(Index n_columns) {
