@@ -6,6 +6,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include "voicepuppet/limits.hpp"
 #include "voicepuppet/puppet.hpp"
 #include "voicepuppet/puppet_io.hpp"
 
@@ -91,9 +92,17 @@ AdaptOptions adapt_options(const std::string& kind, double tau, Index n_iter, In
 
 void bind_puppet(py::module_& m) {
   m.attr("PUPPET_FORMAT_VERSION") = kPuppetFormatVersion;
-  m.def("puppet_format_version", [](const std::string& metadata, const py::dict& arrays) {
-          return puppet_format_version(to_file(metadata, arrays));
-        }, py::arg("metadata"), py::arg("arrays"), "The format version encode_puppet writes (2 with a guide).");
+  py::dict limits;  // limits.hpp: (lowest, highest) of each size a user or a file controls
+  limits["fps"] = py::make_tuple(kMinFps, kMaxFps);
+  limits["frames"] = py::make_tuple(1, kMaxFrames);
+  limits["points"] = py::make_tuple(1, kMaxPoints);
+  limits["states"] = py::make_tuple(1, kMaxStates);
+  limits["dims"] = py::make_tuple(1, kMaxDims);
+  limits["parts"] = py::make_tuple(1, kMaxParts);
+  limits["metadata_depth"] = py::make_tuple(0, kMaxMetadataDepth);
+  limits["image_side"] = py::make_tuple(kMinImageSide, kMaxImageSide);
+  limits["pixel"] = py::make_tuple(-kMaxPixel, kMaxPixel);
+  m.attr("LIMITS") = limits;
   m.def("crc32", [](const py::bytes& data, std::uint32_t crc) {
           const std::string s = data;
           return crc32(s.data(), s.size(), crc);

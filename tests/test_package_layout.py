@@ -23,7 +23,7 @@ MAX_LINES = 700
 #: of stages before it here. The data flow of DESIGN.md, with two stages lower than it draws
 #: them: ``animation`` (the landmark-animation file format the tracker's neighbours and the
 #: puppet produce) and ``synth`` (the synthetic performer, which evaluation's corpora are made of).
-ORDER = ("_core", "_version", "_files", "blas", "layout", "data", "animation", "tracking", "face", "audio", "hmm",
+ORDER = ("_core", "_version", "_files", "limits", "blas", "layout", "data", "animation", "tracking", "face", "audio", "hmm",
          "trajectory", "puppet", "render", "phonemes", "synth", "evaluation", "live", "batch", "bench", "cli",
          "__init__")
 

@@ -1,11 +1,13 @@
 #include "voicepuppet/puppet.hpp"
 
 #include "voicepuppet/hmm.hpp"
+#include "voicepuppet/limits.hpp"
 
 #include <Eigen/Cholesky>
 
 #include <algorithm>
 #include <cmath>
+#include <sstream>
 #include <string>
 #include <utility>
 
@@ -37,6 +39,25 @@ const PuppetArray& array(const PuppetFile& f, const std::string& name, std::vect
   return a;
 }
 
+/// Runs `check` on the array `name`, naming the array in the std::invalid_argument it throws.
+template <class F>
+void check_array(const std::string& name, F&& check) {
+  try {
+    check();
+  } catch (const std::invalid_argument& e) {
+    fail_argument("puppet array '", name, "' is not valid: ", e.what());
+  }
+}
+
+constexpr const char* kDamaged = "the file is damaged or from an incompatible tool";
+
+/// "<n> frames at <fps> fps", for the messages of the frame limits.
+std::string frames_at(Index n, double fps) {
+  std::ostringstream os;
+  os << n << " frames at " << fps << " fps";
+  return os.str();
+}
+
 /// The context map stored as the arrays `map`, `offset`, `context` (int) and `columns` (int):
 /// columns in [1, n_columns], context in [0, 100], map rows columns·(2·context+1), `outputs`
 /// columns (−1: any, at least one).
@@ -54,6 +75,18 @@ ContextMap read_context_map(const PuppetFile& f, const std::string& map, const s
   if (m.map.cols() < 1) fail_argument("puppet ", map, " must have at least one column");
   m.offset = array(f, offset, {m.map.cols()}).matrix().row(0).transpose();
   return m;
+}
+
+/// Whether a coordinate of pixel landmarks #T by 2P is not finite or beyond ±kMaxPixel; if so,
+/// (t, j) is the first that is not finite, or else the farthest.
+bool beyond_pixels(const RowMatrixXd& points, Index& t, Index& j) {
+  if (points.size() == 0) return false;
+  if (points.allFinite()) return points.cwiseAbs().maxCoeff(&t, &j) > kMaxPixel;
+  const double* d = points.data();  // NaN is not ordered: maxCoeff may pass over it
+  const Index k = std::find_if(d, d + points.size(), [](double v) { return !std::isfinite(v); }) - d;
+  t = k / points.cols();
+  j = k % points.cols();
+  return true;
 }
 
 /// The parts' face coordinates side by side.
@@ -111,35 +144,43 @@ RowMatrixXd append_deltas(const MatrixRef& x, Index width) {
 
 Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
   const auto& f = file_;
+  check_utf8(f.metadata, "the puppet's metadata");
+  check_json_depth(f.metadata, "the puppet's metadata");
   fps_ = array(f, "fps", {1}).f64[0];
-  if (!(fps_ > 0)) fail_argument("puppet fps must be positive, got ", fps_);
+  check_range("puppet fps", fps_, kMinFps, kMaxFps, kDamaged);
   if (f.arrays.count("audio/delta_width")) {
     delta_width_ = array(f, "audio/delta_width", {1}, PuppetArray::DType::Int64).i64[0];
-    if (delta_width_ < 0 || delta_width_ > 100) fail_argument("puppet audio/delta_width must be in [0, 100], got ", delta_width_);
+    check_range<Index>("puppet audio/delta_width", delta_width_, 0, 100, kDamaged);
   }
   audio_mean_ = array(f, "audio/mean", {-1}).matrix().row(0).transpose();
   const Index A = audio_mean_.size();
   if (delta_width_ > 0 && A % 2) fail_argument("puppet audio/mean must hold features and their deltas (an even count), got ", A);
+  check_range<Index>("puppet audio columns (audio/mean without deltas)", n_features(), 1, kMaxDims, kDamaged);
   audio_std_ = array(f, "audio/std", {A}).matrix().row(0).transpose();
-  if (A < 1 || (audio_std_.array() <= 0).any()) {
-    fail_argument("puppet audio standardisation needs at least one column and positive std");
-  }
+  if ((audio_std_.array() <= 0).any()) fail_argument("puppet audio/std must be positive; ", kDamaged);
   if (f.arrays.count("audio/projection")) {
     projection_ = read_context_map(f, "audio/projection", "audio/projection_offset", "audio/projection_context",
                                    "audio/projection_columns", A, -1);
   }
   const Index V = n_vocal();
+  check_range<Index>("puppet vocal features (columns of audio/projection)", V, 1, kMaxDims, kDamaged);
   mean_shape_ = array(f, "face/mean_shape", {-1, 2}).matrix();
   const Index P = mean_shape_.rows();
+  check_range<Index>("puppet points (rows of face/mean_shape)", P, 1, kMaxPoints, kDamaged);
   mean_pose_ = array(f, "face/mean_pose", {4}).matrix().row(0).transpose();
+  check_range("puppet face/mean_pose[0] (log scale)", mean_pose_(0), -kMaxLogScale, kMaxLogScale, kDamaged);
+  check_range("puppet face/mean_pose[2] (x translation, px)", mean_pose_(2), -kMaxPixel, kMaxPixel, kDamaged);
+  check_range("puppet face/mean_pose[3] (y translation, px)", mean_pose_(3), -kMaxPixel, kMaxPixel, kDamaged);
 
   std::vector<int> seen(static_cast<size_t>(P), 0);
   for (Index p = 0; f.arrays.count("face/part" + std::to_string(p) + "/points"); ++p) {
+    check_range<Index>("puppet face parts", p + 1, 1, kMaxParts, kDamaged);
     const std::string fp = "face/part" + std::to_string(p) + "/", hp = "hmm/part" + std::to_string(p) + "/";
     PuppetPart part;
     const auto& pts = array(f, fp + "points", {-1}, PuppetArray::DType::Int64);
     part.points = Eigen::Map<const VectorXi>(pts.i64.data(), static_cast<Index>(pts.i64.size()));
     const Index Pp = part.points.size();
+    check_range<Index>("puppet " + fp + "points length", Pp, 1, P, kDamaged);
     part.mean_shape.resize(Pp, 2);
     for (Index i = 0; i < Pp; ++i) {
       const Index q = part.points(i);
@@ -149,13 +190,22 @@ Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
     }
     part.basis = array(f, fp + "basis", {-1, 2 * Pp}).matrix();
     const Index K = part.basis.rows();
+    check_range<Index>("puppet " + fp + "basis rows (face dims)", K, 1, std::min(2 * Pp, kMaxDims), kDamaged);
+    const double skew = (part.basis * part.basis.transpose() - RowMatrixXd::Identity(K, K)).cwiseAbs().maxCoeff();
+    if (!(skew <= 1e-6)) {
+      fail_argument("puppet array '", fp, "basis' must have orthonormal rows, but B Bᵀ differs from the identity "
+                    "by ", skew, "; ", kDamaged);
+    }
     part.startprob = array(f, hp + "startprob", {-1}).matrix().row(0).transpose();
     const Index N = part.startprob.size();
+    check_range<Index>("puppet " + hp + "startprob length (states)", N, 1, kMaxStates, kDamaged);
     part.transmat = array(f, hp + "transmat", {N, N}).matrix();
-    make_transitions(part.startprob, part.transmat);  // validates the probabilities
+    check_array(hp + "startprob and " + hp + "transmat", [&] { make_transitions(part.startprob, part.transmat); });
     part.face_means = array(f, hp + "face_means", {N, 2 * K}).matrix();
     part.face_covars = array(f, hp + "face_covars", {N, 2 * K, 2 * K}).matrix();
     part.vocal_means = array(f, hp + "vocal_means", {N, V}).matrix();
+    const double vmax = part.vocal_means.cwiseAbs().maxCoeff();
+    check_range("puppet array '" + hp + "vocal_means' largest |value|", vmax, 0.0, kMaxStandardized, kDamaged);
     const PuppetArray& vc = f.at(hp + "vocal_covars");
     if (vc.shape.size() == 3) {
       part.vocal_covars = array(f, hp + "vocal_covars", {N, V, V}).matrix();
@@ -164,9 +214,11 @@ Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
       part.vocal_covars = array(f, hp + "vocal_covars", {N, V}).matrix();
       part.vocal_type = CovarianceType::Diagonal;
     }
-    check_covariances(part.vocal_covars, N, V, part.vocal_type);
-    native_.emplace_back(part.face_means.leftCols(K), part.face_means.rightCols(K), part.face_covars,
-                         CovarianceType::Full, 1.0);
+    check_array(hp + "vocal_covars", [&] { check_covariances(part.vocal_covars, N, V, part.vocal_type); });
+    check_array(hp + "face_covars", [&] {
+      native_.emplace_back(part.face_means.leftCols(K), part.face_means.rightCols(K), part.face_covars,
+                           CovarianceType::Full, 1.0);
+    });
     parts_.push_back(std::move(part));
   }
   if (parts_.empty()) fail_argument("the puppet has no face part (no array 'face/part0/points')");
@@ -176,7 +228,34 @@ Puppet::Puppet(PuppetFile file) : file_(std::move(file)) {
                     seen[static_cast<size_t>(q)], " parts");
     }
   }
+  check_state_faces();
   read_guide(A);
+}
+
+void Puppet::check_state_faces() const {
+  Index col = 0;
+  for (Index p = 0; p < n_parts(); ++p) {
+    const PuppetPart& pt = parts_[static_cast<size_t>(p)];
+    RowMatrixXd face = RowMatrixXd::Zero(pt.n_states(), n_dims());
+    face.middleCols(col, pt.n_dims()) = pt.face_means.leftCols(pt.n_dims());
+    col += pt.n_dims();
+    const RowMatrixXd points = to_points(face);
+    Index n = 0, j = 0;
+    if (beyond_pixels(points, n, j)) {
+      fail_argument("puppet part ", p, " state ", n, " puts point ", j / 2, " at ", points(n, j),
+                    " px, outside [", -kMaxPixel, ", ", kMaxPixel, "] (face/mean_shape, face/part", p,
+                    "/basis, hmm/part", p, "/face_means and face/mean_pose together); ", kDamaged);
+    }
+  }
+}
+
+void Puppet::check_reach(const RowMatrixXd& points) const {
+  Index t = 0, j = 0;
+  if (!beyond_pixels(points, t, j)) return;
+  fail_argument("the animation puts point ", j / 2, " of frame ", t, " at ", points(t, j), " px, outside [",
+                -kMaxPixel, ", ", kMaxPixel, "]: the features are not of the kind the puppet was trained on, "
+                "or its velocity means (hmm/part*/face_means), guide (guide/map, guide/offset) or audio "
+                "standardisation (audio/mean, audio/std) are damaged");
 }
 
 void Puppet::read_guide(Index n_columns) {
@@ -294,8 +373,17 @@ RowMatrixXd Puppet::vocal_log_density(const MatrixRef& standardized, Index p) co
 
 double Puppet::out_rate(double fps) const {
   if (fps == 0) return fps_;
-  if (!(fps > 0) || !std::isfinite(fps)) fail_argument("output fps must be positive, got ", fps);
+  check_range("output fps", fps, kMinFps, kMaxFps, "0 is the puppet's own rate");
   return fps;
+}
+
+Index Puppet::out_frames(Index n, double out) const {
+  if (n < 1) fail_argument("no audio feature frames (the audio is empty)");
+  check_range<Index>("audio feature frames", n, 1, kMaxFrames, "animate long audio in pieces");
+  const Index m = out == fps_ ? n : resampled_length(n, fps_, out);
+  check_range<Index>("output frames (" + frames_at(n, fps_) + " resampled to " + frames_at(m, out) + ")", m, 1,
+                     kMaxFrames, "animate long audio in pieces, or at a lower output fps");
+  return m;
 }
 
 TrajectoryModel Puppet::trajectory_model(double out_fps, Index p) const {
@@ -348,6 +436,7 @@ Puppet::Analysis Puppet::analyse(const MatrixRef& raw_features, const AnimateOpt
   if (adapt) check_adapt_options(options.adapt);
   // The vocal features (the projection of the standardised frames, if the puppet has one), once
   // for all parts; adaptation transforms them, in the space the vocal Gaussians live in.
+  out_frames(raw_features.rows(), a.out);
   const RowMatrixXd z = standardize(raw_features);
   const RowMatrixXd v = project(z);
   const Index T = v.rows();
@@ -408,6 +497,7 @@ AnimateResult Puppet::animate(const MatrixRef& raw_features, const AnimateOption
   AnimateResult r = std::move(a.result);
   r.face = synthesise(a, lambda);
   r.points = to_points(r.face);
+  check_reach(r.points);
   return r;
 }
 
@@ -425,10 +515,8 @@ std::vector<RowMatrixXd> Puppet::animate_faces(const MatrixRef& raw_features, co
   return faces;
 }
 
-void Puppet::check_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps) const {
-  if (!(states_fps > 0) || !std::isfinite(states_fps)) {
-    fail_argument("states_fps must be positive, got ", states_fps);
-  }
+void Puppet::check_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps, double out) const {
+  check_range("states_fps", states_fps, kMinFps, kMaxFps);
   if (states.rows() < 1 || states.cols() != n_parts()) {
     fail_argument("states must have at least one frame and one column per face part (", n_parts(),
                   "), got ", shape_of(states));
@@ -439,12 +527,16 @@ void Puppet::check_states(const Eigen::Ref<const IndexMatrix>& states, double st
       fail_argument("states of part ", p, " must lie in [0, ", n, ")");
     }
   }
+  check_range<Index>("state frames", states.rows(), 1, kMaxFrames);
+  const Index m = states_fps == out ? states.rows() : resampled_length(states.rows(), states_fps, out);
+  check_range<Index>("output frames (" + frames_at(states.rows(), states_fps) + " of states resampled to " +
+                     frames_at(m, out) + ")", m, 1, kMaxFrames, "synthesise at a lower output fps");
 }
 
 AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
                                      double out_fps) const {
-  check_states(states, states_fps);
   const double out = out_rate(out_fps);
+  check_states(states, states_fps, out);
   AnimateResult r;
   r.states = states;
   std::vector<RowMatrixXd> faces;
@@ -457,12 +549,13 @@ AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states
   }
   r.face = side_by_side(faces, n_dims());
   r.points = to_points(r.face);
+  check_reach(r.points);
   return r;
 }
 
 AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps,
                                      const MatrixRef& raw_features, const AnimateOptions& options) const {
-  check_states(states, states_fps);
+  check_states(states, states_fps, out_rate(options.fps));
   if (options.posterior) {
     fail_argument("given states are one path: posterior-weighted synthesis does not apply to them");
   }
@@ -472,8 +565,8 @@ AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states
   const double lambda = guide_lambda(options.guide_weight);
   Analysis a;
   a.out = out_rate(options.fps);
+  const Index n_out = out_frames(raw_features.rows(), a.out);
   const RowMatrixXd z = standardize(raw_features);
-  const Index n_out = a.out == fps_ ? z.rows() : resampled_length(z.rows(), fps_, a.out);
   if (lambda > 0) a.guide_y = guide_at(z, a.out);
   for (Index p = 0; p < n_parts(); ++p) {
     const VectorXi s = states.col(p);
@@ -494,6 +587,7 @@ AnimateResult Puppet::animate_states(const Eigen::Ref<const IndexMatrix>& states
   r.states = states;
   r.face = synthesise(a, lambda);
   r.points = to_points(r.face);
+  check_reach(r.points);
   return r;
 }
 

@@ -1,5 +1,7 @@
 #include "voicepuppet/puppet_io.hpp"
 
+#include "voicepuppet/limits.hpp"
+
 #include <array>
 #include <cstdio>
 #include <cstring>
@@ -19,6 +21,22 @@ namespace {
 
 constexpr char kMagic[8] = {'V', 'P', 'U', 'P', 'P', 'E', 'T', '\x1a'};
 constexpr std::size_t kHeaderSize = 32;
+constexpr std::size_t kCrcOffset = 24;
+
+/// The checksum of a file of format `version` whose header and payload start at `bytes`:
+/// versions 1 and 2, the payload's; from 3, the header's (without the checksum field) and the
+/// payload's.
+std::uint32_t file_crc(const char* bytes, std::uint64_t payload_size, std::uint32_t version) {
+  if (version < 3) return crc32(bytes + kHeaderSize, payload_size);
+  std::uint32_t crc = crc32(bytes, kCrcOffset);
+  crc = crc32(bytes + kCrcOffset + 4, kHeaderSize - kCrcOffset - 4, crc);
+  return crc32(bytes + kHeaderSize, payload_size, crc);
+}
+
+bool has_guide(const PuppetFile& file) {
+  const auto it = file.arrays.lower_bound("guide/");
+  return it != file.arrays.end() && it->first.compare(0, 6, "guide/") == 0;
+}
 
 static_assert(sizeof(double) == 8, "float64 must be 8 bytes");
 
@@ -168,18 +186,15 @@ std::string encode_puppet(const PuppetFile& file) {
     }
   }
   std::string out(kMagic, sizeof(kMagic));
-  put<std::uint32_t>(out, puppet_format_version(file));
+  put<std::uint32_t>(out, kPuppetFormatVersion);
   put<std::uint32_t>(out, 0);
   put<std::uint64_t>(out, payload.size());
-  put<std::uint32_t>(out, crc32(payload.data(), payload.size()));
+  put<std::uint32_t>(out, 0);  // the checksum, filled in below
   put<std::uint32_t>(out, 0);
   out += payload;
+  const std::uint32_t crc = file_crc(out.data(), payload.size(), kPuppetFormatVersion);
+  std::memcpy(&out[kCrcOffset], &crc, sizeof(crc));
   return out;
-}
-
-std::uint32_t puppet_format_version(const PuppetFile& file) {
-  const auto it = file.arrays.lower_bound("guide/");
-  return it != file.arrays.end() && it->first.compare(0, 6, "guide/") == 0 ? 2 : 1;
 }
 
 PuppetFile decode_puppet(const std::string& bytes, const std::string& source) {
@@ -191,9 +206,10 @@ PuppetFile decode_puppet(const std::string& bytes, const std::string& source) {
   if (bytes.size() < kHeaderSize) fail_argument(source, " is truncated (", bytes.size(), " bytes, header is 32)");
   Reader head(bytes, sizeof(kMagic), source);
   const auto version = head.get<std::uint32_t>("the header");
-  head.get<std::uint32_t>("the header");
+  const auto flags = head.get<std::uint32_t>("the header");
   const auto payload_size = head.get<std::uint64_t>("the header");
   const auto crc = head.get<std::uint32_t>("the header");
+  const auto reserved = head.get<std::uint32_t>("the header");
   if (version > kPuppetFormatVersion) {
     fail_argument(source, " has puppet format version ", version, ", newer than this voicepuppet reads (",
                   kPuppetFormatVersion, "); upgrade voicepuppet");
@@ -206,17 +222,24 @@ PuppetFile decode_puppet(const std::string& bytes, const std::string& source) {
   if (bytes.size() - kHeaderSize > payload_size) {
     fail_argument(source, " has ", bytes.size() - kHeaderSize - payload_size, " unexpected trailing bytes; the file is damaged");
   }
-  if (crc32(bytes.data() + kHeaderSize, payload_size) != crc) {
+  if (file_crc(bytes.data(), payload_size, version) != crc) {
     fail_argument(source, " is corrupted: checksum mismatch; copy the file again or retrain");
+  }
+  if (flags != 0 || reserved != 0) {
+    fail_argument(source, " has header flags ", flags, " and reserved field ", reserved,
+                  " where this voicepuppet writes 0 and 0; the file is damaged");
   }
   PuppetFile file;
   Reader r(bytes, kHeaderSize, source);
   const auto meta_len = r.get<std::uint32_t>("the metadata length");
   file.metadata = r.bytes(meta_len, "the metadata");
+  check_utf8(file.metadata, source + "'s metadata");
+  check_json_depth(file.metadata, source + "'s metadata");
   const auto n_arrays = r.get<std::uint32_t>("the array count");
   for (std::uint32_t k = 0; k < n_arrays; ++k) {
     const auto name_len = r.get<std::uint16_t>("an array name");
     std::string name = r.bytes(name_len, "an array name");
+    check_utf8(name, source + "'s array name");
     PuppetArray a;
     const auto dtype = r.get<std::uint8_t>("an array header");
     if (dtype != 1 && dtype != 2) fail_argument(source, " is malformed: array '", name, "' has unknown dtype ", int(dtype));
@@ -240,6 +263,10 @@ PuppetFile decode_puppet(const std::string& bytes, const std::string& source) {
     file.arrays.emplace(std::move(name), std::move(a));
   }
   if (r.pos() != bytes.size()) fail_argument(source, " is malformed: bytes left after the last array");
+  if (version < 2 && has_guide(file)) {
+    fail_argument(source, " has format version ", version, " but holds a guide, which needs version 2 or later; "
+                  "the header is damaged");
+  }
   return file;
 }
 

@@ -234,12 +234,10 @@ TEST_CASE("guide: given states with their audio are guided as animate; edits cha
   CHECK(throws_with<std::invalid_argument>([&] { p.animate_states(bad, 30, raw); }, "[0, 2)"));
 }
 
-TEST_CASE("guide: format version 2 only for a file with a guide; both versions read") {
+TEST_CASE("guide: files with and without a guide are written as format version 3 and read") {
   const std::string with = encode_puppet(guided()), without = encode_puppet(unguided());
-  CHECK(static_cast<int>(with[8]) == 2);
-  CHECK(static_cast<int>(without[8]) == 1);
-  CHECK(puppet_format_version(guided()) == 2);
-  CHECK(puppet_format_version(unguided()) == 1);
+  CHECK(static_cast<int>(with[8]) == 3);
+  CHECK(static_cast<int>(without[8]) == 3);
   const Puppet p(decode_puppet(with)), q(decode_puppet(without));
   CHECK(p.guided());
   CHECK(!q.guided());

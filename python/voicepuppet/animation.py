@@ -23,6 +23,7 @@ import numpy as np
 from voicepuppet import layout as face_layout
 from voicepuppet.layout import neutral_landmarks
 from voicepuppet._files import atomic_path, write_npz
+from voicepuppet.limits import check_limit
 
 __all__ = ["Animation", "load_animation", "save_animation", "check_points",
            "neutral_landmarks", "procedural_animation", "exaggerate", "add_offset", "apply_controls"]
@@ -50,8 +51,9 @@ def check_points(points, name: str = "points", n_points: Optional[int] = None) -
     Raises
     ------
     ValueError
-        ``points`` not numbers, not of shape (T, P, 2) with T, P >= 1, not ``n_points`` points
-        per frame, or with NaN or infinite values.
+        ``points`` not numbers, not of shape (T, P, 2) with T, P >= 1, more frames or points
+        than :data:`voicepuppet.limits.LIMITS` allows, not ``n_points`` points per frame, or
+        with NaN or infinite values.
     """
     try:
         arr = np.array(points, dtype=np.float64)
@@ -60,6 +62,8 @@ def check_points(points, name: str = "points", n_points: Optional[int] = None) -
     if arr.ndim != 3 or arr.shape[2] != 2 or arr.shape[0] < 1 or arr.shape[1] < 1:
         raise ValueError(f"{name} must have shape (T, P, 2) with T >= 1 frames of P >= 1 (x, y) points, "
                          f"got {arr.shape}; a single frame of shape (P, 2) needs a leading axis")
+    check_limit(arr.shape[0], "frames", f"{name}: frames")
+    check_limit(arr.shape[1], "points", f"{name}: points per frame")
     if n_points is not None and arr.shape[1] != n_points:
         raise ValueError(f"{name} must have {n_points} points per frame to match the face mesh, got "
                          f"{arr.shape[1]}; use landmarks in the same layout as the face's points")
@@ -78,7 +82,7 @@ def _check_fps(fps) -> float:
         raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}") from None
     if not np.isfinite(value) or value <= 0:
         raise ValueError(f"fps must be a positive finite number of frames per second, got {value}")
-    return value
+    return check_limit(value, "fps", "animation fps", "give the frame rate the animation was made at")
 
 
 @dataclass
@@ -116,8 +120,9 @@ class Animation:
     Raises
     ------
     ValueError
-        ``points`` or ``neutral`` not finite or of the wrong shape, ``fps`` not positive and
-        finite, or ``names`` / ``confidence`` not matching P (and T).
+        ``points`` or ``neutral`` not finite or of the wrong shape, ``fps`` outside the range of
+        :data:`voicepuppet.limits.LIMITS` (1 to 1000), or ``names`` / ``confidence`` not
+        matching P (and T).
     """
 
     points: np.ndarray

@@ -219,7 +219,7 @@ def test_file_round_trip_and_format_version(puppets, data, tmp_path):
     for (parts, guide), pup in puppets.items():
         path = pup.save(tmp_path / f"{parts}-{guide}.vpp")
         version = int.from_bytes(path.read_bytes()[8:12], "little")
-        assert version == (2 if guide == "ridge" else 1)
+        assert version == 3
         q = load(path)
         assert q.guided == (guide == "ridge")
         for meta in (pup.metadata, q.metadata):  # whole numbers, as trained and as read back
@@ -228,9 +228,10 @@ def test_file_round_trip_and_format_version(puppets, data, tmp_path):
         for posterior in (False, True):
             np.testing.assert_array_equal(q.animate(features=feats, posterior=posterior).animation.points,
                                           pup.animate(features=feats, posterior=posterior).animation.points)
-    assert _core.PUPPET_FORMAT_VERSION == 2
-    # an older reader (version 1) refuses a guided file instead of animating it unguided: the
-    # header says 2 (checked above), which such a reader calls newer than it reads
+    assert _core.PUPPET_FORMAT_VERSION == 3
+    # an older reader (versions 1 and 2) refuses every file instead of animating a guided one
+    # unguided or missing a damaged header: the header says 3, which such a reader calls newer
+    # than it reads
 
 
 def _old_world():

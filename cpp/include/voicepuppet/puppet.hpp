@@ -42,7 +42,7 @@
 ///                                     the marginal R[sl_p, sl_p], floored by
 ///                                     kGuideCovarianceFloor · (its mean variance, or 1 if 0) on
 ///                                     the diagonal.
-///                                     A file with a guide is format version 2 (puppet_io.hpp).
+///                                     A file with a guide is format version 2 or later (puppet_io.hpp).
 
 #include "voicepuppet/adapt.hpp"
 #include "voicepuppet/hmm_gaussian.hpp"
@@ -117,8 +117,12 @@ struct AnimateResult {
 
 class Puppet {
  public:
-  /// Validates every array (shapes, finiteness, probabilities, positive definite covariances).
-  /// @throws std::invalid_argument naming what is wrong.
+  /// Validates the metadata (UTF-8, nesting, limits.hpp) and every array before it is used:
+  /// shapes that agree with each other, finite values, sizes, the frame rate and the mean pose
+  /// in the ranges of limits.hpp, probabilities non-negative and summing to 1, orthonormal
+  /// bases, symmetric positive definite covariances, and every state's mean face within
+  /// ±kMaxPixel pixels.
+  /// @throws std::invalid_argument naming the array or field, its value and what was expected.
   explicit Puppet(PuppetFile file);
   /// Reads and validates a .vpp file (puppet_io.hpp errors for unreadable or corrupt files).
   static Puppet load(const std::string& path);
@@ -185,6 +189,9 @@ class Puppet {
   RowMatrixXd to_points(const MatrixRef& face) const;
 
   /// Analysis and synthesis from raw audio feature frames at the puppet's rate.
+  /// @throws std::invalid_argument on a column mismatch, an output rate outside [kMinFps,
+  /// kMaxFps], more than kMaxFrames input or output frames, or landmarks beyond ±kMaxPixel
+  /// (limits.hpp; animate_states likewise).
   AnimateResult animate(const MatrixRef& raw_features, const AnimateOptions& options = {}) const;
   /// The face coordinates (#T' by K) animate(raw_features, options) gives at each λ of
   /// `guide_weights` (options.guide_weight is not used; each λ as AnimateOptions::guide_weight,
@@ -209,6 +216,11 @@ class Puppet {
 
  private:
   double out_rate(double fps) const;
+  /// Throws unless every state's mean face (at the mean pose) lies within ±kMaxPixel.
+  void check_state_faces() const;
+  /// Throws std::invalid_argument unless every coordinate of an animation's pixel landmarks is
+  /// finite and within ±kMaxPixel.
+  void check_reach(const RowMatrixXd& points) const;
   void read_guide(Index n_columns);
   /// λ for an AnimateOptions::guide_weight (negative/NaN: the file's), validated.
   double guide_lambda(double weight) const;
@@ -226,8 +238,12 @@ class Puppet {
   /// The guide's prediction ŷ of standardised frames at the output rate `out` (interpolated as
   /// resample_weights).
   RowMatrixXd guide_at(const RowMatrixXd& standardized, double out) const;
-  /// Given states checked against the parts: #T ≥ 1 rows, one column per part, each in range.
-  void check_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps) const;
+  /// Given states checked against the parts: #T ≥ 1 rows, one column per part, each in range,
+  /// states_fps in [kMinFps, kMaxFps], and at most kMaxFrames of them at the output rate `out`.
+  void check_states(const Eigen::Ref<const IndexMatrix>& states, double states_fps, double out) const;
+  /// The frames n audio feature frames give at the output rate `out`, both checked to be in
+  /// [1, kMaxFrames] (limits.hpp) before anything is allocated from them.
+  Index out_frames(Index n, double out) const;
   PuppetFile file_;
   double fps_ = 0;
   Index delta_width_ = 0;

@@ -5,12 +5,12 @@
 ///
 ///   offset  size  field
 ///   0       8     magic "VPUPPET\x1a"
-///   8       4     format version (uint32): 2 for a file with a guide (arrays guide/...,
-///                 puppet.hpp), which an older reader must refuse rather than animate
-///                 unguided; 1 otherwise (unguided files stay byte-identical). Both are read.
+///   8       4     format version (uint32): 3. Versions 1 and 2 (2: a file with a guide,
+///                 arrays guide/... of puppet.hpp) are read too.
 ///   12      4     flags (uint32, 0)
 ///   16      8     payload size in bytes (uint64)
-///   24      4     CRC-32 of the payload (IEEE 802.3 polynomial, as zlib.crc32)
+///   24      4     CRC-32 (IEEE 802.3 polynomial, as zlib.crc32) of bytes 0..23, 28..31 and the
+///                 payload: the whole file but this field (versions 1 and 2: of the payload only)
 ///   28      4     reserved (0)
 ///   32      ...   payload:
 ///                   uint32 metadata length, metadata (UTF-8 JSON text)
@@ -31,8 +31,8 @@
 
 namespace voicepuppet {
 
-/// The newest format version this voicepuppet reads (and writes, for a file with a guide).
-constexpr std::uint32_t kPuppetFormatVersion = 2;
+/// The format version this voicepuppet writes, the newest it reads.
+constexpr std::uint32_t kPuppetFormatVersion = 3;
 
 /// One named n-dimensional array of float64 or int64.
 struct PuppetArray {
@@ -59,9 +59,6 @@ struct PuppetFile {
   const PuppetArray& at(const std::string& name) const;
 };
 
-/// The version `encode_puppet` writes for `file`: 2 if it has an array under "guide/", else 1.
-std::uint32_t puppet_format_version(const PuppetFile& file);
-
 /// CRC-32 (IEEE, reflected, as zlib.crc32) of `n` bytes, continuing from `crc`.
 std::uint32_t crc32(const void* data, std::size_t n, std::uint32_t crc = 0);
 
@@ -70,7 +67,10 @@ std::string encode_puppet(const PuppetFile& file);
 
 /// Parses bytes; `source` names the origin in error messages.
 /// @throws std::invalid_argument for a file that is not a puppet (bad magic), is truncated,
-///         comes from a newer format version, fails its checksum, or is malformed.
+///         comes from a newer format version, fails its checksum, has non-zero flags or
+///         reserved field, or is malformed (including metadata or array names that are not
+///         UTF-8, metadata nested deeper than kMaxMetadataDepth, limits.hpp, and a version 1
+///         header on a file with a guide).
 PuppetFile decode_puppet(const std::string& bytes, const std::string& source = "puppet data");
 
 /// Writes atomically: `path + ".tmp-<pid>"`, flushed, then renamed over `path`.

@@ -20,6 +20,7 @@ from voicepuppet.audio.framing import check_fps, n_frames
 from voicepuppet.audio.loading import Audio, AudioWarning, load_audio
 from voicepuppet.audio.stream import StreamingFeatures
 from voicepuppet.audio.conditioning import BandLimiter, LevelNormalizer
+from voicepuppet.limits import check_limit
 
 
 def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = None,
@@ -54,7 +55,8 @@ def extract(source, fps: float = 29.97, features=None, *, n_out: int | None = No
     Raises
     ------
     ValueError
-        ``fps`` not positive and finite, ``n_out`` not a positive whole number, an unknown
+        ``fps`` outside [1, 1000], ``n_out`` not a whole number in [1, 10^7]
+        (:data:`voicepuppet.limits.LIMITS`), an unknown
         feature, set or option, or audio that cannot be loaded (see :func:`load_audio`).
 
     Warns
@@ -112,7 +114,7 @@ def _extract(source, fps, features, n_out, progress, options, reference: bool) -
                           f"frame ({1e3 / fps:.1f} ms at {fps:g} fps); its one frame is analysed "
                           "with silence after it", AudioWarning, stacklevel=3)
     elif isinstance(n_out, (int, np.integer)) and not isinstance(n_out, bool) and n_out >= 1:
-        T = int(n_out)
+        T = int(check_limit(n_out, "frames", "n_out (frames)", "extract long audio in pieces"))
     else:
         raise ValueError(f"n_out must be a positive whole number of frames, got {n_out!r}")
     want = set(fset.features)

@@ -100,6 +100,16 @@ def check_level_db(level) -> float:
     return float(level)
 
 
+#: Ranges of the numeric options, so that a feature set read from a file cannot ask for sizes
+#: (FFT lengths, filter banks, model orders) that exhaust memory.
+_OPTION_RANGES = {"window_s": (1e-3, 10.0), "n_fft": (16, 2 ** 20), "lpc_order": (1, 100),
+                  "lpc_preemph": (0.0, 1.0), "n_lpc_cepstra": (1, 100), "rasta_order": (1, 100),
+                  "n_rasta": (1, 100), "n_mfcc": (1, 1000), "n_mels": (1, 1000), "delta_width": (0, 100),
+                  "formant_ceiling": (1.0, 1e5), "formant_max_bandwidth": (1.0, 1e5),
+                  "pitch_floor": (1.0, 1e4), "pitch_ceiling": (1.0, 1e4)}
+_COUNT_OPTIONS = {"n_fft", "lpc_order", "n_lpc_cepstra", "rasta_order", "n_rasta", "n_mfcc", "n_mels", "delta_width"}
+
+
 @dataclass(frozen=True)
 class FeatureSet:
     """Which features to compute and with which settings.
@@ -116,9 +126,10 @@ class FeatureSet:
     Raises
     ------
     ValueError
-        No features, a name not in ``FEATURES``, a feature listed twice, an unknown option, or
-        an invalid ``band_hz`` (not a positive frequency) or ``level_db`` (see
-        :func:`check_level_db`).
+        No features, a name not in ``FEATURES``, a feature listed twice, an unknown option, an
+        invalid ``band_hz`` (not a positive frequency) or ``level_db`` (see
+        :func:`check_level_db`), or a numeric option outside its range (e.g. ``n_fft`` in
+        [16, 2^20], model orders and counts of coefficients in [1, 100] or [1, 1000]).
     """
 
     features: tuple
@@ -146,6 +157,12 @@ class FeatureSet:
                              f"telephone audio) or None, got {band!r}")
         if self.options.get("level_db") is not None:
             check_level_db(self.options["level_db"])
+        for k, (lo, hi) in _OPTION_RANGES.items():
+            v = self.options.get(k)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
+                                  or not lo <= v <= hi or (k in _COUNT_OPTIONS and v != int(v))):
+                kind = "a whole number" if k in _COUNT_OPTIONS else "a number"
+                raise ValueError(f"feature option {k} must be {kind} in [{lo:g}, {hi:g}], got {v!r}")
         object.__setattr__(self, "features", feats)
         object.__setattr__(self, "options", dict(self.options))
 

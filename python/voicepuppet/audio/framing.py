@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from voicepuppet.limits import check_limit
+
 #: Frames processed per block: bounds memory on hour-long recordings.
 BLOCK_FRAMES = 2048
 
@@ -32,7 +34,8 @@ def check_fps(fps) -> float:
     Raises
     ------
     ValueError
-        ``fps`` is not a number, or is not positive and finite.
+        ``fps`` is not a number, or is not positive and finite, or lies outside the range of
+        :data:`voicepuppet.limits.LIMITS` (1 to 1000).
     """
     try:
         value = float(fps)
@@ -40,7 +43,7 @@ def check_fps(fps) -> float:
         raise ValueError(f"fps must be a number of frames per second, got {fps!r}") from None
     if not math.isfinite(value) or value <= 0:
         raise ValueError(f"fps must be positive and finite, got {fps!r}")
-    return value
+    return check_limit(value, "fps", "fps")
 
 
 def n_frames(n_samples: int, rate: float, fps: float) -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 from voicepuppet.animation import load_animation
 from voicepuppet.cli._controls import add_control_arguments, apply_control_arguments
 from voicepuppet.cli.export import print_summary
-from voicepuppet.render import default_size, render, resolve_face
+from voicepuppet.render import check_size, default_size, render, resolve_face
 from voicepuppet.render.export import export
 from voicepuppet.render.video import even
 
@@ -20,9 +20,7 @@ def _size(text: str) -> tuple[int, int]:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise ValueError(f"--size must look like 640x480, got {text!r}") from None
-    if w < 16 or h < 16:
-        raise ValueError(f"--size must be at least 16x16, got {text!r}")
-    return w, h
+    return check_size((w, h), "--size")
 
 
 def _turn(text: str) -> tuple[float, float]:

@@ -51,7 +51,9 @@ from voicepuppet.audio.loading import DEFAULT_RATE
 from voicepuppet.blas import limited
 from voicepuppet.face import FaceSpace
 from voicepuppet.layout import N_POINTS, close_crossed_lips
+from voicepuppet.limits import check_limit
 from voicepuppet.puppet import training
+from voicepuppet.puppet.metadata import check_metadata
 from voicepuppet.puppet.training import TrainOptions
 from voicepuppet.trajectory import MAX_MOTION_GAIN, widen_motion
 
@@ -121,14 +123,23 @@ class Puppet:
     Raises
     ------
     ValueError
-        Metadata or arrays that do not make a puppet, e.g. a missing array (checked by the C++
-        core).
+        Metadata or arrays that do not make a puppet: a missing or misshapen array, values out
+        of range (checked by the C++ core, ``Puppet`` in ``cpp/include/voicepuppet/puppet.hpp``)
+        or metadata that disagrees with them (:func:`voicepuppet.puppet.metadata.check_metadata`).
     """
 
     def __init__(self, metadata: dict, arrays: dict):
+        if not isinstance(metadata, dict):
+            raise ValueError(f"a puppet's metadata must be a dict, got {type(metadata).__name__}")
         self.metadata = dict(metadata)
         self.arrays = {k: np.asarray(v) for k, v in arrays.items()}
         self._core = _core.Puppet(json.dumps(self.metadata), self.arrays)
+        c = self._core
+        check_metadata(self.metadata, n_parts=c.n_parts, n_features=c.n_features, n_points=c.n_points, fps=c.fps)
+        missing = [k for k in ["face/weights"] + [f"face/part{i}/variances" for i in range(c.n_parts)]
+                   if k not in self.arrays]
+        if missing:
+            raise ValueError(f"the puppet has no array {missing[0]!r}; it was written by an incompatible tool")
         self.face_space = FaceSpace.from_arrays(self.arrays, self.metadata["parts"])
         gain = self.arrays.get("face/motion_gain")
         if gain is not None and not (gain.shape == (self.face_space.n_dims,) and np.isfinite(gain).all()
@@ -470,15 +481,14 @@ class Puppet:
         Raises
         ------
         ValueError
-            ``fps`` not positive; neither or both of ``audio`` and ``features`` (without
+            ``fps`` outside [1, 1000] (:data:`voicepuppet.limits.LIMITS`), or more output
+            frames than they allow; neither or both of ``audio`` and ``features`` (without
             ``states``); ``adapt`` not None or "full", or given with ``states``; ``posterior``
             with ``states``; ``guide_weight`` not None or a finite number >= 0, or positive for
             states without audio; ``states`` not integers of shape (T,) or (T, parts);
             ``adapt_iter`` not an integer.
         """
-        out_fps = float(fps) if fps is not None else self.fps
-        if out_fps <= 0 or not np.isfinite(out_fps):
-            raise ValueError(f"fps must be positive, got {fps!r}")
+        out_fps = self.fps if fps is None else check_limit(fps, "fps", "output fps")
         sound = (audio is not None) + (features is not None)
         if sound > 1 or (sound == 0 and states is None):
             raise ValueError("give audio or features (one of them), states, or states with the audio or "
@@ -583,24 +593,26 @@ def load(path) -> Puppet:
     ValueError
         The file does not exist, is not a puppet file (wrong magic number), comes from a newer
         format version, is damaged (truncated, checksum mismatch, malformed, unreadable metadata)
-        or was not written by ``voicepuppet train`` (no part list or feature set).
+        or was not written by ``voicepuppet train`` (no part list or feature set), or holds a
+        puppet that does not make sense (see :class:`Puppet`: sizes and rates outside
+        :data:`voicepuppet.limits.LIMITS`, arrays that disagree, covariances that are not
+        positive definite, probabilities that do not sum to 1, metadata of the wrong types).
     """
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"puppet file {str(p)!r} does not exist")
     metadata, arrays = _core.read_puppet_file(os.fspath(p))
-    try:
+    try:  # UTF-8 and nested at most LIMITS["metadata_depth"] levels: checked by the core
         meta = json.loads(metadata)
-    except json.JSONDecodeError as exc:
+    except ValueError as exc:
         raise ValueError(f"puppet file {str(p)!r} has unreadable metadata ({exc}); the file is damaged") from None
     if not isinstance(meta, dict) or "parts" not in meta or "feature_set" not in meta:
         raise ValueError(f"puppet file {str(p)!r} lacks its part list or feature set; it was not written "
                          "by voicepuppet train")
-    for part in meta.get("training", {}).get("parts", []):  # files before 2026-12-03 stored floats
-        for key in ("states", "arcs"):
-            if key in part:
-                part[key] = int(part[key])
-    return Puppet(meta, arrays)
+    try:
+        return Puppet(meta, arrays)
+    except ValueError as exc:
+        raise ValueError(f"puppet file {str(p)!r}: {exc}") from None
 
 
 def palette_puppet(palette, name: str) -> Path:

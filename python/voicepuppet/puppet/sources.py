@@ -11,6 +11,7 @@ import numpy as np
 
 from voicepuppet import audio as vaudio
 from voicepuppet.layout import N_POINTS
+from voicepuppet.limits import check_limit
 from voicepuppet.puppet.sync import AvOffset, estimate_av_offset, estimate_shared_av_offset, shift_audio
 from voicepuppet.tracking import tracker
 from voicepuppet.tracking.landmarks import load_landmarks, on_uniform_grid
@@ -166,6 +167,10 @@ def training_sequences(videos=(), landmarks=(), audio=(), *, init="auto", av_off
                 raise ValueError(f"{marks[i]}: fps is {f:g}; a frame rate between 1 and 1000 frames per second "
                                  "is expected")
             pts = data["points"]
+            if pts.ndim != 3 or pts.shape[2] != 2:
+                raise ValueError(f"{marks[i]}: points must have shape (T, P, 2), got {pts.shape}")
+            check_limit(len(pts), "frames", f"{marks[i]}: landmark frames")
+            check_limit(pts.shape[1], "points", f"{marks[i]}: landmark points per frame")
             lost, times = data.get("lost"), data.get("times")
             where = f"{marks[i]}: "
         else:

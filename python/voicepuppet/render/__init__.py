@@ -23,7 +23,7 @@ from voicepuppet.render.mesh import FaceMesh, skin_depth
 from voicepuppet.render.photo import OPEN_MOUTH_IOD, build_face_mesh, lip_gap_iod, portrait_image
 from voicepuppet.render.retargeting import (ACTION_UNITS, action_unit_basis, expression_offset, fit_activations,
                                             mesh_animation, retarget, similarity)
-from voicepuppet.render.video import (DEFAULT_MAX_SIZE, VIDEO_SUFFIXES, FaceRenderer, default_size,
+from voicepuppet.render.video import (DEFAULT_MAX_SIZE, VIDEO_SUFFIXES, FaceRenderer, check_size, default_size,
                                       draw_landmarks_2d, render, render_frames, write_video)
 
 __all__ = [
@@ -34,7 +34,7 @@ __all__ = [
     "ACTION_UNITS", "similarity", "retarget", "action_unit_basis", "fit_activations", "expression_offset",
     "mesh_animation",
     # drawing it
-    "FaceRenderer", "draw_landmarks_2d", "render_frames", "write_video", "render", "default_size",
+    "FaceRenderer", "draw_landmarks_2d", "render_frames", "write_video", "render", "check_size", "default_size",
     "DEFAULT_MAX_SIZE", "VIDEO_SUFFIXES",
     # the face a command names
     "load_face", "resolve_face", "face_palette", "REST_STRIDE_S", "REST_SCAN_S",

@@ -24,13 +24,14 @@ from voicepuppet import layout as face_layout
 from voicepuppet._files import atomic_path, check_output_path, publish
 from voicepuppet.animation import Animation
 from voicepuppet.face import shape_distance
+from voicepuppet.limits import LIMITS, check_limit
 from voicepuppet.render._backend import import_pyvista
 from voicepuppet.render.mesh import FaceMesh
 from voicepuppet.render.photo import build_face_mesh, portrait_image
 from voicepuppet.render.retargeting import mesh_animation
 
-__all__ = ["VIDEO_SUFFIXES", "DEFAULT_MAX_SIZE", "default_size", "even", "FaceRenderer", "draw_landmarks_2d",
-           "render_frames", "write_video", "render"]
+__all__ = ["VIDEO_SUFFIXES", "DEFAULT_MAX_SIZE", "check_size", "default_size", "even", "FaceRenderer",
+           "draw_landmarks_2d", "render_frames", "write_video", "render"]
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -56,6 +57,37 @@ def even(n: int) -> int:
 #: fit it, its aspect kept: a 12-megapixel phone photo (4000x3000) renders at 1440x1080 instead of
 #: 4000x3000 (a 3000x3000 photo rendered 4.9 frames/s, at 1080x1080 22.5 on the 2-core machine).
 DEFAULT_MAX_SIZE = (1920, 1080)
+
+
+def check_size(size, name: str = "size") -> tuple[int, int]:
+    """An output size checked against :data:`voicepuppet.limits.LIMITS` ``["image_side"]``.
+
+    Parameters
+    ----------
+    size : (width, height)
+        Pixels, whole numbers.
+    name : str
+        What the size is, for the message (default ``"size"``).
+
+    Returns
+    -------
+    (int, int)
+        ``size`` as integers.
+
+    Raises
+    ------
+    ValueError
+        Not two whole numbers, or a side outside [16, 8192].
+    """
+    try:
+        w, h = size
+        if int(w) != w or int(h) != h:
+            raise ValueError
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} must be two whole numbers of pixels (width, height), got {size!r}") from None
+    for side, v in (("width", w), ("height", h)):
+        check_limit(v, "image_side", f"{name} {side}", "render at a size within the range (e.g. 1280x720)")
+    return int(w), int(h)
 
 
 def default_size(width: int, height: int) -> tuple[int, int]:
@@ -105,6 +137,8 @@ class FaceRenderer:
                  turn: Optional[tuple[float, float]] = None):
         pv = import_pyvista()
         W, H = mesh.size
+        if size is not None:
+            size = check_size(size)
         self.size = default_size(W, H) if size is None else (even(size[0]), even(size[1]))
         self.mesh = mesh
         # no multisampling: llvmpipe renders 8x MSAA (pyvista's default) at a third of the speed,
@@ -275,8 +309,11 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
     ------
     ValueError
         ``truth`` differs from ``anim`` in points or frames, an unknown ``renderer``, no face
-        without the 68-point layout, or pyvista is missing.
+        without the 68-point layout, a ``size`` refused by :func:`check_size`, 2-D landmarks
+        spanning more than its largest side without a ``size``, or pyvista is missing.
     """
+    if size is not None:
+        size = check_size(size)
     if truth is not None:
         if truth.n_points != anim.n_points:
             raise ValueError(f"ground truth has {truth.n_points} points per frame, the prediction {anim.n_points}; "
@@ -284,9 +321,6 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
         if truth.n_frames != anim.n_frames:
             raise ValueError(f"ground truth has {truth.n_frames} frames, the prediction {anim.n_frames}; "
                              "resample one of them to the other's frame rate and length")
-    frames = range(anim.n_frames)
-    if progress:
-        frames = tqdm(frames, desc="render", unit="frame")
     if renderer == "2d":
         pts = anim.points
         lo, hi = pts.reshape(-1, 2).min(axis=0), pts.reshape(-1, 2).max(axis=0)
@@ -294,10 +328,19 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
             tp = truth.points.reshape(-1, 2)
             lo, hi = np.minimum(lo, tp.min(axis=0)), np.maximum(hi, tp.max(axis=0))
         margin = 0.1 * (hi - lo).max() + 4.0
-        box = (even(int(np.ceil(hi[0] - lo[0] + 2 * margin))), even(int(np.ceil(hi[1] - lo[1] + 2 * margin))))
         if size is not None:
             box = (even(size[0]), even(size[1]))
+        else:
+            span = hi - lo + 2 * margin
+            if span.max() > LIMITS["image_side"][1]:
+                raise ValueError(f"the landmarks span {span[0]:.4g}x{span[1]:.4g} px, more than the largest "
+                                 f"picture ({LIMITS['image_side'][1]} px a side); give a size (e.g. 1280x720)")
+            box = (even(int(np.ceil(span[0]))), even(int(np.ceil(span[1]))))
         shift = lo - margin
+    frames = range(anim.n_frames)
+    if progress:
+        frames = tqdm(frames, desc="render", unit="frame")
+    if renderer == "2d":
         for t in frames:
             img = draw_landmarks_2d(pts[t] - shift, box)
             if truth is not None:
@@ -473,13 +516,15 @@ def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None
     Raises
     ------
     ValueError
-        an unknown output format, an existing output, or the errors of :func:`render_frames`
-        and :func:`write_video`.
+        an unknown output format, an existing output, a ``size`` refused by
+        :func:`check_size`, or the errors of :func:`render_frames` and :func:`write_video`.
     """
     p = Path(path)
     if p.suffix.lower() not in VIDEO_SUFFIXES + ("",):
         raise ValueError(f"render output {str(p)!r} has an unknown format {p.suffix!r}; use .mp4, .gif, or a folder "
                          "name for .png frames (meshes and other formats: voicepuppet export)")
+    if size is not None:
+        size = check_size(size)
     if p.suffix:
         check_output_path(p, VIDEO_SUFFIXES, "render output")
     frames = render_frames(anim, face=face, mode=mode, truth=truth, renderer=renderer, size=size,
