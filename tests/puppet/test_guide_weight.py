@@ -88,7 +88,8 @@ def test_the_stored_weight_is_the_recorded_errors_argmin_and_the_file_keeps_it(l
 def test_a_fixed_weight_changes_nothing_but_the_weight(xor_puppet):
     fixed = _train(_xor_world, guide_weight=4.0)
     assert fixed.guide_weight == 4.0 and "weight_cv" not in fixed.metadata["training"]["guide"]
-    assert set(fixed.arrays) == set(xor_puppet.arrays)
+    # the gains of full motion are measured in the weight's cross-validation: a fixed weight has none
+    assert set(fixed.arrays) == set(xor_puppet.arrays) - {"face/motion_gain"}
     for key, value in fixed.arrays.items():
         if key != "guide/weight":
             np.testing.assert_array_equal(value, xor_puppet.arrays[key], err_msg=key)

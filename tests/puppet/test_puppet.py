@@ -52,8 +52,11 @@ def test_full_motion_widens_the_trajectory_by_the_gains_learnt_in_training(train
     np.testing.assert_allclose(full.face.mean(axis=0), plain.face.mean(axis=0), atol=1e-9)
     np.testing.assert_allclose(full.animation.points, p.face_space.decode(full.face), atol=1e-9)
     np.testing.assert_array_equal(full.states, plain.states)
-    other = p.animate(features=feats, guide_weight=p.guide_weight)  # a weight given: not widened
-    np.testing.assert_allclose(other.face, plain.face, atol=1e-12)
+    own = p.animate(features=feats, guide_weight=p.guide_weight)  # its own weight, given: widened
+    np.testing.assert_array_equal(own.face, full.face)
+    other = p.animate(features=feats, guide_weight=p.guide_weight + 1.0)  # another weight: not widened
+    np.testing.assert_array_equal(other.face, p.animate(features=feats, guide_weight=p.guide_weight + 1.0,
+                                                        full_motion=False).face)
 
 
 def test_novel_audio_may_start_in_any_state(trained):

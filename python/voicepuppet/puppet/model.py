@@ -466,8 +466,8 @@ class Puppet:
             (:func:`voicepuppet.trajectory.widen_motion`), so the mouth moves as much as the
             speaker's did instead of the most probable trajectory's timid average. False: the
             most probable trajectory as it is. The gains were learnt for the puppet's guided
-            animation of audio: with another ``guide_weight`` or states without their audio the
-            trajectory is not widened, nor by puppets without gains (a fixed guide weight or no
+            animation of audio: with a ``guide_weight`` other than its own or states without
+            their audio the trajectory is not widened, nor by puppets without gains (a fixed guide weight or no
             guide, or trained before they were stored).
         progress : bool
             Show a progress bar while extracting features from ``audio`` (default False).
@@ -537,7 +537,8 @@ class Puppet:
                                    adapt or "none", float(adapt_tau), _count(adapt_iter, "adapt_iter"), lam)
             sf = self.fps
         face, pts = r["face"], r["points"].reshape(len(r["points"]), -1, 2)
-        if full_motion and sound and guide_weight is None and "face/motion_gain" in self.arrays:
+        own_weight = guide_weight is None or lam == self.guide_weight
+        if full_motion and sound and own_weight and "face/motion_gain" in self.arrays:
             face = widen_motion(face, self.arrays["face/motion_gain"])
             pts = self.face_space.decode(face)
             if pts.shape[1] == N_POINTS:  # widened about its mean, a closed mouth must not cross
