@@ -21,7 +21,8 @@ def test_demo_writes_everything(tmp_path):
     saved = json.loads((tmp_path / "metrics.json").read_text())
     assert saved["train_frames"] == s["train_frames"] > 300
     rows = saved["models"]["entropic"]["rows"]
-    assert set(rows) == {"states", "voice", "voice-posterior", "voice, unguided (Brand §4.5)", "mean-face", "ridge"}
+    assert set(rows) == {"states", "voice", "voice, most probable", "voice-posterior", "voice, unguided (Brand §4.5)",
+                         "mean-face", "ridge"}
     for row in rows.values():
         assert all(np.isfinite(v) for split in row.values() for v in split.values())
     assert rows["mean-face"]["train"]["err"] == pytest.approx(1.0, abs=0.05)
