@@ -26,12 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from voicepuppet.bench.tracker import track_lk
-from voicepuppet.layout import INNER_LIP_PAIRS
+from voicepuppet.evaluation.real import crossed_lips
 from voicepuppet.tracking import track_video
 from voicepuppet.tracking.video import read_grey_frames
 
-#: An overlap of the inner lips beyond this (inter-ocular distances) is a crossing.
-CROSS_IOD = 0.01
 #: MediaPipe Face Mesh indices: outer eye corners, inner lips' middles, mouth corners.
 MP_EYES, MP_LIPS, MP_CORNERS = (33, 263), (13, 14), (61, 291)
 
@@ -46,12 +44,7 @@ def ours(points):
     iod = np.linalg.norm(points[:, 36] - points[:, 45], axis=1)
     opening = np.linalg.norm(points[:, 62] - points[:, 66], axis=1) / iod
     width = np.linalg.norm(points[:, 48] - points[:, 54], axis=1) / iod  # outer corners, as MP_CORNERS
-    down = points[:, 57] - 0.5 * (points[:, 36] + points[:, 45])  # eyes' midpoint to the lower lip
-    down /= np.linalg.norm(down, axis=1, keepdims=True)
-    crossed = np.zeros(len(points), bool)
-    for up, lo in INNER_LIP_PAIRS:
-        crossed |= np.einsum("ij,ij->i", points[:, lo] - points[:, up], down) < -CROSS_IOD * iod
-    return opening, width, crossed
+    return opening, width, crossed_lips(points)
 
 
 def reference(ref):

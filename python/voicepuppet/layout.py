@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["N_POINTS", "GROUPS", "NAMES", "MOUTH", "UPPER_FACE", "LOWER_FACE", "OUTER_EYE_CORNERS",
-           "EYE_CORNERS", "RIGID", "LIP_GAP", "INNER_LIP_PAIRS", "inter_ocular_distance", "close_crossed_lips",
+           "EYE_CORNERS", "RIGID", "LIP_GAP", "INNER_LIP_PAIRS", "inter_ocular_distance", "inner_lip_gaps", "close_crossed_lips",
            "neutral_landmarks"]
 
 N_POINTS = 68
@@ -75,13 +75,50 @@ def inter_ocular_distance(points: np.ndarray) -> np.ndarray:
     return np.linalg.norm(points[..., a, :] - points[..., b, :], axis=-1)
 
 
-def close_crossed_lips(points: np.ndarray) -> np.ndarray:
-    """68-point faces whose inner lips do not pass each other.
+def _faces(points, what: str) -> np.ndarray:
+    p = np.array(points, dtype=np.float64)
+    if p.ndim != 3 or p.shape[1:] != (N_POINTS, 2):
+        raise ValueError(f"{what} needs 68-point faces of shape (T, {N_POINTS}, 2), got {p.shape}")
+    return p
 
-    Along each face's own vertical (from the eyes' outer corners' midpoint to the lower lip's
-    middle, point 57), a lower inner-lip point (``INNER_LIP_PAIRS``) that lies above its upper
-    partner is moved with it to the middle of the two: the lips meet, closed, instead of
-    crossing.
+
+def _face_down(p: np.ndarray) -> np.ndarray:
+    """Each face's own vertical, a unit vector from the eyes' outer corners' midpoint to the lower
+    lip's middle (point 57)."""
+    a, b = OUTER_EYE_CORNERS
+    down = p[:, 57] - 0.5 * (p[:, a] + p[:, b])
+    return down / np.maximum(np.linalg.norm(down, axis=1, keepdims=True), 1e-12)
+
+
+def inner_lip_gaps(points: np.ndarray) -> np.ndarray:
+    """How far each lower inner-lip point lies below its upper partner (``INNER_LIP_PAIRS``),
+    along each face's own vertical (from the eyes' outer corners' midpoint to the lower lip's
+    middle, point 57): negative where the lips cross.
+
+    Parameters
+    ----------
+    points : array_like, shape (T, 68, 2)
+        Faces, pixel coordinates (x, y).
+
+    Returns
+    -------
+    ndarray, shape (T, 3)
+        The gaps in pixels, one column per pair.
+
+    Raises
+    ------
+    ValueError
+        The points are not 68-point faces.
+    """
+    p = _faces(points, "the inner lips' gaps")
+    down = _face_down(p)
+    return np.stack([np.einsum("ij,ij->i", p[:, lo] - p[:, up], down) for up, lo in INNER_LIP_PAIRS], axis=1)
+
+
+def close_crossed_lips(points: np.ndarray) -> np.ndarray:
+    """68-point faces whose inner lips do not pass each other: a pair whose gap
+    (:func:`inner_lip_gaps`) is negative is moved to the middle of the two along the face's
+    vertical, so the lips meet, closed, instead of crossing.
 
     Parameters
     ----------
@@ -98,15 +135,11 @@ def close_crossed_lips(points: np.ndarray) -> np.ndarray:
     ValueError
         The points are not 68-point faces.
     """
-    p = np.array(points, dtype=np.float64)
-    if p.ndim != 3 or p.shape[1:] != (N_POINTS, 2):
-        raise ValueError(f"closing crossed lips needs 68-point faces of shape (T, {N_POINTS}, 2), got {p.shape}")
-    a, b = OUTER_EYE_CORNERS
-    down = p[:, 57] - 0.5 * (p[:, a] + p[:, b])
-    down /= np.maximum(np.linalg.norm(down, axis=1, keepdims=True), 1e-12)
-    for up, lo in INNER_LIP_PAIRS:
-        gap = np.einsum("ij,ij->i", p[:, lo] - p[:, up], down)
-        shut = np.minimum(gap, 0.0)[:, None] * down  # zero where the pair is in order
+    p = _faces(points, "closing crossed lips")
+    down = _face_down(p)
+    gaps = inner_lip_gaps(p)
+    for k, (up, lo) in enumerate(INNER_LIP_PAIRS):
+        shut = np.minimum(gaps[:, k], 0.0)[:, None] * down  # zero where the pair is in order
         p[:, up] += 0.5 * shut
         p[:, lo] -= 0.5 * shut
     return p

@@ -1,20 +1,17 @@
 """The audio-video offset: planted offsets on the synthetic performer and on real recordings
 (measured with an independent detector's landmarks) are recovered, and training corrects them."""
 
-import json
-from pathlib import Path
-
 import numpy as np
 import pytest
 import soundfile as sf
 
 from voicepuppet.audio import load_audio, prepare
+from voicepuppet.evaluation.real import real_clips
 from voicepuppet.layout import neutral_landmarks
 from voicepuppet.puppet.sources import av_offsets, training_sequences
 from voicepuppet.puppet.sync import estimate_av_offset, estimate_shared_av_offset, mouth_opening, shift_audio
 
 FPS = 30000 / 1001
-REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 
 
 @pytest.fixture(scope="module")
@@ -43,16 +40,15 @@ def test_planted_offsets_on_the_performer_are_recovered_within_a_frame(performer
     assert late.correlation > 0.4 and late.correlation >= late.correlation_in_sync
 
 
-def _real_clip(folder, name):
-    if not REAL.is_dir():
-        pytest.skip(f"the real recordings ({REAL}) are not here: they come with ../shared")
-    info = json.loads((REAL / "reference" / folder / "index.json").read_text())["clips"][name]
-    ref = np.load(REAL / "reference" / folder / f"{name}.npy").astype(np.float64)
-    # MediaPipe's inner-lip middles (13, 14) and outer eye corners (33, 263) where the 68-point
-    # layout has them: all that the mouth's opening reads
-    points = np.full((len(ref), 68, 2), np.nan)
-    points[:, 62], points[:, 66], points[:, 36], points[:, 45] = ref[:, 13], ref[:, 14], ref[:, 33], ref[:, 263]
-    return points, load_audio(REAL / folder / info["file"]), float(info["fps"])
+def _real_clip(name):
+    """A real recording inside the package, its face given by the reference's mouth opening
+    (MediaPipe's, independent of voicepuppet's tracker) placed in the 68-point layout: eye corners
+    one unit apart, the inner lips' middles that opening apart, all that the opening reads."""
+    clip = next(c for c in real_clips(speaker="obama") if c.key == f"obama/{name}")
+    points = np.full((len(clip.opening), 68, 2), np.nan)
+    points[:, 36], points[:, 45], points[:, 62] = (0.0, 0.0), (1.0, 0.0), (0.5, 0.3)
+    points[:, 66, 0], points[:, 66, 1] = 0.5, 0.3 + clip.opening
+    return points, load_audio(clip.video), clip.fps
 
 
 @pytest.mark.parametrize("clip", ["oval_office_20s", "white_house_30s"])
@@ -65,7 +61,7 @@ def test_planted_offsets_on_real_recordings_are_recovered_within_a_frame(clip, p
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        points, audio, fps = _real_clip("obama", clip)
+        points, audio, fps = _real_clip(clip)
     own = estimate_av_offset(points, audio, fps)
     assert own.reliable and 0.06 <= own.seconds <= 0.2
     moved = estimate_av_offset(points, shift_audio(audio, -planted_ms / 1000), fps)
@@ -168,7 +164,7 @@ def test_real_sentence_cuts_share_their_offset():
     names = [f"sentence_{i}" for i in range(1, 8)]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        cuts = [_real_clip("obama/sentences", n) for n in names]
+        cuts = [_real_clip(n) for n in names]
     assert not any(estimate_av_offset(*c).reliable for c in cuts)
     shared = estimate_shared_av_offset(cuts)
     assert shared.reliable and 0.06 <= shared.seconds <= 0.14

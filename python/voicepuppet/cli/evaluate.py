@@ -32,6 +32,19 @@ def _command(args) -> str:
     return " ".join(parts)
 
 
+def _report(args, result: dict, command: str, text: str) -> int:
+    """Print the table ``text``, write it (``-o``) and the full result (``--json``) with the
+    ``command`` that reproduces them, and say what was written."""
+    from voicepuppet.evaluation import report
+
+    print(text, end="")
+    report.write_results(result, args.out, args.json, command, text=text)
+    for p in (args.out, args.json):
+        if p:
+            print(f"wrote {p}")
+    return 0
+
+
 def _parse_variant(text: str):
     """``NAME`` or ``NAME:key=value,key=value`` -> (name, training options); values are JSON
     (numbers, true/false, quoted strings) or plain strings."""
@@ -64,16 +77,11 @@ def _run_comparison(args, seqs, n_comp) -> int:
     command = _command(args) + " --compare-training" + "".join(
         f" --variant {shlex.quote(v)}" for v in (args.variant or []))
     text = report.format_comparison(result)
-    print(text, end="")
-    report.write_results(result, args.out, args.json, command, text=text)
-    for p in (args.out, args.json):
-        if p:
-            print(f"wrote {p}")
-    return 0
+    return _report(args, result, command, text)
 
 
 def _run_real(args) -> int:
-    from voicepuppet.evaluation import real, report
+    from voicepuppet.evaluation import real
 
     given = [f for f, v in (("--data", args.data), ("--corpus-dir", args.corpus_dir), ("--peers", args.peers),
                             ("--no-puppet", args.no_puppet), ("--compare-training", args.compare_training),
@@ -91,12 +99,7 @@ def _run_real(args) -> int:
                           (("--real", args.real), ("--speaker", args.speaker if args.speaker != "obama" else None),
                            ("--states", args.states if args.states != 40 else None),
                            ("--seed", args.seed or None), ("-o", args.out), ("--json", args.json)) if v is not None])
-    print(text, end="")
-    report.write_results(result, args.out, args.json, command, text=text)
-    for p in (args.out, args.json):
-        if p:
-            print(f"wrote {p}")
-    return 0
+    return _report(args, result, command, text)
 
 
 def _run(args) -> int:
@@ -136,13 +139,7 @@ def _run(args) -> int:
     result = crossval.cross_validate(seqs, k=args.folds, seed=args.seed, peers=args.peers,
                             puppet=not args.no_puppet, n_components=n_comp, n_states=args.states,
                             progress=not args.quiet)
-    command = _command(args)
-    print(report.format_table(result), end="")
-    report.write_results(result, args.out, args.json, command)
-    for p in (args.out, args.json):
-        if p:
-            print(f"wrote {p}")
-    return 0
+    return _report(args, result, _command(args), report.format_table(result))
 
 
 def add_parser(sub) -> None:

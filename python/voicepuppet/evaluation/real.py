@@ -41,6 +41,7 @@ per-clip differences from the other models come with 95% intervals
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -56,7 +57,7 @@ from voicepuppet._version import __version__
 from voicepuppet.blas import limited
 from voicepuppet.evaluation.folds import mean_ci
 from voicepuppet.evaluation.report import markdown_table
-from voicepuppet.layout import INNER_LIP_PAIRS, inter_ocular_distance
+from voicepuppet.layout import inner_lip_gaps, inter_ocular_distance
 from voicepuppet.puppet.guide import RidgeBaseline
 from voicepuppet.puppet.model import Puppet, load
 from voicepuppet.puppet.sources import av_offsets, training_sequences
@@ -162,6 +163,12 @@ def _cache_dir(cache_dir) -> Path:
     return Path(base) / "real-tracks"
 
 
+@functools.lru_cache(maxsize=None)
+def _digest(path: str) -> str:
+    """A video's content key (read once per process: every fold asks for its training tracks)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
 def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False) -> Path:
     """The clip tracked as ``voicepuppet track --init auto`` does (a landmark file, cached).
 
@@ -181,7 +188,7 @@ def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False) -> Path
     pathlib.Path
         The landmark file (``points``, ``fps``, ``times``, ``lost``).
     """
-    digest = hashlib.sha256(clip.video.read_bytes()).hexdigest()[:16]
+    digest = _digest(str(clip.video))
     path = _cache_dir(cache_dir) / f"{clip.key.replace('/', '-')}-{digest}-{__version__}.npz"
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -207,13 +214,7 @@ def crossed_lips(points) -> np.ndarray:
     ndarray of bool, shape (T,)
     """
     p = np.asarray(points, dtype=np.float64)
-    iod = inter_ocular_distance(p)
-    down = p[:, 57] - 0.5 * (p[:, 36] + p[:, 45])
-    down /= np.linalg.norm(down, axis=1, keepdims=True)
-    crossed = np.zeros(len(p), bool)
-    for up, lo in INNER_LIP_PAIRS:
-        crossed |= np.einsum("ij,ij->i", p[:, lo] - p[:, up], down) < -CROSSED_IOD * iod
-    return crossed
+    return (inner_lip_gaps(p) < -CROSSED_IOD * inter_ocular_distance(p)[:, None]).any(axis=1)
 
 
 def _best_lag(pred: np.ndarray, truth: np.ndarray) -> int:
