@@ -16,7 +16,7 @@ from typing import Iterator
 
 import numpy as np
 
-__all__ = ["check_output_path", "publish", "atomic_path", "remove_stale_temporaries", "write_npz"]
+__all__ = ["check_output_path", "publish", "atomic_path", "remove_stale_temporaries", "write_npz", "read_npz"]
 
 
 def check_output_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Path:
@@ -192,3 +192,41 @@ def write_npz(fh, arrays: dict) -> None:
             info.external_attr = 0o644 << 16
             with zf.open(info, "w", force_zip64=True) as member:
                 np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+
+
+def read_npz(path, what: str = "file") -> dict:
+    """Every array of the ``.npz`` archive ``path``, read without pickling.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The archive.
+    what : str
+        What the file should be, for the messages (default ``"file"``).
+
+    Returns
+    -------
+    dict
+        Array name -> numpy array.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist.
+    ValueError
+        ``path`` is empty, truncated, not an ``.npz`` archive, or holds pickled objects; the
+        message names the file and what was wrong.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"{what} {path!r} does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as exc:
+        reason = str(exc) or type(exc).__name__
+        if os.path.getsize(path) == 0:
+            reason = "the file is empty"
+        elif "pickle" in reason:
+            reason = "it holds pickled Python objects, which voicepuppet never loads"
+        raise ValueError(f"{what} {path!r} is not a readable .npz archive ({reason})") from None

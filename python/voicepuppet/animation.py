@@ -22,7 +22,7 @@ import numpy as np
 
 from voicepuppet import layout as face_layout
 from voicepuppet.layout import neutral_landmarks
-from voicepuppet._files import atomic_path, write_npz
+from voicepuppet._files import atomic_path, read_npz, write_npz
 from voicepuppet.limits import check_limit
 
 __all__ = ["Animation", "load_animation", "save_animation", "check_points",
@@ -251,11 +251,7 @@ def load_animation(path, fps: Optional[float] = None) -> Animation:
         raise ValueError(f"animation file {str(p)!r} does not exist")
     suffix = p.suffix.lower()
     if suffix == ".npz":
-        try:
-            with np.load(p, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"animation file {str(p)!r} is not a readable .npz: {exc}") from None
+        data = read_npz(p, "animation file")
         if "points" not in data:
             raise ValueError(f"animation file {str(p)!r} has no 'points' array (T, P, 2); found "
                              f"{sorted(data)}")

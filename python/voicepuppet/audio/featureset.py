@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from voicepuppet._files import atomic_path
+from voicepuppet._files import atomic_path, read_npz
 from voicepuppet.audio.framing import frame_times
 
 FEATURES = ("lpc", "lpc_cepstra", "rasta_plp", "mfcc", "mfcc_deltas", "formants", "bands", "f0",
@@ -420,14 +420,14 @@ class Features:
             ``duration``, ``feature_set``).
         """
         path = os.fspath(path)
-        with np.load(path, allow_pickle=False) as z:
-            missing = {"features", "names", "fps", "duration", "feature_set"} - set(z.files)
-            if missing:
-                raise ValueError(f"features: {path!r} is not a features file (missing "
-                                 f"{', '.join(sorted(missing))})")
-            return cls(np.array(z["features"]), tuple(str(n) for n in z["names"]),
-                       float(z["fps"]), FeatureSet.from_json(str(z["feature_set"])),
-                       float(z["duration"]), np.array(z["voiced"]) if "voiced" in z.files else None)
+        z = read_npz(path, "features file")
+        missing = {"features", "names", "fps", "duration", "feature_set"} - set(z)
+        if missing:
+            raise ValueError(f"features: {path!r} is not a features file (missing "
+                             f"{', '.join(sorted(missing))})")
+        return cls(np.array(z["features"]), tuple(str(n) for n in z["names"]),
+                   float(z["fps"]), FeatureSet.from_json(str(z["feature_set"])),
+                   float(z["duration"]), np.array(z["voiced"]) if "voiced" in z else None)
 
 
 _PREFIX = {"lpc": "lpc", "lpcc": "lpc_cepstra", "rplp": "rasta_plp", "mfcc": "mfcc",

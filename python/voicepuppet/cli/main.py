@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import threading
+import traceback
 import warnings
 
 from voicepuppet.blas import blas_threads
@@ -82,6 +83,24 @@ class UserError(Exception):
     """An error caused by the user's input: printed as one line, exit code 2."""
 
 
+#: What a verb raises for a failure it expects: the input (``UserError``, ``ValueError``), the
+#: file system (``OSError``: a missing file, a full disk, a name too long, no permission) or the
+#: environment and numerics (``RuntimeError``: a missing tool, a numerical failure in the core).
+EXPECTED_ERRORS = (UserError, ValueError, OSError, RuntimeError)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
+def _bug(verb: str) -> int:
+    traceback.print_exc()
+    print(f"voicepuppet {verb}: internal error: this is a bug in voicepuppet, not in your input; please "
+          "report it with the command line, the traceback above and `voicepuppet --version`", file=sys.stderr)
+    return 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``voicepuppet`` argument parser, with every verb of ``VERB_MODULES``.
 
@@ -107,8 +126,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the ``voicepuppet`` command line.
 
-    Warnings are printed as one line each; a :class:`UserError`, ``ValueError`` or
-    ``FileNotFoundError`` is printed as one line and gives exit code 2.
+    Warnings are printed as one line each; an expected failure (:data:`EXPECTED_ERRORS`, or
+    running out of memory) is printed as one line and gives exit code 2; anything else is a bug:
+    its traceback, a line asking to report it, and exit code 1.
 
     Parameters
     ----------
@@ -118,8 +138,8 @@ def main(argv: list[str] | None = None) -> int:
     Returns
     -------
     int
-        The exit code: the verb's (0 for success), 2 for an error of the user's, 130 when
-        interrupted, 143 when terminated (SIGTERM).
+        The exit code: the verb's (0 for success), 2 for an expected failure, 1 for a bug, 130
+        when interrupted, 143 when terminated (SIGTERM).
     """
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -134,8 +154,14 @@ def main(argv: list[str] | None = None) -> int:
 
             warnings.showwarning = show
             return int(args.func(args) or 0)
-    except (UserError, ValueError, FileNotFoundError) as exc:
-        print(f"voicepuppet {args.verb}: error: {exc}", file=sys.stderr)
+    except (RecursionError, NotImplementedError):
+        return _bug(args.verb)
+    except EXPECTED_ERRORS as exc:
+        print(f"voicepuppet {args.verb}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"voicepuppet {args.verb}: error: not enough memory for this input; free memory, or split the "
+              "input into shorter pieces", file=sys.stderr)
         return 2
     except Terminated:
         print(f"voicepuppet {args.verb}: terminated", file=sys.stderr)
@@ -143,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"voicepuppet {args.verb}: interrupted", file=sys.stderr)
         return 130
+    except Exception:
+        return _bug(args.verb)
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

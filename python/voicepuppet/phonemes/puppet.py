@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from voicepuppet._files import atomic_path
+from voicepuppet._files import atomic_path, read_npz
 from voicepuppet.animation import Animation
 from voicepuppet.face import FaceSpace
 from voicepuppet.phonemes.base import check_labels
@@ -183,9 +183,8 @@ class PhonemePuppet:
         path = os.fspath(path)
         if not os.path.isfile(path):
             raise FileNotFoundError(f"phoneme puppet {path!r} does not exist")
+        arrays = read_npz(path, "phoneme puppet file")
         try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
             meta = json.loads(str(arrays.pop("meta")))
         except (OSError, ValueError, KeyError) as exc:
             raise ValueError(f"{path!r} is not a phoneme puppet file ({exc})") from None

@@ -424,6 +424,11 @@ def write_video(frames: Iterable[np.ndarray], path, fps: float, *, audio=None, n
         if suffix != ".mp4":
             raise ValueError(f"audio can only be muxed into .mp4, not {suffix or 'a folder of frames'}; drop the audio "
                              "or write an .mp4")
+        # FFmpeg, given a file it cannot decode (or NaN samples), only breaks the pipe mid-video:
+        # decode it first so that the user hears what is wrong before any frame is drawn.
+        from voicepuppet.audio.loading import load_audio
+
+        load_audio(audio, rate=None)
     if suffix == "":
         parent = p.parent if str(p.parent) else Path(".")
         if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
@@ -481,11 +486,20 @@ def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: 
                                          macro_block_size=2, ffmpeg_log_level="error", output_params=out_params,
                                          audio_path=None if audio is None else str(audio),
                                          audio_codec=None if audio is None else "aac")
-    writer.send(None)
+
+    def send(frame) -> None:
+        try:
+            writer.send(frame)
+        except (OSError, RuntimeError) as exc:  # FFmpeg stopped: a broken pipe with its log
+            last = [line for line in str(exc).splitlines() if line.strip()]
+            raise ValueError(f"FFmpeg could not write {str(path)!r}: "
+                             f"{last[-1] if last else type(exc).__name__}") from None
+
+    send(None)
     try:
-        writer.send(np.ascontiguousarray(first))
+        send(np.ascontiguousarray(first))
         for img in it:
-            writer.send(np.ascontiguousarray(img))
+            send(np.ascontiguousarray(img))
     finally:
         writer.close()
 

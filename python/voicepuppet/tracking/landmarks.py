@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from voicepuppet._files import atomic_path, write_npz
+from voicepuppet._files import atomic_path, read_npz, write_npz
 from voicepuppet.layout import N_POINTS
 from voicepuppet.tracking._checks import check_points
 from voicepuppet.tracking.detect import SEPARATE_PX, separate_coincident
@@ -333,5 +333,4 @@ def load_landmarks(path: str | os.PathLike) -> dict:
     if not zipfile.is_zipfile(p):
         raise ValueError(f"landmarks file {str(p)!r} is not an .npz archive (truncated or another format); "
                          "make one with voicepuppet track")
-    with np.load(p, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    return read_npz(p, "landmarks file")
