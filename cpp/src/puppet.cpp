@@ -328,6 +328,15 @@ RowMatrixXd Puppet::standardize(const MatrixRef& raw) const {
   RowMatrixXd z = append_deltas(raw, delta_width_);
   z.rowwise() -= audio_mean_.transpose();
   z.array().rowwise() /= audio_std_.transpose().array();
+  Index t = 0, j = 0;
+  const double reach = z.array().abs().maxCoeff(&t, &j);
+  if (!(reach <= kMaxStandardized)) {
+    // Beyond this no Gaussian state explains the frame (every log density is -inf): say why here
+    // rather than as a "zero probability" in the decoder.
+    fail_argument("audio feature ", j, " of frame ", t, " is ", reach, " standard deviations from the puppet's "
+                  "training mean, beyond ", kMaxStandardized, ": the features are not of the kind the puppet was "
+                  "trained on, or its audio standardisation (audio/mean, audio/std) is damaged");
+  }
   return z;
 }
 

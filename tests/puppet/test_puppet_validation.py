@@ -257,3 +257,57 @@ def test_what_loads_animates_and_output_rates_are_limited(good, tmp_path):
     # a C++ caller gets the same checks: 10^7 frames at 1000 fps out of 30 would be 3.3e8 frames
     with pytest.raises(ValueError, match=r"output frames .* is outside \[1, 10000000\]"):
         p._core.animate_states(np.zeros((400_000, 1), dtype=np.int64), 30.0, 1000.0)
+
+
+def test_standardised_features_beyond_reach_are_refused_before_decoding(good, tmp_path):
+    # audio/mean moved 1e300 away: no state explains any frame (every log density -inf); once the
+    # decoder's "zero probability" RuntimeError, now a ValueError naming the standardisation
+    path = tmp_path / "m.vpp"
+    path.write_bytes(reencode(good[0], edit_arrays=_scale("audio/mean", 1e300)))
+    with pytest.raises(ValueError, match=r"standard deviations from the puppet's training mean, beyond 1e\+06"):
+        load(path).animate(features=good[1])
+
+
+# Values that break numerics: zeros, signs, the ends of the double range, NaN and infinities.
+_EXTREMES = [0.0, -1.0, 0.5, 1e-300, 1e-12, 1e12, 1e300, np.nan, np.inf, -np.inf]
+
+
+def test_checksum_valid_mutants_load_and_animate_or_are_refused(good, tmp_path):
+    """Property: a checksum-valid mutant of a trained puppet (entries of any array set to, scaled by,
+    or shifted by anything) is refused with a ValueError at load or animate, or animates to a
+    finite animation; never another exception."""
+    hypothesis = pytest.importorskip("hypothesis", reason="the property tests need hypothesis (test extra)")
+    st = hypothesis.strategies
+
+    text, arrays = _core.decode_puppet(good[0])
+    names = sorted(k for k, v in arrays.items() if np.asarray(v).dtype.kind == "f" and np.asarray(v).size)
+    path = tmp_path / "m.vpp"
+    seen = {"refused": 0, "animated": 0}
+
+    @hypothesis.settings(max_examples=300, deadline=None, derandomize=True, database=None,
+                         suppress_health_check=list(hypothesis.HealthCheck))
+    @hypothesis.given(name=st.sampled_from(names), how=st.sampled_from(["set", "scale", "shift"]),
+                      value=st.sampled_from(_EXTREMES) | st.floats(-1e6, 1e6),
+                      where=st.lists(st.integers(0, 10 ** 6), min_size=1, max_size=4))
+    def check(name, how, value, where):
+        mutant = {k: np.array(v, copy=True) for k, v in arrays.items()}
+        flat = mutant[name].reshape(-1)
+        idx = np.array(where) % flat.size
+        with np.errstate(all="ignore"):
+            if how == "set":
+                flat[idx] = value
+            elif how == "scale":
+                flat[idx] *= value
+            else:
+                flat[idx] += value
+        path.write_bytes(_core.encode_puppet(text, mutant))
+        try:
+            points = load(path).animate(features=good[1]).animation.points
+        except ValueError:
+            seen["refused"] += 1
+            return
+        assert np.isfinite(points).all() and np.abs(points).max() <= 1e6
+        seen["animated"] += 1
+
+    check()
+    assert seen["refused"] > 50 and seen["animated"] > 50, seen  # both outcomes are exercised
