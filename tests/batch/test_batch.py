@@ -452,3 +452,15 @@ def test_cli_batch_animate(puppet_and_audio, tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
     assert main(["batch", "animate", str(puppet_path), str(audio), "-o", str(out), "--format", "npz,wav"]) == 2
     assert "unknown export format" in capsys.readouterr().err
+    # a damaged puppet stops the batch once, before any file, not once per file
+    damaged = tmp_path / "damaged.vpp"
+    data = bytearray(puppet_path.read_bytes())
+    data[-1] ^= 0xFF
+    damaged.write_bytes(bytes(data))
+    fresh = tmp_path / "fresh"
+    assert main(["batch", "animate", str(damaged), str(audio), "-o", str(fresh), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "checksum mismatch" in err and "damaged.vpp" in err, err
+    assert not fresh.exists()
+    assert main(["batch", "animate", str(puppet_path), str(audio), "-o", str(fresh), "--fps", "1e9"]) == 2
+    assert "output fps = 1e+09 is outside [1, 1000]" in capsys.readouterr().err

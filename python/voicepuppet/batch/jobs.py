@@ -22,6 +22,7 @@ import numpy as np
 
 from voicepuppet.batch.engine import BatchSummary, discover, refusals_reported, run_batch, sha256_file
 from voicepuppet.hmm.distributed import connect
+from voicepuppet.limits import check_limit
 from voicepuppet.puppet import load
 from voicepuppet.render.export import FORMATS, export
 from voicepuppet.tracking import load_init_points, load_landmarks, save_landmarks, track_video
@@ -164,8 +165,9 @@ def animate_folder(puppet_path, audio_dir, out_dir, formats=("npz",), *, fps=Non
     Raises
     ------
     ValueError
-        A missing puppet file, no or unknown formats, a bad ``fps``, an input folder that does
-        not exist, an output folder that cannot be written.
+        A missing or damaged puppet file (checked before any file is animated), no or unknown
+        formats, an ``fps`` outside the limits, an input folder that does not exist, an output
+        folder that cannot be written.
     """
     puppet_path = Path(puppet_path)
     if not puppet_path.is_file():
@@ -174,12 +176,13 @@ def animate_folder(puppet_path, audio_dir, out_dir, formats=("npz",), *, fps=Non
     if not formats:
         raise ValueError("give at least one output format")
     _format_tags(formats)
-    if fps is not None and not (float(fps) > 0):
-        raise ValueError(f"fps must be a positive number, got {fps!r}")
+    if fps is not None:
+        check_limit(fps, "fps", "output fps", "pass --fps within it")
     try:
         puppet_digest = sha256_file(puppet_path)
     except OSError as exc:
         raise ValueError(f"cannot read the puppet file {str(puppet_path)!r}: {exc}") from None
+    load(puppet_path)  # a damaged puppet stops the batch here, once, not in every file's task
     inputs = discover(audio_dir, AUDIO_SUFFIXES, exclude=out_dir)
     root = Path(audio_dir)
     fps = None if fps is None else float(fps)
