@@ -73,7 +73,7 @@ from voicepuppet.tracking.landmarks import load_landmarks, save_landmarks
 from voicepuppet.tracking.tracker import VariableFrameRateWarning, track_video
 
 __all__ = ["RECORDINGS", "MODELS", "CROSSED_IOD", "MAX_LAG", "RealClip", "real_clips", "cues_cache", "tracked_clip",
-           "crossed_lips", "opening_measures", "leave_one_session_out", "any_voice", "evaluate_real",
+           "crossed_lips", "opening_measures", "leave_one_session_out", "any_voice", "summarize", "evaluate_real",
            "format_real", "sample_puppet"]
 
 #: The real recordings inside the package: ``index.json``, ``reference.npz`` and the videos.
@@ -456,9 +456,10 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
         Training options of the puppets (as :func:`leave_one_session_out`).
     cache_dir : path, optional
         Where tracks are cached (:func:`tracked_clip`).
-    rhubarb, learned :
-        Add Rhubarb and the learned peer (as :func:`leave_one_session_out`; Rhubarb's shapes
-        mapped from all of ``train``).
+    rhubarb : voicepuppet.evaluation.rhubarb.Rhubarb, optional
+        Add Rhubarb (as :func:`leave_one_session_out`; its shapes mapped from all of ``train``).
+    learned : bool
+        Add the learned peer (as :func:`leave_one_session_out`).
     progress : bool
         Progress bars.
 
@@ -480,11 +481,23 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
                       for i, (c, s) in enumerate(zip(tests, sounds))]}
 
 
-def _summary(rows: list) -> dict:
-    """Per model: frame-weighted means of r, rmse and spread, the median lag and the largest
-    crossed share; per other model, the puppet's paired per-clip differences (mean, 95% CI).
-    With Rhubarb's two recognisers, ``rhubarb`` is the one of the lower RMSE (its
-    ``recognizer`` says which)."""
+def summarize(rows: list) -> dict:
+    """The summary of a protocol's clips, as :func:`format_real` shows it.
+
+    Parameters
+    ----------
+    rows : list of dict
+        The ``clips`` of :func:`leave_one_session_out` or :func:`any_voice`.
+
+    Returns
+    -------
+    dict
+        Per model: frame-weighted means of ``r``, ``rmse`` and ``spread``, the median ``lag``
+        and the largest ``crossed`` share; per model but the puppet, ``puppet_minus``: the
+        puppet's paired per-clip differences of r and RMSE (``mean``, ``lo``, ``hi``: 95% CI).
+        With Rhubarb's two recognisers, ``rhubarb`` is the one of the lower RMSE (its
+        ``recognizer`` says which).
+    """
     w = np.array([r["models"]["voice puppet"]["frames"] for r in rows], float)
     out = {}
     for m in rows[0]["models"]:
@@ -540,16 +553,16 @@ def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = N
     others = [c for c in real_clips(root) if c.key.split("/")[0] != speaker]
     loso = leave_one_session_out(own, options=options, cache_dir=cache_dir, rhubarb=rhubarb, learned=learned,
                                  progress=progress)
-    loso["summary"] = _summary(loso["clips"])
+    loso["summary"] = summarize(loso["clips"])
     result = {"speaker": speaker, "options": dict(options or {}), "loso": loso}
     if others:
         voices = any_voice(own, others, options=options, cache_dir=cache_dir, rhubarb=rhubarb, learned=learned,
                            progress=progress)
-        voices["summary"] = _summary(voices["clips"])
+        voices["summary"] = summarize(voices["clips"])
         by_speaker: dict = {}
         for row in voices["clips"]:
             by_speaker.setdefault(row["key"].split("/")[0], []).append(row)
-        voices["by_speaker"] = {k: _summary(v) for k, v in by_speaker.items()}
+        voices["by_speaker"] = {k: summarize(v) for k, v in by_speaker.items()}
         result["any_voice"] = voices
     return result
 
