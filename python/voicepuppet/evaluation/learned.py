@@ -22,7 +22,12 @@ __all__ = ["ConvRegressor", "torch_available"]
 
 
 def torch_available() -> bool:
-    """Whether PyTorch can be imported (the learned peer needs it)."""
+    """Whether PyTorch can be imported (the learned peer needs it).
+
+    Returns
+    -------
+    bool
+    """
     try:
         import torch  # noqa: F401
     except ImportError:

@@ -250,6 +250,7 @@ class ShapeMap:
         Parameters
         ----------
         shapes : array of str, shape (T,)
+            Each frame's shape.
 
         Returns
         -------
@@ -265,6 +266,7 @@ class ShapeMap:
         Parameters
         ----------
         values : array, shape (T,) or (T, D)
+            The truth per frame, as the map was fitted on.
 
         Returns
         -------
@@ -283,6 +285,7 @@ def cue_agreement(pred, truth) -> dict:
     Parameters
     ----------
     pred, truth : array of str, shape (T,)
+        Per-frame shapes: predicted and derived from the truth.
 
     Returns
     -------
@@ -290,6 +293,11 @@ def cue_agreement(pred, truth) -> dict:
         ``agreement`` (share of frames with the same shape), ``confusion`` ({true shape:
         {predicted shape: frames}}, shapes of :data:`SHAPES` that occur) and ``recall`` ({true
         shape: share of its frames predicted as it}).
+
+    Raises
+    ------
+    ValueError
+        ``pred`` and ``truth`` of different lengths.
     """
     p, t = np.asarray(pred), np.asarray(truth)
     if p.shape != t.shape:
