@@ -216,9 +216,8 @@ def test_evaluate_bad_input(tmp_path, capsys):
         ev.cross_validate(planted_sequences(rng, n_seq=3, T=30), k=2, peers=False, puppet=False)
 
 
-def test_voice_puppet_on_the_same_folds():
-    """The puppet hears only the audio; on held-out utterances it must beat the mean face
-    (Err 1) and its rows carry no phone-conditioned log-likelihood."""
+def espeak_sequences():
+    """Four espeak-ng sentences articulated by the performer, with their audio and phone labels."""
     from voicepuppet.synth import speech
     from voicepuppet.synth.articulation import articulate
 
@@ -236,6 +235,13 @@ def test_voice_puppet_on_the_same_folds():
         x = np.zeros(n, np.float32)
         x[:min(n, len(u.samples))] = u.samples[:n]
         seqs.append(corpus.Sequence(f"u{i}", art.points, fps, lab, x, u.rate))
+    return seqs
+
+
+def test_voice_puppet_on_the_same_folds():
+    """The puppet hears only the audio; on held-out utterances it must beat the mean face
+    (Err 1) and its rows carry no phone-conditioned log-likelihood."""
+    seqs = espeak_sequences()
     res = ev.cross_validate(seqs, k=2, seed=0, peers=False, puppet=True, n_states=8, progress=False)
     m = res["models"]["voice-puppet"]
     print({k: v["mean"] for k, v in m.items() if isinstance(v, dict)})

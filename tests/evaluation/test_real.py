@@ -106,8 +106,33 @@ def test_evaluate_corpus_real_on_the_command_line(cache, tmp_path, capsys):
     assert saved["speaker"] == "grid" and len(saved["loso"]["clips"]) == 5
 
 
+def test_rhubarb_and_the_learned_peer_on_real_people(cache):
+    """GRID's five one-clip sessions left out one at a time: Rhubarb (both recognisers, the better
+    in the table) and the learned network give finite measures and the puppet's paired
+    differences from them; Rhubarb gives no landmarks, so no crossed share."""
+    pytest.importorskip("torch")
+    from voicepuppet.evaluation.rhubarb import RECOGNIZERS, Rhubarb, find_rhubarb
+
+    if find_rhubarb() is None:
+        pytest.skip("Rhubarb Lip Sync not found: set VOICEPUPPET_RHUBARB or put it at ../shared/peers/rhubarb/rhubarb")
+    res = real.leave_one_session_out(real.real_clips(speaker="grid"), options={"n_states": 6}, cache_dir=cache,
+                                     rhubarb=Rhubarb(cache_dir=real.cues_cache(cache)), learned=True)
+    s = real.summarize(res["clips"])
+    print({m: (v["r"], v["rmse"]) for m, v in s.items()})
+    assert s["rhubarb"]["recognizer"] in RECOGNIZERS
+    assert s["rhubarb"]["rmse"] == min(s[f"rhubarb/{r}"]["rmse"] for r in RECOGNIZERS)
+    for m in ("rhubarb", "learned"):
+        assert np.isfinite([s[m]["rmse"], s[m]["spread"]]).all(), m
+        assert np.isfinite([s[m]["puppet_minus"]["rmse"][v] for v in ("mean", "lo", "hi")]).all(), m
+    text = real.format_real({"speaker": "grid", "loso": dict(res, summary=s)})
+    assert f"| rhubarb ({s['rhubarb']['recognizer']}) |" in text and "| learned |" in text
+    row = next(line for line in text.splitlines() if line.startswith("| rhubarb ("))
+    assert row.split(" | ")[5] == "–"  # no crossed share: no landmarks
+    assert list(real.cues_cache(cache).glob("*.json"))  # Rhubarb's cues kept beside the tracks
+
+
 @pytest.mark.parametrize("argv, message", [
-    (["--corpus", "real", "--peers"], "--peers do(es) not apply to --corpus real"),
+    (["--corpus", "real", "--no-puppet"], "--no-puppet do(es) not apply to --corpus real"),
     (["--real", "somewhere"], "--real is for --corpus real"),
     (["--corpus", "real", "--real", "nowhere"], "holds no real recordings"),
 ])

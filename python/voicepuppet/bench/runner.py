@@ -39,6 +39,7 @@ SUITES = {
     "live": "voicepuppet.bench.live",
     "dpds": "voicepuppet.bench.dpds",
     "batch": "voicepuppet.bench.batch",
+    "peers": "voicepuppet.bench.peers",
 }
 
 

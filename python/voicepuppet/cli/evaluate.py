@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shlex
 
@@ -24,12 +25,47 @@ def _command(args) -> str:
         opts += [("--alphabet", args.alphabet)]
     opts += [("--landmark-noise", f"{args.landmark_noise:g}" if args.landmark_noise else None),
              ("--folds", str(args.folds)), ("--seed", str(args.seed)), ("--states", str(args.states)),
-             ("--components", args.components), ("-o", args.out), ("--json", args.json)]
+             ("--components", args.components), ("--rhubarb", args.rhubarb), ("-o", args.out),
+             ("--json", args.json)]
     for flag, val in opts:
         if val is not None:
             parts += [flag, shlex.quote(str(val))]
     parts += [f for f, on in (("--peers", args.peers), ("--no-puppet", args.no_puppet)) if on]
     return " ".join(parts)
+
+
+@contextlib.contextmanager
+def _rhubarb_said():
+    """Rhubarb missing, failing or unreadable: a line on the command line, not a traceback."""
+    from voicepuppet.evaluation.rhubarb import RhubarbError
+
+    try:
+        yield
+    except RhubarbError as e:
+        raise ValueError(str(e)) from None
+
+
+def _tools(args, cache=None) -> dict:
+    """With --peers and the puppet: Rhubarb (where found; its cues kept in ``cache``) and the
+    learned peer (where PyTorch is), as keywords of cross_validate and evaluate_real; a line
+    says which is left out and why."""
+    from voicepuppet.evaluation.learned import torch_available
+    from voicepuppet.evaluation.rhubarb import Rhubarb, find_rhubarb
+
+    if not args.peers or args.no_puppet:
+        if args.rhubarb:
+            raise ValueError("--rhubarb is for --peers with the voice puppet (the rhubarb row)")
+        return {}
+    out = {"learned": torch_available()}
+    if not out["learned"]:
+        print("note: no 'learned' row: it needs PyTorch (pip install torch==2.13.0, the CPU build)")
+    with _rhubarb_said():
+        found = find_rhubarb(args.rhubarb)
+    if found is None:
+        print("note: no 'rhubarb' row: Rhubarb Lip Sync not found (give --rhubarb PATH or set VOICEPUPPET_RHUBARB)")
+    else:
+        out["rhubarb"] = Rhubarb(args.rhubarb, cache_dir=cache)
+    return out
 
 
 def _report(args, result: dict, command: str, text: str) -> int:
@@ -83,22 +119,26 @@ def _run_comparison(args, seqs, n_comp) -> int:
 def _run_real(args) -> int:
     from voicepuppet.evaluation import real
 
-    given = [f for f, v in (("--data", args.data), ("--corpus-dir", args.corpus_dir), ("--peers", args.peers),
-                            ("--no-puppet", args.no_puppet), ("--compare-training", args.compare_training),
+    given = [f for f, v in (("--data", args.data), ("--corpus-dir", args.corpus_dir), ("--no-puppet", args.no_puppet),
+                            ("--compare-training", args.compare_training),
                             ("--landmark-noise", args.landmark_noise), ("--train-on", args.train_on != "truth"),
                             ("--speech", args.speech != "espeak")) if v]
     if given:
         raise ValueError(f"{', '.join(given)} do(es) not apply to --corpus real (the real recordings, left out "
                          "one session at a time); leave them out")
     options = {"n_states": args.states, "seed": args.seed}
-    result = real.evaluate_real(args.real, speaker=args.speaker, options=options, cache_dir=args.cache,
-                                progress=not args.quiet)
+    tools = _tools(args, real.cues_cache(args.cache))
+    with _rhubarb_said():
+        result = real.evaluate_real(args.real, speaker=args.speaker, options=options, cache_dir=args.cache,
+                                    progress=not args.quiet, **tools)
     text = real.format_real(result)
     command = " ".join(["voicepuppet evaluate --corpus real"]
                        + [f"{flag} {shlex.quote(str(v))}" for flag, v in
                           (("--real", args.real), ("--speaker", args.speaker if args.speaker != "obama" else None),
                            ("--states", args.states if args.states != 40 else None),
-                           ("--seed", args.seed or None), ("-o", args.out), ("--json", args.json)) if v is not None])
+                           ("--seed", args.seed or None), ("--rhubarb", args.rhubarb), ("-o", args.out),
+                           ("--json", args.json)) if v is not None]
+                       + (["--peers"] if args.peers else []))
     return _report(args, result, command, text)
 
 
@@ -112,6 +152,7 @@ def _run(args) -> int:
         if val:
             raise ValueError(f"{flag} is for --corpus real; leave it out or add --corpus real")
 
+    tools = {} if args.compare_training else _tools(args)
     if args.data:
         for flag, val, default in (("--train-on", args.train_on, "truth"), ("--corpus-seed", args.corpus_seed, None)):
             if val != default:
@@ -136,9 +177,10 @@ def _run(args) -> int:
                          f"{args.components!r}") from None
     if args.compare_training:
         return _run_comparison(args, seqs, n_comp)
-    result = crossval.cross_validate(seqs, k=args.folds, seed=args.seed, peers=args.peers,
-                            puppet=not args.no_puppet, n_components=n_comp, n_states=args.states,
-                            progress=not args.quiet)
+    with _rhubarb_said():
+        result = crossval.cross_validate(seqs, k=args.folds, seed=args.seed, peers=args.peers,
+                                         puppet=not args.no_puppet, n_components=n_comp, n_states=args.states,
+                                         progress=not args.quiet, **tools)
     return _report(args, result, _command(args), report.format_table(result))
 
 
@@ -196,7 +238,11 @@ def add_parser(sub) -> None:
     p.add_argument("--landmark-noise", type=float, default=0.0, metavar="PX",
                    help="add independent Gaussian noise of PX pixels to every training landmark (a worse "
                         "tracker; seeded by --seed); measures stay against the clean landmarks (default 0: none)")
-    p.add_argument("--peers", action="store_true", help="also evaluate the four phoneme-driven models")
+    p.add_argument("--peers", action="store_true",
+                   help="also evaluate the four phoneme-driven models and, beside the puppet, Rhubarb Lip Sync "
+                        "(where found) and a learned audio-to-face network (where PyTorch is installed)")
+    p.add_argument("--rhubarb", metavar="PATH", help="the Rhubarb Lip Sync executable for --peers (default: "
+                   "$VOICEPUPPET_RHUBARB, else ../shared/peers/rhubarb/rhubarb beside the repository)")
     p.add_argument("--no-puppet", action="store_true", help="skip the voice puppet (and its baselines)")
     p.add_argument("--states", type=int, default=40, help="voice puppet states (default 40)")
     p.add_argument("--components", default="0.98",

@@ -32,18 +32,23 @@ from __future__ import annotations
 import numpy as np
 from tqdm.auto import tqdm
 
+from voicepuppet.animation import Animation
 from voicepuppet.blas import limited
 from voicepuppet.evaluation import metrics
 from voicepuppet.evaluation.corpus import bilabial_mask, learnt_points
 from voicepuppet.evaluation.folds import kfold, over_folds
+from voicepuppet.evaluation.learned import ConvRegressor
+from voicepuppet.evaluation.rhubarb import RECOGNIZERS, ShapeMap, cue_agreement, frame_shapes
 from voicepuppet.evaluation.split import decoding_entropy_rate, facial_states, sequence_features
 from voicepuppet.face import FaceSpace
 from voicepuppet.phonemes import models as dpds
 from voicepuppet.puppet.guide import RidgeBaseline
 from voicepuppet.puppet.model import Puppet
 from voicepuppet.puppet.training import TRAIN_DEFAULTS, training_feature_set
+from voicepuppet.render.export import mouth_cues
 
-__all__ = ["METRICS", "BASELINES", "UNGUIDED", "MOST_PROBABLE", "COMPARE_MEASURES", "cross_validate", "compare_training"]
+__all__ = ["METRICS", "BASELINES", "TOOLS", "UNGUIDED", "MOST_PROBABLE", "COMPARE_MEASURES", "cross_validate",
+           "compare_training"]
 
 #: measure -> (column title, better: "lower" or "higher")
 METRICS = {
@@ -134,12 +139,53 @@ def _as_face(points, n, face_space) -> np.ndarray:
 
 #: the voice puppet's baselines, evaluated with it (:func:`_baseline_predictions`)
 BASELINES = ("ridge", "mean-face")
+#: what users would pick instead of the puppet (``rhubarb``, ``learned`` of :func:`cross_validate`)
+TOOLS = ("rhubarb", "learned")
+
+
+def _rhubarb_cues(rhubarb, seqs) -> dict:
+    """Per recogniser, each sequence's Rhubarb shape per frame (from its audio)."""
+    out = {}
+    for rec in RECOGNIZERS:
+        out[rec] = []
+        for s in seqs:
+            if s.samples is None:
+                raise ValueError(f"sequence {s.name} has no audio; Rhubarb needs it")
+            out[rec].append(frame_shapes(rhubarb.cues(s.samples, s.rate, rec), len(s.points), s.fps))
+    return out
+
+
+def _export_shapes(points, fps, neutral) -> np.ndarray:
+    """voicepuppet's Rhubarb-cue export (:func:`voicepuppet.render.export.mouth_cues`) per frame."""
+    cues = mouth_cues(Animation(points, fps), neutral)
+    return frame_shapes(cues, len(points), fps)
+
+
+def _tool_fold(cues, tr_idx, te_idx, Ytr, Yte, fs, preds_puppet, fps, shut) -> tuple[dict, dict]:
+    """Rhubarb in one fold, each recogniser with its best mapping (:class:`ShapeMap` of the
+    training frames' face coordinates), and the cue agreement of its cues and of the export of
+    the puppet's animation with the truth-derived cues (``geometry``: the export rule on the
+    true landmarks; ``centroid``: the nearest shape mean of the recogniser's map)."""
+    rows, agree = {}, {}
+    neutral = fs.decode(np.vstack(Ytr).mean(axis=0)[None])[0]
+    truth_pts = [fs.decode(y) for y in Yte]
+    geometry = np.concatenate([_export_shapes(p, fps, neutral) for p in truth_pts])
+    ours = np.concatenate([_export_shapes(fs.decode(y), fps, neutral) for y in preds_puppet])
+    for rec, per_seq in cues.items():
+        smap = ShapeMap().fit([per_seq[i] for i in tr_idx], Ytr)
+        test = [per_seq[i][:len(y)] for i, y in zip(te_idx, Yte)]
+        rows[rec] = _fold_metrics([smap.predict(c) for c in test], Yte, fs, None, shut)
+        theirs = np.concatenate(test)
+        centroid = smap.nearest(np.vstack(Yte))
+        agree[rec] = {"geometry": {"rhubarb": cue_agreement(theirs, geometry), "export": cue_agreement(ours, geometry)},
+                      "centroid": {"rhubarb": cue_agreement(theirs, centroid), "export": cue_agreement(ours, centroid)}}
+    return rows, agree
 
 
 @limited
 def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
                    puppet: bool = True, n_components=0.98, n_states: int = 40,
-                   features=None, progress: bool = True) -> dict:
+                   features=None, rhubarb=None, learned: bool = False, progress: bool = True) -> dict:
     """k-fold cross-validation by sequence of the voice puppet, its baselines and the phoneme peers.
 
     Models and each fold's face space learn from the training sequences' :func:`learnt_points`
@@ -168,6 +214,17 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
     features : list of array (T, A), optional
         Raw audio features per sequence, one row per frame, instead of computing them from each
         sequence's audio (the puppet's default feature set, once per sequence for all folds).
+    rhubarb : voicepuppet.evaluation.rhubarb.Rhubarb, optional
+        Evaluate Rhubarb Lip Sync (row ``rhubarb``; with the puppet): both recognisers on each
+        sequence's audio, each shape mapped to the mean face coordinates of the fold's training
+        frames under it (:class:`voicepuppet.evaluation.rhubarb.ShapeMap`); the row is the
+        recogniser with the lower mean Err. Beside it, the frame agreement and per-shape confusion
+        of its cues and of voicepuppet's cue export of the puppet's animation with cues derived
+        from the truth (:mod:`voicepuppet.evaluation.rhubarb`), pooled over the folds.
+    learned : bool
+        Evaluate the learned peer (row ``learned``; with the puppet): a
+        :class:`voicepuppet.evaluation.learned.ConvRegressor` per fold from the features as the
+        fold's puppet standardises them to the training face coordinates (needs PyTorch).
     progress : bool
         Show a progress bar over folds and models (default True).
 
@@ -178,7 +235,11 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         {"voice-puppet": {baseline: {measure: {...}}}}, "config": ...}``; a difference's
         ``folds`` are the puppet's per-fold values minus the baseline's, its interval
         :func:`voicepuppet.evaluation.folds.mean_ci` of them. The ridge's entry also lists the
-        regularisation chosen per fold (``alpha``).
+        regularisation chosen per fold (``alpha``), the learned peer's its epochs. With
+        ``rhubarb``: ``"rhubarb": {"recognizer": the one in the table, "recognizers": {name:
+        measures}, "cues": {recogniser: {"geometry"|"centroid": {"rhubarb"|"export":
+        agreement}}}}`` (:func:`voicepuppet.evaluation.rhubarb.cue_agreement` of the pooled
+        folds, and ``folds``: the per-fold agreements).
 
     Raises
     ------
@@ -192,6 +253,8 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         learnt_points(s)  # refuses train_points of the wrong shape before any training
     if not peers and not puppet:
         raise ValueError("nothing to evaluate: enable the puppet or the peers (--peers)")
+    if (rhubarb is not None or learned) and not puppet:
+        raise ValueError("Rhubarb and the learned peer are evaluated beside the voice puppet: enable the puppet")
     fps = float(seqs[0].fps) if seqs else 0.0
     if puppet:
         features_at = sequence_features(seqs, fps, features)
@@ -201,9 +264,11 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
             return features_at(i, fset)
 
     folds = kfold(len(seqs), k, seed)
-    names = (["voice-puppet", *BASELINES] if puppet else []) + (list(dpds.MODELS) if peers else [])
+    tools = [t for t, on in zip(TOOLS, (rhubarb is not None, learned)) if on]
+    names = (["voice-puppet", *BASELINES, *tools] if puppet else []) + (list(dpds.MODELS) if peers else [])
     per_fold: dict = {n: [] for n in names}
-    alphas = []
+    alphas, epochs, by_recognizer, agreements = [], [], {r: [] for r in RECOGNIZERS}, []
+    cues = _rhubarb_cues(rhubarb, seqs) if rhubarb is not None else None
     bar = tqdm(total=len(folds) * len(names), desc="cross-validation", unit="model",
                disable=not progress)
     for fi, (tr_idx, te_idx) in enumerate(folds):
@@ -229,6 +294,19 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
             for name in BASELINES:
                 per_fold[name].append(_fold_metrics(base[name], Yte, fs, None, shut))
                 bar.update()
+            if learned:
+                bar.set_postfix(fold=fi + 1, model="learned")
+                net = ConvRegressor(seed=seed).fit([pup.ridge_input(f) for f in f_tr], Ytr)
+                epochs.append(net.epochs_)
+                per_fold["learned"].append(
+                    _fold_metrics([net.predict(pup.ridge_input(f)) for f in f_te], Yte, fs, None, shut))
+                bar.update()
+            if cues is not None:
+                rows, agree = _tool_fold(cues, tr_idx, te_idx, Ytr, Yte, fs, preds, fps, shut)
+                for rec, row in rows.items():
+                    by_recognizer[rec].append(row)
+                agreements.append(agree)
+                bar.update()
         for name in (dpds.MODELS if peers else ()):
             bar.set_postfix(fold=fi + 1, model=name)
             model = dpds.MODELS[name]().fit(Ytr, [s.labels for s in train])
@@ -237,6 +315,10 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
             per_fold[name].append(_fold_metrics(preds, Yte, fs, ll, shut))
             bar.update()
     bar.close()
+    if cues is not None:
+        err = {r: np.mean([row["err"] for row in rows]) for r, rows in by_recognizer.items()}
+        best = min(err, key=err.get)
+        per_fold["rhubarb"] = by_recognizer[best]
 
     result = {"models": {}, "differences": {}, "config": {
         "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
@@ -250,13 +332,37 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         result["models"][name] = entry
     if puppet:
         result["models"]["ridge"]["alpha"] = alphas
+        if learned:
+            result["models"]["learned"]["epochs"] = epochs
         voice = per_fold["voice-puppet"]
         result["differences"]["voice-puppet"] = {
             name: {m: v for m in METRICS
                    if (v := over_folds([(i, a[m] - b[m]) for i, (a, b) in enumerate(zip(voice, per_fold[name]))
                                          if m in a and m in b], len(voice), m))}
-            for name in (*BASELINES, MOST_PROBABLE)}
+            for name in (*BASELINES, *tools, MOST_PROBABLE)}
+    if cues is not None:
+        result["rhubarb"] = {
+            "recognizer": best,
+            "recognizers": {r: {m: v for m in METRICS
+                                if (v := over_folds([(i, x[m]) for i, x in enumerate(rows) if m in x], len(rows), m))}
+                            for r, rows in by_recognizer.items()},
+            "cues": {r: {how: {who: _pooled([a[r][how][who] for a in agreements]) for who in ("rhubarb", "export")}
+                         for how in ("geometry", "centroid")} for r in RECOGNIZERS}}
     return result
+
+
+def _pooled(per_fold: list) -> dict:
+    """Cue agreements of the folds pooled: confusion counts summed, agreement and recall of them."""
+    conf: dict = {}
+    for a in per_fold:
+        for t, row in a["confusion"].items():
+            for p, n in row.items():
+                conf.setdefault(t, {}).setdefault(p, 0)
+                conf[t][p] += n
+    total = sum(n for row in conf.values() for n in row.values())
+    return {"agreement": sum(row.get(t, 0) for t, row in conf.items()) / total if total else float("nan"),
+            "confusion": conf, "recall": {t: row.get(t, 0) / sum(row.values()) for t, row in conf.items()},
+            "folds": [a["agreement"] for a in per_fold]}
 
 
 #: measures of :func:`compare_training` (all: lower is better)

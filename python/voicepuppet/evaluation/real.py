@@ -27,7 +27,12 @@ Brand's solve, and the puppet trained by conventional Baum-Welch), the
 ridge regression from ±5 frames of the same standardised audio features to the face
 coordinates (:class:`voicepuppet.puppet.guide.RidgeBaseline`), a mouth that opens with the
 speech's loudness (linear in its log energy, fitted on the training frames: what many avatar
-apps do) and the training mean (the mean face). The tracker's opening is not the reference's
+apps do) and the training mean (the mean face); with ``rhubarb`` and ``learned``, what users would
+pick instead: Rhubarb Lip Sync's cues of the sound (each shape mapped to the mean reference
+opening of the training frames under it: its best possible mapping; both recognisers, the
+tables show the one of the lower RMSE) and a learned temporal network
+(:class:`voicepuppet.evaluation.learned.ConvRegressor`) from the same standardised features to
+the face coordinates, as the ridge. The tracker's opening is not the reference's
 (different points, a different scale), so every model's opening is mapped to the reference's by
 the straight line fitted between the two on the training clips' frames, never the held-out ones.
 
@@ -56,6 +61,8 @@ from voicepuppet import audio as vaudio
 from voicepuppet._version import __version__
 from voicepuppet.blas import limited
 from voicepuppet.evaluation.folds import mean_ci
+from voicepuppet.evaluation.learned import ConvRegressor
+from voicepuppet.evaluation.rhubarb import RECOGNIZERS, ShapeMap, frame_shapes
 from voicepuppet.evaluation.report import markdown_table
 from voicepuppet.layout import inner_lip_gaps, inter_ocular_distance
 from voicepuppet.puppet.guide import RidgeBaseline
@@ -65,15 +72,17 @@ from voicepuppet.puppet.sync import mouth_opening, shift_audio, speech_loudness
 from voicepuppet.tracking.landmarks import load_landmarks, save_landmarks
 from voicepuppet.tracking.tracker import VariableFrameRateWarning, track_video
 
-__all__ = ["RECORDINGS", "MODELS", "CROSSED_IOD", "MAX_LAG", "RealClip", "real_clips", "tracked_clip",
-           "crossed_lips", "opening_measures", "leave_one_session_out", "any_voice", "evaluate_real",
+__all__ = ["RECORDINGS", "MODELS", "CROSSED_IOD", "MAX_LAG", "RealClip", "real_clips", "cues_cache", "tracked_clip",
+           "crossed_lips", "opening_measures", "leave_one_session_out", "any_voice", "summarize", "evaluate_real",
            "format_real", "sample_puppet"]
 
 #: The real recordings inside the package: ``index.json``, ``reference.npz`` and the videos.
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
 #: The models compared, in table order.
 MODELS = ("voice puppet", "voice puppet, most probable", "voice puppet, unguided", "voice puppet, conventional",
-          "ridge", "loudness mouth", "mean face")
+          "ridge", "learned", "rhubarb", "loudness mouth", "mean face")
+#: The models that give no landmarks (no crossed share).
+_NO_LANDMARKS = ("rhubarb", "loudness mouth", "mean face")
 #: An overlap of the inner lips beyond this (inter-ocular distances) counts as crossed.
 CROSSED_IOD = 0.01
 #: The largest lag (frames) the best-lag search looks at, either way.
@@ -161,6 +170,22 @@ def _cache_dir(cache_dir) -> Path:
         return Path(cache_dir)
     base = os.environ.get("VOICEPUPPET_CACHE") or Path.home() / ".cache" / "voicepuppet"
     return Path(base) / "real-tracks"
+
+
+def cues_cache(cache_dir=None) -> Path:
+    """Where Rhubarb's cues of the recordings are kept (:class:`voicepuppet.evaluation.rhubarb.Rhubarb`).
+
+    Parameters
+    ----------
+    cache_dir : path, optional
+        The folder given for the tracks (:func:`tracked_clip`); default: as there.
+
+    Returns
+    -------
+    pathlib.Path
+        ``rhubarb-cues`` beside the default tracks' folder, or inside the given one.
+    """
+    return Path(cache_dir) / "rhubarb-cues" if cache_dir is not None else _cache_dir(None).parent / "rhubarb-cues"
 
 
 @functools.lru_cache(maxsize=None)
@@ -284,9 +309,10 @@ class _Models:
     to_reference: np.ndarray  # reference opening = polyval(to_reference, tracker opening)
     fps: float
     offsets: list
+    learned: ConvRegressor | None = None
 
 
-def _train(train: list, options: dict, cache_dir, progress: bool) -> _Models:
+def _train(train: list, options: dict, cache_dir, progress: bool, learned: bool = False) -> _Models:
     tracks = [tracked_clip(c, cache_dir, progress) for c in train]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # resampled frame grids and dropped frames, said in train
@@ -295,7 +321,9 @@ def _train(train: list, options: dict, cache_dir, progress: bool) -> _Models:
                "voice puppet, conventional": Puppet.train(points, sounds, fps=fps, **{**options, "prior": "ml"})}
     main = puppets["voice puppet"]
     feats = [main.audio_features(a, n_out=len(p)) for p, a in zip(points, sounds)]
-    ridge = RidgeBaseline().fit([main.ridge_input(f) for f in feats], [main.face_space.encode(p)[0] for p in points])
+    faces = [main.face_space.encode(p)[0] for p in points]
+    ridge = RidgeBaseline().fit([main.ridge_input(f) for f in feats], faces)
+    net = ConvRegressor(seed=options.get("seed", 0)).fit([main.ridge_input(f) for f in feats], faces) if learned else None
     loud = np.concatenate([speech_loudness(a, fps, len(p)) for p, a in zip(points, sounds)])
     opening = np.concatenate([mouth_opening(p) for p in points])
     ours, theirs = [], []
@@ -306,11 +334,12 @@ def _train(train: list, options: dict, cache_dir, progress: bool) -> _Models:
         ours.append(o[:n][ok])
         theirs.append(c.opening[:n][ok])
     return _Models(puppets, ridge, np.polyfit(loud, opening, 1), float(np.nanmean(opening)),
-                   np.polyfit(np.concatenate(ours), np.concatenate(theirs), 1), fps, offsets)
+                   np.polyfit(np.concatenate(ours), np.concatenate(theirs), 1), fps, offsets, net)
 
 
-def _predict(models: _Models, clip: RealClip, sound) -> dict:
-    """Each model's opening for ``clip`` at its frames (reference units), and crossed shares."""
+def _predict(models: _Models, clip: RealClip, sound, rhubarb: dict | None = None) -> dict:
+    """Each model's opening for ``clip`` at its frames (reference units), and crossed shares;
+    ``rhubarb``: per recogniser, the clip's openings from its cues (reference units already)."""
     n, out, crossed = len(clip.opening), {}, {}
     main = models.puppets["voice puppet"]
     with warnings.catch_warnings():
@@ -328,16 +357,39 @@ def _predict(models: _Models, clip: RealClip, sound) -> dict:
     t = np.arange(n) / clip.fps
     out["ridge"] = np.interp(t, np.arange(len(ridge_pts)) / models.fps, mouth_opening(ridge_pts))
     crossed["ridge"] = float(crossed_lips(ridge_pts).mean())
+    if models.learned is not None:
+        net_pts = main.face_space.decode(models.learned.predict(main.ridge_input(feats)))
+        out["learned"] = np.interp(t, np.arange(len(net_pts)) / models.fps, mouth_opening(net_pts))
+        crossed["learned"] = float(crossed_lips(net_pts).mean())
     out["loudness mouth"] = np.polyval(models.loudness, speech_loudness(sound, clip.fps, n))
     out["mean face"] = np.full(n, models.mean)
     preds = {k: np.polyval(models.to_reference, _fit_length(v, n)) for k, v in out.items()}
-    return {k: {**opening_measures(preds[k], clip.opening), "crossed": crossed.get(k, 0.0), "frames": n}
-            for k in MODELS}
+    for rec, opening in (rhubarb or {}).items():
+        preds[f"rhubarb/{rec}"] = opening
+    return {k: {**opening_measures(v, clip.opening), "crossed": crossed.get(k, 0.0), "frames": n}
+            for k, v in preds.items()}
+
+
+def _rhubarb_openings(rhubarb, clips, sounds) -> dict:
+    """Per recogniser, each clip's Rhubarb shape per video frame (from its sound in sync)."""
+    return {rec: [frame_shapes(rhubarb.cues(a.samples, a.rate, rec), len(c.opening), c.fps)
+                  for c, a in zip(clips, sounds)] for rec in RECOGNIZERS}
+
+
+def _shape_maps(shapes: dict, clips: list, train: list) -> dict:
+    """Per recogniser, each shape's mean reference opening over the ``train`` clips' frames
+    under it (its best possible mapping; frames without a reference left out)."""
+    out = {}
+    for rec, per_clip in shapes.items():
+        ok = [np.isfinite(clips[i].opening) for i in train]
+        out[rec] = ShapeMap().fit([per_clip[i][m] for i, m in zip(train, ok)],
+                                  [clips[i].opening[m] for i, m in zip(train, ok)])
+    return out
 
 
 @limited
 def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir=None,
-                          progress: bool = False) -> dict:
+                          rhubarb=None, learned: bool = False, progress: bool = False) -> dict:
     """Leave-one-session-out over one speaker's clips (see the module's description).
 
     Parameters
@@ -349,6 +401,14 @@ def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir
         its defaults; ``prior`` is set to ``"ml"`` for the conventional one).
     cache_dir : path, optional
         Where tracks are cached (:func:`tracked_clip`).
+    rhubarb : voicepuppet.evaluation.rhubarb.Rhubarb, optional
+        Add Rhubarb Lip Sync (``rhubarb/pocketSphinx``, ``rhubarb/phonetic``): its cues of each
+        clip's sound in sync, each shape mapped to the mean reference opening of the training
+        clips' frames under it.
+    learned : bool
+        Add the learned peer (``learned``; needs PyTorch): a
+        :class:`voicepuppet.evaluation.learned.ConvRegressor` from the features as the puppet
+        standardises them to its face coordinates, mapped to the reference as the ridge is.
     progress : bool
         Progress bars.
 
@@ -368,19 +428,22 @@ def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir
     if len(sessions) < 2:
         raise ValueError(f"leaving one session out needs two or more sessions, got {sessions}")
     sounds = _in_sync(clips, cache_dir, progress)
+    shapes = _rhubarb_openings(rhubarb, clips, sounds) if rhubarb is not None else {}
     rows, info = [], {}
     for s in tqdm(sessions, desc="sessions", disable=not progress):
-        models = _train([c for c in clips if c.session != s], dict(options or {}), cache_dir, progress)
+        models = _train([c for c in clips if c.session != s], dict(options or {}), cache_dir, progress, learned)
         info[s] = {"training_offsets_s": [float(o) for o in models.offsets]}
-        for c, sound in zip(clips, sounds):
+        maps = _shape_maps(shapes, clips, [i for i, c in enumerate(clips) if c.session != s])
+        for i, (c, sound) in enumerate(zip(clips, sounds)):
             if c.session == s:
-                rows.append({"key": c.key, "session": s, "models": _predict(models, c, sound)})
+                cues = {rec: maps[rec].predict(shapes[rec][i]) for rec in maps}
+                rows.append({"key": c.key, "session": s, "models": _predict(models, c, sound, cues)})
     return {"clips": rows, "sessions": info}
 
 
 @limited
 def any_voice(train: list, tests: list, *, options: dict | None = None, cache_dir=None,
-              progress: bool = False) -> dict:
+              rhubarb=None, learned: bool = False, progress: bool = False) -> dict:
     """The models trained on all of ``train`` animate other speakers' recordings.
 
     Parameters
@@ -393,6 +456,10 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
         Training options of the puppets (as :func:`leave_one_session_out`).
     cache_dir : path, optional
         Where tracks are cached (:func:`tracked_clip`).
+    rhubarb : voicepuppet.evaluation.rhubarb.Rhubarb, optional
+        Add Rhubarb (as :func:`leave_one_session_out`; its shapes mapped from all of ``train``).
+    learned : bool
+        Add the learned peer (as :func:`leave_one_session_out`).
     progress : bool
         Progress bars.
 
@@ -402,18 +469,38 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
         ``clips``: per test clip, ``key``, ``session`` and per model its measures (as
         :func:`leave_one_session_out`).
     """
-    models = _train(train, dict(options or {}), cache_dir, progress)
+    models = _train(train, dict(options or {}), cache_dir, progress, learned)
     sounds = _in_sync(tests, cache_dir, progress)
-    return {"clips": [{"key": c.key, "session": c.session, "models": _predict(models, c, s)}
-                      for c, s in zip(tests, sounds)]}
+    shapes, maps = {}, {}
+    if rhubarb is not None:
+        own = _in_sync(train, cache_dir, progress)
+        maps = _shape_maps(_rhubarb_openings(rhubarb, train, own), train, list(range(len(train))))
+        shapes = _rhubarb_openings(rhubarb, tests, sounds)
+    return {"clips": [{"key": c.key, "session": c.session,
+                       "models": _predict(models, c, s, {rec: maps[rec].predict(shapes[rec][i]) for rec in maps})}
+                      for i, (c, s) in enumerate(zip(tests, sounds))]}
 
 
-def _summary(rows: list) -> dict:
-    """Per model: frame-weighted means of r, rmse and spread, the median lag and the largest
-    crossed share; per other model, the puppet's paired per-clip differences (mean, 95% CI)."""
+def summarize(rows: list) -> dict:
+    """The summary of a protocol's clips, as :func:`format_real` shows it.
+
+    Parameters
+    ----------
+    rows : list of dict
+        The ``clips`` of :func:`leave_one_session_out` or :func:`any_voice`.
+
+    Returns
+    -------
+    dict
+        Per model: frame-weighted means of ``r``, ``rmse`` and ``spread``, the median ``lag``
+        and the largest ``crossed`` share; per model but the puppet, ``puppet_minus``: the
+        puppet's paired per-clip differences of r and RMSE (``mean``, ``lo``, ``hi``: 95% CI).
+        With Rhubarb's two recognisers, ``rhubarb`` is the one of the lower RMSE (its
+        ``recognizer`` says which).
+    """
     w = np.array([r["models"]["voice puppet"]["frames"] for r in rows], float)
     out = {}
-    for m in MODELS:
+    for m in rows[0]["models"]:
         vals = {k: np.array([r["models"][m][k] for r in rows], float) for k in ("r", "rmse", "spread", "lag", "crossed")}
         out[m] = {"r": float(np.average(vals["r"], weights=w)) if np.isfinite(vals["r"]).all() else float("nan"),
                   "rmse": float(np.average(vals["rmse"], weights=w)),
@@ -427,11 +514,15 @@ def _summary(rows: list) -> dict:
                     mean, lo, hi = mean_ci(d) if len(d) > 1 else (float(d[0]), float("nan"), float("nan"))
                     diff[k] = {"mean": mean, "lo": lo, "hi": hi}
             out[m]["puppet_minus"] = diff
+    recs = [r for r in RECOGNIZERS if f"rhubarb/{r}" in out]
+    if recs:
+        best = min(recs, key=lambda r: out[f"rhubarb/{r}"]["rmse"])
+        out["rhubarb"] = dict(out[f"rhubarb/{best}"], recognizer=best)
     return out
 
 
 def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = None, cache_dir=None,
-                  progress: bool = False) -> dict:
+                  rhubarb=None, learned: bool = False, progress: bool = False) -> dict:
     """Both protocols on the real recordings: leave one of ``speaker``'s sessions out, and
     ``speaker``'s models animating every other speaker.
 
@@ -445,6 +536,10 @@ def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = N
         Training options of the puppets.
     cache_dir : path, optional
         Where tracks are cached (:func:`tracked_clip`).
+    rhubarb : voicepuppet.evaluation.rhubarb.Rhubarb, optional
+        Add Rhubarb Lip Sync's rows (both recognisers; the tables show the one of the lower RMSE).
+    learned : bool
+        Add the learned peer's row (needs PyTorch).
     progress : bool
         Progress bars.
 
@@ -456,16 +551,18 @@ def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = N
     """
     own = real_clips(root, speaker)
     others = [c for c in real_clips(root) if c.key.split("/")[0] != speaker]
-    loso = leave_one_session_out(own, options=options, cache_dir=cache_dir, progress=progress)
-    loso["summary"] = _summary(loso["clips"])
+    loso = leave_one_session_out(own, options=options, cache_dir=cache_dir, rhubarb=rhubarb, learned=learned,
+                                 progress=progress)
+    loso["summary"] = summarize(loso["clips"])
     result = {"speaker": speaker, "options": dict(options or {}), "loso": loso}
     if others:
-        voices = any_voice(own, others, options=options, cache_dir=cache_dir, progress=progress)
-        voices["summary"] = _summary(voices["clips"])
+        voices = any_voice(own, others, options=options, cache_dir=cache_dir, rhubarb=rhubarb, learned=learned,
+                           progress=progress)
+        voices["summary"] = summarize(voices["clips"])
         by_speaker: dict = {}
         for row in voices["clips"]:
             by_speaker.setdefault(row["key"].split("/")[0], []).append(row)
-        voices["by_speaker"] = {k: _summary(v) for k, v in by_speaker.items()}
+        voices["by_speaker"] = {k: summarize(v) for k, v in by_speaker.items()}
         result["any_voice"] = voices
     return result
 
@@ -477,11 +574,12 @@ def _table(summary: dict) -> list:
         return f"{d['mean']:+.3f} [{d['lo']:+.3f}, {d['hi']:+.3f}]" if np.isfinite(d["lo"]) else f"{d['mean']:+.3f}"
 
     rows = []
-    for m in MODELS:
+    for m in (m for m in MODELS if m in summary):
         s = summary[m]
         diff = s.get("puppet_minus", {})
-        rows.append([m, "–" if not np.isfinite(s["r"]) else f"{s['r']:.3f}", f"{s['rmse']:.4f}", f"{s['spread']:.2f}",
-                     f"{s['lag']:+.0f}", f"{100 * s['crossed']:.1f}" if m not in ("loudness mouth", "mean face") else "–",
+        name = f"rhubarb ({s['recognizer']})" if m == "rhubarb" else m
+        rows.append([name, "–" if not np.isfinite(s["r"]) else f"{s['r']:.3f}", f"{s['rmse']:.4f}", f"{s['spread']:.2f}",
+                     f"{s['lag']:+.0f}", f"{100 * s['crossed']:.1f}" if m not in _NO_LANDMARKS else "–",
                      "" if m == "voice puppet" else ci(diff.get("r")),
                      "" if m == "voice puppet" else ci(diff.get("rmse"))])
     return markdown_table(["model", "opening r", "RMSE / IOD", "spread", "lag", "crossed %",

@@ -125,8 +125,13 @@ def format_table(result: dict) -> str:
         The tables and a paragraph on how they were made, ending in a newline.
     """
     cols = [m for m in METRICS if any(m in e for e in result["models"].values())]
+    rhubarb = result.get("rhubarb")
+
+    def label(name):  # Rhubarb's row says which recogniser it is
+        return f"rhubarb ({rhubarb['recognizer']})" if name == "rhubarb" and rhubarb else name
+
     lines = markdown_table(["model"] + [METRICS[m][0] for m in cols],
-                           ((name, *(format_interval(e[m]) if m in e else "—" for m in cols))
+                           ((label(name), *(format_interval(e[m]) if m in e else "—" for m in cols))
                             for name, e in result["models"].items()))
     c = result["config"]
     diffs = result.get("differences") or {}
@@ -134,8 +139,10 @@ def format_table(result: dict) -> str:
     if dcols:
         lines += [""] + markdown_table(
             ["paired difference (fold by fold)"] + [METRICS[m][0] for m in dcols],
-            ((f"{a} − {b}", *(format_difference(d[m]) if m in d else "—" for m in dcols))
+            ((f"{a} − {label(b)}", *(format_difference(d[m]) if m in d else "—" for m in dcols))
              for a, by in diffs.items() for b, d in by.items()))
+    if rhubarb:
+        lines += [""] + _cue_tables(rhubarb)
     lines.append("")
     lines.append(f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} "
                  f"frames at {c['fps']:.4g} fps, seed {c['seed']}); mean over folds ± half-width of the "
@@ -153,10 +160,40 @@ def format_table(result: dict) -> str:
                  + (" B/P/M closed: the share of the stretches of B, P, M whose lips the model closes (a gap of "
                     "at most 1 % of the inter-ocular distance in one of their frames; higher is better, the "
                     "truth 1), over the folds whose test sequences have one." if "closed" in cols else "")
+                 + (f" rhubarb: Rhubarb Lip Sync's cues of each test sequence's audio, each shape mapped to the "
+                    f"mean face coordinates of the fold's training frames under it (its best mapping); of its two "
+                    f"recognisers the one of the lower mean Err ({rhubarb['recognizer']}; Err of both: "
+                    + ", ".join(f"{r} {v['err']['mean']:.4g}" for r, v in rhubarb["recognizers"].items())
+                    + "). Cue agreement: the share of test frames (pooled over folds) whose shape is the one "
+                    "derived from the truth, by voicepuppet's cue rule on the true landmarks (geometry) or as "
+                    "the nearest of the recogniser's shape means (centroid); export: voicepuppet's cue export "
+                    "of the puppet's animation (both with the fold's training mean face as the rest face)."
+                    if rhubarb else "")
+                 + (" learned: a 1-D convolutional network (±6 frames, 32 channels) from the same standardised "
+                    "features to the face coordinates, early-stopped on a fifth of the fold's training sequences."
+                    if "learned" in result["models"] else "")
                  + (" Models and face spaces learnt from the sequences' separate training landmarks "
                     "(e.g. tracked); measured against the ground truth." if c.get("separate_training_landmarks")
                     else ""))
     return "\n".join(lines) + "\n"
+
+
+def _cue_tables(rhubarb: dict) -> list[str]:
+    """Cue agreement per recogniser and truth, then per shape (geometry) the table row's recall."""
+    cues = rhubarb["cues"]
+    lines = markdown_table(["cue agreement with the truth-derived cues", "geometry", "centroid"],
+                           [(f"{who} ({rec})" if who == "rhubarb" else f"voicepuppet export (shapes of {rec})",
+                             *(f"{cues[rec][how][who]['agreement']:.3f}" for how in ("geometry", "centroid")))
+                            for rec in cues for who in ("rhubarb", "export")
+                            if who == "rhubarb" or rec == rhubarb["recognizer"]])
+    best = cues[rhubarb["recognizer"]]["geometry"]
+    shapes = [s for s in best["rhubarb"]["confusion"]]
+    frames = {s: sum(best["rhubarb"]["confusion"][s].values()) for s in shapes}
+    lines += [""] + markdown_table(
+        ["shape (geometry truth)", "frames", f"rhubarb ({rhubarb['recognizer']}) recall", "export recall"],
+        [(s, str(frames[s]), f"{best['rhubarb']['recall'][s]:.3f}", f"{best['export']['recall'].get(s, 0.0):.3f}")
+         for s in shapes])
+    return lines
 
 
 def write_results(result: dict, md_path=None, json_path=None, command: str = "", text: str | None = None) -> None:
