@@ -74,6 +74,7 @@ class Reader {
   }
   void raw(void* dst, std::size_t n, const char* what) {
     need(n, what);
+    if (n == 0) return;  // dst may be the null data() of an empty array: memcpy must not see it
     std::memcpy(dst, b_.data() + pos_, n);
     pos_ += n;
   }
