@@ -1,5 +1,6 @@
 // The audio front end's per-frame work (audio_features.hpp).
 #include "voicepuppet/audio_features.hpp"
+#include "voicepuppet/interrupt.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -940,6 +941,7 @@ struct StreamingAudioFeatures::Impl {
   void feed(const double* x, Index n) {
     constexpr Index kBlock = 16384;  // bounds the buffers when a whole recording is pushed
     for (Index i0 = 0; i0 < n; i0 += kBlock) {
+      check_interrupt();
       const Index k = std::min(kBlock, n - i0);
       if (spec || lpc) sig.append(x + i0, k);
       else sig.n += k;

@@ -1,4 +1,5 @@
 #include "voicepuppet/hmm.hpp"
+#include "voicepuppet/interrupt.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -113,6 +114,7 @@ void forward_log_pass(const MatrixRef& log_b, const Transitions& tr, const Vecto
   la.row(0) = startprob.transpose().array().log() + log_b.row(s).array();
   if (la.row(0).maxCoeff() == kNegInf) fail_impossible(seq, 0);
   for (Index t = 1; t < e - s; ++t) {
+    check_interrupt();
     log_transfer(a, n, la.row(t - 1).data(), la.row(t).data(), w);
     la.row(t) += log_b.row(s + t);
     if (la.row(t).maxCoeff() == kNegInf) fail_impossible(seq, t);
@@ -413,6 +415,7 @@ double log_likelihood(const MatrixRef& log_b, const VectorRef& startprob, const 
     la = startprob.transpose().array().log() + log_b.row(s).array();
     if (la.maxCoeff() == kNegInf) fail_impossible(static_cast<Index>(q), 0);
     for (Index t = s + 1; t < e; ++t) {
+      check_interrupt();
       log_transfer(a, n, la.data(), next.data(), w);
       la = next + log_b.row(t);
       if (la.maxCoeff() == kNegInf) fail_impossible(static_cast<Index>(q), t - s);
@@ -437,6 +440,7 @@ ViterbiResult viterbi(const MatrixRef& log_b, const VectorRef& startprob, const 
     Eigen::Matrix<std::int32_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> back(e - s, n);
     for (Index j = 0; j < n; ++j) delta[j] = std::log(startprob[j]) + log_b(s, j);
     for (Index t = s + 1; t < e; ++t) {
+      check_interrupt();
       for (Index j = 0; j < n; ++j) {
         double best = kNegInf;
         Index arg = -1;

@@ -1,6 +1,7 @@
 // Closed-form trajectory synthesis: block Cholesky of the block-tridiagonal normal equations
 // (see trajectory.hpp for the objective and the blocks).
 #include "voicepuppet/trajectory.hpp"
+#include "voicepuppet/interrupt.hpp"
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
@@ -457,6 +458,7 @@ RowMatrixXd solve_full(Provider& p, Index n_frames, Index d, const double* ew = 
   std::vector<double> stage(static_cast<size_t>(psz), 0.0);  // one frame's factor, then streamed out
   double lo = std::numeric_limits<double>::infinity(), hi = 0.0;
   for (Index t = 0; t < n_frames; ++t) {
+    check_interrupt();
     const MatrixXd& hd = p.diag(t);
     const VectorXd& g = p.rhs(t);
     if (t + 1 < n_frames) {
@@ -539,6 +541,7 @@ RowMatrixXd solve_diag(Terms& terms, Index n_frames, Index d, const double* ew =
   Arr hi = Arr::Zero(d);
   Arr q(d), g(d);
   for (Index t = 0; t < n_frames; ++t) {
+    check_interrupt();
     q = CMap(terms(t, kDiag), d);
     g = CMap(terms(t, kRhs), d);
     if (t + 1 < n_frames) {

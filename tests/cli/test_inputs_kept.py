@@ -103,3 +103,32 @@ def test_temporaries_of_killed_runs_are_removed_by_the_next_write(tmp_path):
     proc.stdout.close()
     save_animation(procedural_animation(4, 10.0), tmp_path / "c.npz")
     assert not (tmp_path / name).exists()
+
+
+def test_ctrl_c_stops_a_long_cpp_call_inside_it():
+    """A signal's Python handler runs inside a long C++ kernel (interrupt.hpp), not after it: the
+    feature front end, pushed ten minutes of audio at once, stops part-way with the handler's
+    exception (before, the handler ran once all ten minutes were done)."""
+    from voicepuppet.audio.stream import StreamingFeatures
+
+    class Stop(Exception):
+        pass
+
+    def stop(signum, frame):
+        raise Stop()
+
+    x = np.random.default_rng(0).normal(0, 0.1, 16000 * 600)
+    stream = StreamingFeatures("puppet", fps=29.97, rate=16000)
+    previous = signal.signal(signal.SIGALRM, stop)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.02)
+        try:
+            stream.push(x)
+        except Stop:
+            pass
+        else:
+            raise AssertionError("the push finished before the alarm: it never saw the signal")
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert 0 < stream.samples_in < len(x) // 2, stream.samples_in  # stopped early, by the handler
