@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from voicepuppet import data
 from voicepuppet.cli import main
 from voicepuppet.evaluation import real
 
@@ -19,7 +20,7 @@ def cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def result(cache):
-    return real.evaluate_real(cache_dir=cache)
+    return real.evaluate_real(cache_dir=cache, voices=data.real_recordings())
 
 
 def test_the_recordings_ship_with_their_reference():
@@ -90,6 +91,20 @@ def test_the_obama_puppet_animates_other_voices(result):
     text = real.format_real(result)
     assert "Leave one session out (obama, 10 held-out clips, 4 sessions)" in text
     assert "Any voice: the obama models animate reagan (1 clip)" in text and text.count("| voice puppet |") == 3
+
+
+def test_the_obama_puppet_animates_voices_without_faces(result):
+    """CMU ARCTIC and LibriVox speech (no video): the puppet's mouth moves 0.5-2x as much as the
+    training speaker's (the most probable trajectory and the loudness mouth much less), and moves
+    with the voice."""
+    nf = result["any_voice"]["no_face"]
+    assert [r["name"] for r in nf["recordings"]] == list(data.REAL_RECORDINGS)
+    for r in nf["recordings"]:
+        m = r["models"]
+        assert 0.5 <= m["voice puppet"]["spread"] <= 2.0, r
+        assert m["voice puppet, most probable"]["spread"] < m["voice puppet"]["spread"], r
+        assert m["loudness mouth"]["spread"] < 0.5 and m["voice puppet"]["r_loudness"] > 0.1, r
+    assert "Voices without faces: the obama puppet's opening spread" in real.format_real(result)
 
 
 def test_evaluate_corpus_real_on_the_command_line(cache, tmp_path, capsys):

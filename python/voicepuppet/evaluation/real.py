@@ -443,7 +443,7 @@ def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir
 
 @limited
 def any_voice(train: list, tests: list, *, options: dict | None = None, cache_dir=None,
-              rhubarb=None, learned: bool = False, progress: bool = False) -> dict:
+              rhubarb=None, learned: bool = False, voices: list | None = None, progress: bool = False) -> dict:
     """The models trained on all of ``train`` animate other speakers' recordings.
 
     Parameters
@@ -460,6 +460,10 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
         Add Rhubarb (as :func:`leave_one_session_out`; its shapes mapped from all of ``train``).
     learned : bool
         Add the learned peer (as :func:`leave_one_session_out`).
+    voices : list of voicepuppet.data.Recording, optional
+        Speech without faces (CMU ARCTIC, LibriVox: :func:`voicepuppet.data.real_recordings`)
+        to animate too: with no reference opening to correlate with, how much the mouth moves
+        against how much the training speaker's does.
     progress : bool
         Progress bars.
 
@@ -467,7 +471,12 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
     -------
     dict
         ``clips``: per test clip, ``key``, ``session`` and per model its measures (as
-        :func:`leave_one_session_out`).
+        :func:`leave_one_session_out`). With ``voices``, ``no_face``: ``truth_spread`` (the
+        median over ``train`` of a clip's reference-opening standard deviation, inter-ocular
+        distances) and ``recordings``, per recording its ``name``, ``seconds`` and per model
+        (the puppet, its most probable trajectory, the loudness mouth) ``spread`` (its opening's
+        standard deviation over ``truth_spread``) and ``r_loudness`` (its correlation with the
+        speech loudness in dB: does it move with the voice).
     """
     models = _train(train, dict(options or {}), cache_dir, progress, learned)
     sounds = _in_sync(tests, cache_dir, progress)
@@ -476,9 +485,35 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
         own = _in_sync(train, cache_dir, progress)
         maps = _shape_maps(_rhubarb_openings(rhubarb, train, own), train, list(range(len(train))))
         shapes = _rhubarb_openings(rhubarb, tests, sounds)
-    return {"clips": [{"key": c.key, "session": c.session,
-                       "models": _predict(models, c, s, {rec: maps[rec].predict(shapes[rec][i]) for rec in maps})}
-                      for i, (c, s) in enumerate(zip(tests, sounds))]}
+    out = {"clips": [{"key": c.key, "session": c.session,
+                      "models": _predict(models, c, s, {rec: maps[rec].predict(shapes[rec][i]) for rec in maps})}
+                     for i, (c, s) in enumerate(zip(tests, sounds))]}
+    if voices:
+        out["no_face"] = _no_face(models, train, voices)
+    return out
+
+
+def _no_face(models: _Models, train: list, recordings: list) -> dict:
+    """The models animate recordings without a face (:func:`any_voice`'s ``voices``)."""
+    fps = models.fps
+    truth_spread = float(np.median([np.nanstd(c.opening) for c in train]))
+    main = models.puppets["voice puppet"]
+    rows = []
+    for rec in recordings:
+        sound = vaudio.load_audio(rec.wav)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            runs = {"voice puppet": main.animate(sound, fps=fps),
+                    "voice puppet, most probable": main.animate(sound, fps=fps, full_motion=False)}
+        n = min(len(r.animation.points) for r in runs.values())
+        loud = speech_loudness(sound, fps, n)
+        openings = {k: np.polyval(models.to_reference, mouth_opening(r.animation.points)[:n]) for k, r in runs.items()}
+        openings["loudness mouth"] = np.polyval(models.to_reference, np.polyval(models.loudness, loud))
+        rows.append({"name": rec.name, "seconds": float(sound.duration),
+                     "models": {k: {"spread": float(v.std() / truth_spread),
+                                    "r_loudness": float(np.corrcoef(v, loud)[0, 1]) if v.std() > 0 else float("nan")}
+                                for k, v in openings.items()}})
+    return {"truth_spread": truth_spread, "recordings": rows}
 
 
 def summarize(rows: list) -> dict:
@@ -522,7 +557,7 @@ def summarize(rows: list) -> dict:
 
 
 def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = None, cache_dir=None,
-                  rhubarb=None, learned: bool = False, progress: bool = False) -> dict:
+                  rhubarb=None, learned: bool = False, voices: list | None = None, progress: bool = False) -> dict:
     """Both protocols on the real recordings: leave one of ``speaker``'s sessions out, and
     ``speaker``'s models animating every other speaker.
 
@@ -540,6 +575,8 @@ def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = N
         Add Rhubarb Lip Sync's rows (both recognisers; the tables show the one of the lower RMSE).
     learned : bool
         Add the learned peer's row (needs PyTorch).
+    voices : list of voicepuppet.data.Recording, optional
+        Speech without faces to animate too (:func:`any_voice`).
     progress : bool
         Progress bars.
 
@@ -547,7 +584,8 @@ def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = N
     -------
     dict
         ``loso`` and ``any_voice``: each ``clips`` (per clip and model, the measures) and
-        ``summary`` (per model, see :func:`format_real`); ``speaker`` and ``options``.
+        ``summary`` (per model, see :func:`format_real`), ``any_voice`` also ``no_face`` with
+        ``voices``; ``speaker`` and ``options``.
     """
     own = real_clips(root, speaker)
     others = [c for c in real_clips(root) if c.key.split("/")[0] != speaker]
@@ -556,14 +594,14 @@ def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = N
     loso["summary"] = summarize(loso["clips"])
     result = {"speaker": speaker, "options": dict(options or {}), "loso": loso}
     if others:
-        voices = any_voice(own, others, options=options, cache_dir=cache_dir, rhubarb=rhubarb, learned=learned,
-                           progress=progress)
-        voices["summary"] = summarize(voices["clips"])
+        heard = any_voice(own, others, options=options, cache_dir=cache_dir, rhubarb=rhubarb, learned=learned,
+                          voices=voices, progress=progress)
+        heard["summary"] = summarize(heard["clips"])
         by_speaker: dict = {}
-        for row in voices["clips"]:
+        for row in heard["clips"]:
             by_speaker.setdefault(row["key"].split("/")[0], []).append(row)
-        voices["by_speaker"] = {k: summarize(v) for k, v in by_speaker.items()}
-        result["any_voice"] = voices
+        heard["by_speaker"] = {k: summarize(v) for k, v in by_speaker.items()}
+        result["any_voice"] = heard
     return result
 
 
@@ -597,7 +635,7 @@ def format_real(result: dict) -> str:
     Returns
     -------
     str
-        One table per protocol (and per other speaker): per model, the opening's correlation
+        One table per protocol (and per other speaker, and for voices without faces): per model, the opening's correlation
         with the reference, its RMSE (inter-ocular distances), spread (model / truth), median
         best lag (frames), the largest share of a clip's frames with crossed inner lips, and the
         puppet's paired per-clip differences from the model (mean [95% CI]).
@@ -611,6 +649,15 @@ def format_real(result: dict) -> str:
             k = sum(1 for r in result["any_voice"]["clips"] if r["key"].startswith(who + "/"))
             lines += ["", f"Any voice: the {result['speaker']} models animate {who} ({k} clip{'s' * (k != 1)})", ""]
             lines += _table(summary)
+    if "no_face" in result.get("any_voice", {}):
+        nf = result["any_voice"]["no_face"]
+        lines += ["", f"Voices without faces: the {result['speaker']} puppet's opening spread over the "
+                      f"{result['speaker']} reference's ({nf['truth_spread']:.4f} IOD), and its correlation with "
+                      "the speech loudness", ""]
+        names = ["voice puppet", "voice puppet, most probable", "loudness mouth"]
+        lines += markdown_table(["recording", "s"] + [f"{m}: spread" for m in names] + ["puppet: r loudness"],
+                                [[r["name"], f"{r['seconds']:.1f}"] + [f"{r['models'][m]['spread']:.2f}" for m in names]
+                                 + [f"{r['models']['voice puppet']['r_loudness']:.2f}"] for r in nf["recordings"]])
     return "\n".join(lines) + "\n"
 
 
