@@ -220,13 +220,16 @@ def read_npz(path, what: str = "file") -> dict:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise FileNotFoundError(f"{what} {path!r} does not exist")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as exc:
-        reason = str(exc) or type(exc).__name__
-        if os.path.getsize(path) == 0:
-            reason = "the file is empty"
-        elif "pickle" in reason:
-            reason = "it holds pickled Python objects, which voicepuppet never loads"
-        raise ValueError(f"{what} {path!r} is not a readable .npz archive ({reason})") from None
+    if os.path.getsize(path) == 0:
+        reason = "the file is empty"
+    elif not zipfile.is_zipfile(path):
+        reason = "truncated, or another format"
+    else:
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return {k: z[k] for k in z.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as exc:
+            reason = str(exc) or type(exc).__name__
+            if "pickle" in reason:
+                reason = "it holds pickled Python objects, which voicepuppet never loads"
+    raise ValueError(f"{what} {path!r} is not a readable .npz archive ({reason})")

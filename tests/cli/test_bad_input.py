@@ -1,7 +1,6 @@
 """docs/errors.md's bad-input table, row by row: each command exits with code 2 and one line
 ``voicepuppet VERB: error: ...`` containing the row's text, and writes nothing. The table is the
 test's data, so the page and the behaviour cannot drift apart."""
-import os
 import re
 import shlex
 from pathlib import Path

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from voicepuppet import audio as vaudio, synth
+from voicepuppet import audio as vaudio, data, synth
 from voicepuppet.bench.runner import case, timeit_interleaved
 from voicepuppet.evaluation.learned import ConvRegressor, torch_available
 from voicepuppet.evaluation.rhubarb import RECOGNIZERS, Rhubarb, find_rhubarb
@@ -29,8 +29,7 @@ from voicepuppet.puppet import Puppet
 
 
 def _corpus(seconds: float, n_test: int):
-    base = os.environ.get("VOICEPUPPET_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "voicepuppet")
-    root = os.path.join(base, f"bench-peers-{int(seconds)}-{n_test}")
+    root = os.path.join(data.cache_dir(), f"bench-peers-{int(seconds)}-{n_test}")
     return synth.make_corpus(root, train_seconds=seconds, n_test=n_test, real_test=False, progress=False)
 
 

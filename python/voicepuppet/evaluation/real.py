@@ -49,7 +49,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
-import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,7 +56,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from voicepuppet import audio as vaudio
+from voicepuppet import audio as vaudio, data
 from voicepuppet._version import __version__
 from voicepuppet.blas import limited
 from voicepuppet.evaluation.folds import mean_ci
@@ -168,8 +167,7 @@ def real_clips(root=None, speaker: str | None = None) -> list:
 def _cache_dir(cache_dir) -> Path:
     if cache_dir is not None:
         return Path(cache_dir)
-    base = os.environ.get("VOICEPUPPET_CACHE") or Path.home() / ".cache" / "voicepuppet"
-    return Path(base) / "real-tracks"
+    return Path(data.cache_dir()) / "real-tracks"
 
 
 def cues_cache(cache_dir=None) -> Path:

@@ -23,6 +23,7 @@ from tqdm import tqdm
 from voicepuppet import layout as face_layout
 from voicepuppet._files import atomic_path, check_output_path, publish
 from voicepuppet.animation import Animation
+from voicepuppet.audio.loading import load_audio
 from voicepuppet.face import shape_distance
 from voicepuppet.limits import LIMITS, check_limit
 from voicepuppet.render._backend import import_pyvista
@@ -426,8 +427,6 @@ def write_video(frames: Iterable[np.ndarray], path, fps: float, *, audio=None, n
                              "or write an .mp4")
         # FFmpeg, given a file it cannot decode (or NaN samples), only breaks the pipe mid-video:
         # decode it first so that the user hears what is wrong before any frame is drawn.
-        from voicepuppet.audio.loading import load_audio
-
         load_audio(audio, rate=None)
     if suffix == "":
         parent = p.parent if str(p.parent) else Path(".")
