@@ -299,14 +299,21 @@ def real_video(puppet, clip, path, *, height: int = REAL_HEIGHT, cache_dir=None,
     """A real recording beside ``puppet`` animating its sound on its face (an ``.mp4``).
 
     Left: the recording's frames. Right: the puppet's animation of the recording's sound (moved
-    into sync with its face first, as training does: :func:`voicepuppet.puppet.sources.av_offsets`),
-    at the video's frame rate, with the recording's head pose re-applied frame by frame (the
-    puppet models the face; the pose is the tracked recording's) and rendered as a textured
-    mesh (Brand §4.6) made from one of the recording's frames: the one whose tracked face is
-    nearest the puppet's rest face (:func:`voicepuppet.face.shape_distance`), as ``render --face
-    VIDEO`` picks a frame, here among the frames where the tracker lost no point. The mesh moves by
-    the puppet's motion from its rest face placed at that frame's pose, so the face keeps the
-    recording's shape. The sound in sync is muxed in; written through a temporary file.
+    into sync with its face first, as training does: :func:`voicepuppet.puppet.sources.av_offsets`)
+    at the video's frame rate, rendered as a textured mesh (Brand §4.6) made from one of the
+    recording's frames: the one whose tracked face is nearest the puppet's rest face
+    (:func:`voicepuppet.face.shape_distance`), as ``render --face VIDEO`` picks a frame, among
+    the frames whose eyes are at least as open as the recording's median (the lids' gap over the
+    eye's width; the texture's eyes stay as they are throughout). The mesh moves by the puppet's
+    motion from its rest face placed at that frame's pose, so the face keeps the recording's
+    shape and stays at that pose: everything on the right comes from the sound and that one
+    frame (the recording's head motion, re-applied, stretched the neck and collar where the
+    head moved far from it). The motion drives the mesh through the nine action units
+    (:func:`voicepuppet.render.retargeting.mesh_animation`, ``mode="au"``): a real speaker's
+    head turns survive pose removal as changes of the face's outline (0.13 inter-ocular
+    distances on the weekly address's jaw line, median frame), the puppet learns them, and
+    carried vertex by vertex they stretch the neck; no action unit moves the outline. The
+    sound in sync is muxed in; written through a temporary file.
 
     Parameters
     ----------
@@ -345,7 +352,7 @@ def real_video(puppet, clip, path, *, height: int = REAL_HEIGHT, cache_dir=None,
     from voicepuppet.tracking.landmarks import load_landmarks
 
     track = load_landmarks(real.tracked_clip(clip, cache_dir))
-    points, lost = np.asarray(track["points"], np.float64), np.asarray(track["lost"], bool)
+    points = np.asarray(track["points"], np.float64)
     sound = vaudio.load_audio(clip.video)
     (offset,) = av_offsets([(points, sound, f"{clip.key}: ")], clip.fps)
     sound = shift_audio(sound, offset)
@@ -354,15 +361,15 @@ def real_video(puppet, clip, path, *, height: int = REAL_HEIGHT, cache_dir=None,
         animated = puppet.animate(sound, fps=clip.fps)
     T = min(len(animated.face), len(points))
     space = puppet.face_space
-    _, pose = space.encode(points[:T])
-    pred = space.decode(animated.face[:T], pose)
-    whole = np.flatnonzero(~lost[:T].any(axis=1))
-    candidates = whole if len(whole) else np.arange(T)
+    eyes = _eye_opening(points[:T])
+    candidates = np.flatnonzero(eyes >= np.median(eyes))  # a blink would stay on the face throughout
     rest = puppet.rest_face()
     if rest is None:  # a puppet file without one: its mean face
         rest = space.decode(np.zeros((1, space.n_dims)))[0]
     k = int(candidates[np.argmin(shape_distance(points[candidates], rest))])
-    neutral = space.decode(space.encode(rest[None])[0], pose[k:k + 1])[0]
+    pose = space.encode(points[k:k + 1])[1][0]
+    pred = space.decode(animated.face[:T], pose)
+    neutral = space.decode(space.encode(rest[None])[0], pose)[0]
     photo = np.ascontiguousarray(tracking_video.frame_at(clip.video, k, grey=False)[..., ::-1])
     face = render.build_face_mesh(photo, points[k])
     H, W = photo.shape[:2]
@@ -374,9 +381,17 @@ def real_video(puppet, clip, path, *, height: int = REAL_HEIGHT, cache_dir=None,
         n = int(round(T / clip.fps * sound.rate))
         soundfile.write(wav, np.pad(sound.samples, (0, max(0, n - len(sound.samples))))[:n], sound.rate, format="WAV")
         render.render(Animation(pred, clip.fps, neutral=neutral), path, audio=wav, face=face, neutral=neutral,
-                      size=size, beside=clip.video, progress=progress)
+                      mode="au", size=size, beside=clip.video, progress=progress)
     return {"clip": clip.key, "frames": int(T), "fps": float(clip.fps), "size": [2 * size[0], size[1]],
             "face_frame": k, "av_offset_s": float(offset)}
+
+
+def _eye_opening(points: np.ndarray) -> np.ndarray:
+    """Per frame, the eyelids' mean gap over the eye's width, both eyes (68-point layout), (T,)."""
+    def gap(a, b):
+        return np.linalg.norm(points[:, a] - points[:, b], axis=1)
+
+    return ((gap(37, 41) + gap(38, 40)) / gap(36, 39) + (gap(43, 47) + gap(44, 46)) / gap(42, 45)) / 4.0
 
 
 def format_real_people(result: dict) -> str:
