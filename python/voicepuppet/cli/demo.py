@@ -308,12 +308,14 @@ def real_video(puppet, clip, path, *, height: int = REAL_HEIGHT, cache_dir=None,
     motion from its rest face placed at that frame's pose, so the face keeps the recording's
     shape and stays at that pose: everything on the right comes from the sound and that one
     frame (the recording's head motion, re-applied, stretched the neck and collar where the
-    head moved far from it). The motion drives the mesh through the nine action units
-    (:func:`voicepuppet.render.retargeting.mesh_animation`, ``mode="au"``): a real speaker's
-    head turns survive pose removal as changes of the face's outline (0.13 inter-ocular
-    distances on the weekly address's jaw line, median frame), the puppet learns them, and
-    carried vertex by vertex they stretch the neck; no action unit moves the outline. The
-    sound in sync is muxed in; written through a temporary file.
+    head moved far from it). The motion drives the mesh through the action units but the
+    blinks (:func:`voicepuppet.render.retargeting.fit_activations`, as ``mode="au"`` does): a
+    real speaker's head turns survive pose removal as changes of the face's outline (0.13
+    inter-ocular distances on the weekly address's jaw line, median frame), the puppet learns
+    them, and carried vertex by vertex they stretch the neck; no action unit moves the outline.
+    The blinks are left out because the eye region's drift, read as blinks (median activation
+    0.6), kept the eyes half shut. The sound in sync is muxed in; written through a temporary
+    file.
 
     Parameters
     ----------
@@ -347,6 +349,7 @@ def real_video(puppet, clip, path, *, height: int = REAL_HEIGHT, cache_dir=None,
     from voicepuppet.face import shape_distance
     from voicepuppet.puppet.sources import av_offsets
     from voicepuppet.puppet.sync import shift_audio
+    from voicepuppet.render.retargeting import ACTION_UNITS, action_unit_basis, fit_activations, retarget
     from voicepuppet.render.video import even
     from voicepuppet.tracking import video as tracking_video
     from voicepuppet.tracking.landmarks import load_landmarks
@@ -370,6 +373,11 @@ def real_video(puppet, clip, path, *, height: int = REAL_HEIGHT, cache_dir=None,
     pose = space.encode(points[k:k + 1])[1][0]
     pred = space.decode(animated.face[:T], pose)
     neutral = space.decode(space.encode(rest[None])[0], pose)[0]
+    # The motion through the action units but the blinks, from the texture frame's face.
+    units = [i for i, u in enumerate(ACTION_UNITS) if not u.startswith("blink")]
+    basis = action_unit_basis(points[k])[units]
+    activations, _ = fit_activations(retarget(pred, neutral, points[k]), basis)
+    driven = points[k] + np.einsum("tk,kpc->tpc", activations, basis[..., :2])
     photo = np.ascontiguousarray(tracking_video.frame_at(clip.video, k, grey=False)[..., ::-1])
     face = render.build_face_mesh(photo, points[k])
     H, W = photo.shape[:2]
@@ -380,8 +388,8 @@ def real_video(puppet, clip, path, *, height: int = REAL_HEIGHT, cache_dir=None,
         wav = Path(tmp) / "sound.wav"
         n = int(round(T / clip.fps * sound.rate))
         soundfile.write(wav, np.pad(sound.samples, (0, max(0, n - len(sound.samples))))[:n], sound.rate, format="WAV")
-        render.render(Animation(pred, clip.fps, neutral=neutral), path, audio=wav, face=face, neutral=neutral,
-                      mode="au", size=size, beside=clip.video, progress=progress)
+        render.render(Animation(driven, clip.fps, neutral=points[k]), path, audio=wav, face=face,
+                      neutral=points[k], size=size, beside=clip.video, progress=progress)
     return {"clip": clip.key, "frames": int(T), "fps": float(clip.fps), "size": [2 * size[0], size[1]],
             "face_frame": k, "av_offset_s": float(offset)}
 
