@@ -81,6 +81,7 @@ def test_demo_writes_everything(tmp_path, small_recordings):
     assert set(video["measures"]) == set(real.MODELS)
     text = (tmp_path / "results.md").read_text()
     assert "## A real person" in text and "Leave one session out (obama, 3 held-out clips, 2 sessions)" in text
+    assert f"Recordings of Barack Obama in {small_recordings}," in text
     assert "| voice puppet |" in text and "`real.mp4`: obama/sentence_5 (74 frames at 29.97 fps)" in text
     with pytest.raises(ValueError, match="train_on"):
         demo.run(tmp_path, train_on="guess")

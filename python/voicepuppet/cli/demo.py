@@ -261,9 +261,10 @@ def _real_people(out: Path, *, root, options: dict, render_video: bool, progress
     for c in clips:
         by_session.setdefault(c.session, []).append(c)
     seconds = sum(len(c.opening) / c.fps for c in clips)
+    where = "shipped with the package" if root is None else f"in {root}"
     t = time.perf_counter()
     log(f"{stage} a real person: {clips[0].speaker}, {_count(len(clips), 'recording')} ({seconds:.0f} s, "
-        f"{_count(len(by_session), 'session')}) shipped with the package, tracked once (then cached); "
+        f"{_count(len(by_session), 'session')}) {where}, tracked once (then cached); "
         "models trained on all sessions but one animate the one left out, then other speakers' voices, "
         "measured against an independent landmark reference (MediaPipe Face Mesh)")
     evaluation = real.evaluate_real(root, speaker=REAL_SPEAKER, options=options, progress=progress)
@@ -288,7 +289,7 @@ def _real_people(out: Path, *, root, options: dict, render_video: bool, progress
         row = next(r for r in evaluation["loso"]["clips"] if r["key"] == clip.key)
         video["measures"] = row["models"]
         timings["real_render_s"] = time.perf_counter() - t
-    return {"speaker": clips[0].speaker, "evaluation": evaluation, "video": video}
+    return {"speaker": clips[0].speaker, "recordings": where, "evaluation": evaluation, "video": video}
 
 
 def _count(n: int, what: str) -> str:
@@ -408,7 +409,8 @@ def format_real_people(result: dict) -> str:
     Parameters
     ----------
     result : dict
-        ``run(...)["real"]``: ``speaker``, ``evaluation`` and ``video``.
+        ``run(...)["real"]``: ``speaker``, ``recordings`` (where they are), ``evaluation`` and
+        ``video``.
 
     Returns
     -------
@@ -420,7 +422,7 @@ def format_real_people(result: dict) -> str:
     from voicepuppet.evaluation import real
 
     ev = result["evaluation"]
-    text = ("## A real person\n\n" f"Recordings of {result['speaker']} shipped with the package, measured "
+    text = ("## A real person\n\n" f"Recordings of {result['speaker']} {result['recordings']}, measured "
             "against an independent reference (MediaPipe Face Mesh per frame): the mouth's opening over "
             "the inter-ocular distance (`voicepuppet evaluate --corpus real`; docs/results.md, \"Real "
             "people\"). Columns: Pearson r with the reference's opening, RMSE (inter-ocular distances), "
