@@ -10,6 +10,7 @@ from voicepuppet import synth
 from voicepuppet.cli import demo
 from voicepuppet.cli.main import main
 from voicepuppet.evaluation import real
+from voicepuppet.tracking import video as tracking_video
 
 pytestmark = pytest.mark.skipif(not synth.espeak_available(),
                                 reason="the synthetic performer needs espeak-ng (apt-get install espeak-ng)")
@@ -72,7 +73,6 @@ def test_demo_writes_everything(tmp_path, small_recordings):
     assert video["size"] == [1280, 360]  # each side 640 x 360, the recording's 1280 x 720 halved
     frames, seconds, sound = _streams(tmp_path / "real.mp4")
     assert frames == 74 and seconds == pytest.approx(74 / 29.97, abs=0.05) and sound
-    from voicepuppet.tracking import video as tracking_video
     info = tracking_video.probe_video(tmp_path / "real.mp4")
     assert (info.width, info.height) == (1280, 360) and info.fps == pytest.approx(29.97, abs=0.01)
     # the real-data table: both sessions left out in turn, every model measured on all three clips
