@@ -310,6 +310,25 @@ def test_side_by_side_and_2d_fallback(face, jaw_anim):
     assert not np.array_equal(flat[0], flat[2]) or np.allclose(short.points[0], short.points[2])
 
 
+def test_a_video_beside_the_prediction(face, jaw_anim, tmp_path, write_avi):
+    """``beside``: the recording's frame t on the left (scaled to one side's size), the
+    prediction's frame t on the right; a shorter video or a truth too is refused."""
+    anim, _ = jaw_anim
+    short = Animation(anim.points[:4], anim.fps)
+    levels = np.array([40, 90, 140, 190], np.uint8)
+    video = write_avi(tmp_path / "rec.avi", np.repeat(levels, 120 * 120).reshape(4, 120, 120), fps=anim.fps)
+    single = list(R.render_frames(short, face=face))
+    out = list(R.render_frames(short, face=face, beside=video))
+    assert len(out) == 4 and out[0].shape == (240, 480, 3)
+    for t in range(4):  # the video's grey level, upscaled to 240 x 240, below the label
+        assert abs(float(np.median(out[t][40:, :240])) - levels[t]) <= 3
+        np.testing.assert_array_equal(out[t][40:, 240:], single[t][40:])
+    with pytest.raises(ValueError, match="has 4 frames, the animation 5"):
+        list(R.render_frames(Animation(anim.points[:5], anim.fps), face=face, beside=video))
+    with pytest.raises(ValueError, match="not both"):
+        list(R.render_frames(short, face=face, truth=short, beside=video))
+
+
 def _write_tone(path, seconds, rate=16000):
     import soundfile as sf
 

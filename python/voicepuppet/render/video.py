@@ -4,8 +4,9 @@ Rendering uses pyvista off screen (headless EGL with Mesa, :mod:`voicepuppet.ren
 with a parallel camera over the image, so the neutral frame reproduces the photo
 (:class:`FaceRenderer`). Outputs (:func:`render`, :func:`write_video`): ``.mp4`` (H.264 through
 imageio-ffmpeg, the audio muxed in from the start, cut to the animation's duration), ``.gif``, a
-folder of ``.png`` frames; a side-by-side comparison (prediction | ground truth); a fast 2-D
-landmark drawing instead of the mesh (``renderer="2d"``, :func:`draw_landmarks_2d`).
+folder of ``.png`` frames; a side-by-side comparison (prediction | ground truth), or a recording
+beside the prediction (video | prediction: the real face beside the puppet driven by its sound); a
+fast 2-D landmark drawing instead of the mesh (``renderer="2d"``, :func:`draw_landmarks_2d`).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from voicepuppet.render._backend import import_pyvista
 from voicepuppet.render.mesh import FaceMesh
 from voicepuppet.render.photo import build_face_mesh, portrait_image
 from voicepuppet.render.retargeting import mesh_animation
+from voicepuppet.tracking import video as tracking_video
 
 __all__ = ["VIDEO_SUFFIXES", "DEFAULT_MAX_SIZE", "check_size", "default_size", "even", "FaceRenderer",
            "draw_landmarks_2d", "render_frames", "write_video", "render"]
@@ -266,9 +268,11 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
                   truth: Optional[Animation] = None, renderer: str = "mesh",
                   size: Optional[tuple[int, int]] = None, shading: bool = False,
                   turn: Optional[tuple[float, float]] = None,
-                  neutral: Optional[np.ndarray] = None, progress: bool = False) -> Iterator[np.ndarray]:
+                  neutral: Optional[np.ndarray] = None, beside=None,
+                  progress: bool = False) -> Iterator[np.ndarray]:
     """Yields the frames (H, W, 3) uint8 of ``anim``; with ``truth``, side by side
-    (prediction left, ground truth right, same face and frame count).
+    (prediction left, ground truth right, same face and frame count); with ``beside``, a video's
+    frames on the left (video left, prediction right, frame for frame).
 
     ``face`` defaults to a drawn portrait (:func:`portrait_image`) on the animation's rest face
     (``neutral``, else :attr:`Animation.rest`; 68-point layout). Both sides move from
@@ -298,21 +302,39 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
         degrees to turn the face from the front.
     neutral : ndarray, shape (P, 2), optional
         the rest face both sides move from.
+    beside : str or path-like, optional
+        a video shown on the left, its frame ``t`` beside the animation's frame ``t`` (from its
+        first frame, so the animation runs at the video's frame rate; scaled to one side's
+        size): e.g. the recording whose sound drives the animation, on a face made from one of
+        its frames. Not with ``truth``.
     progress : bool
         show a progress bar.
 
     Yields
     ------
     ndarray, shape (H, W, 3), uint8
-        one frame (W twice one side's width with ``truth``).
+        one frame (W twice one side's width with ``truth`` or ``beside``).
 
     Raises
     ------
     ValueError
-        ``truth`` differs from ``anim`` in points or frames, an unknown ``renderer``, no face
-        without the 68-point layout, a ``size`` refused by :func:`check_size`, 2-D landmarks
-        spanning more than its largest side without a ``size``, or pyvista is missing.
+        ``truth`` differs from ``anim`` in points or frames, both ``truth`` and ``beside``, a
+        ``beside`` video that is unreadable or has fewer frames than ``anim``, an unknown
+        ``renderer``, no face without the 68-point layout, a ``size`` refused by
+        :func:`check_size`, 2-D landmarks spanning more than its largest side without a
+        ``size``, or pyvista is missing.
     """
+    if beside is not None:
+        if truth is not None:
+            raise ValueError("give either a ground truth or a video to show beside the prediction, not both")
+        n = tracking_video.probe_video(beside).frame_count
+        if 0 < n < anim.n_frames:  # a container's count may be missing (0): then checked while reading
+            raise ValueError(f"the video beside the prediction, {str(beside)!r}, has {n} frames, the animation "
+                             f"{anim.n_frames}; animate no more frames than the video has")
+        yield from _video_beside(render_frames(anim, face=face, mode=mode, renderer=renderer, size=size,
+                                               shading=shading, turn=turn, neutral=neutral, progress=progress),
+                                 beside, anim.n_frames)
+        return
     if size is not None:
         size = check_size(size)
     if truth is not None:
@@ -384,6 +406,24 @@ def render_frames(anim: Animation, *, face: Optional[FaceMesh] = None, mode: str
             if gt is not None:
                 img = np.hstack([_label(img, "prediction"), _label(r.frame(gt[t % chunk]), "ground truth")])
             yield img
+
+
+def _video_beside(frames: Iterable[np.ndarray], video, n_frames: int) -> Iterator[np.ndarray]:
+    """Each of ``frames`` with ``video``'s frame of the same index on its left, scaled to its size."""
+    import cv2
+
+    recorded = tracking_video.iter_frames(video, grey=False)
+    try:
+        for t, img in enumerate(frames):
+            left = next(recorded, None)
+            if left is None:
+                raise ValueError(f"the video beside the prediction, {str(video)!r}, ended after {t} frames, the "
+                                 f"animation has {n_frames}; animate no more frames than the video has")
+            h, w = img.shape[:2]
+            left = cv2.resize(left, (w, h), interpolation=cv2.INTER_AREA if left.shape[1] >= w else cv2.INTER_LINEAR)
+            yield np.hstack([_label(np.ascontiguousarray(left[:, :, ::-1]), "video"), _label(img, "prediction")])
+    finally:
+        recorded.close()
 
 
 def write_video(frames: Iterable[np.ndarray], path, fps: float, *, audio=None, n_frames: Optional[int] = None) -> Path:
@@ -506,7 +546,7 @@ def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: 
 def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None, mode: str = "vertex",
            truth: Optional[Animation] = None, renderer: str = "mesh", size: Optional[tuple[int, int]] = None,
            shading: bool = False, neutral: Optional[np.ndarray] = None, progress: bool = False,
-           turn: Optional[tuple[float, float]] = None) -> Path:
+           turn: Optional[tuple[float, float]] = None, beside=None) -> Path:
     """Renders ``anim`` to ``path`` (``.mp4``, ``.gif`` or a folder of ``.png`` frames),
     with ``audio`` muxed into an ``.mp4``.
 
@@ -518,7 +558,7 @@ def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None
         ``.mp4``, ``.gif``, or a folder's name for ``.png`` frames.
     audio : str or path-like, optional
         sound to mux into an ``.mp4``.
-    face, mode, truth, renderer, size, shading, neutral, progress, turn
+    face, mode, truth, renderer, size, shading, neutral, progress, turn, beside
         as for :func:`render_frames`.
 
     Returns
@@ -541,5 +581,5 @@ def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None
     if p.suffix:
         check_output_path(p, VIDEO_SUFFIXES, "render output")
     frames = render_frames(anim, face=face, mode=mode, truth=truth, renderer=renderer, size=size,
-                           shading=shading, neutral=neutral, progress=progress, turn=turn)
+                           shading=shading, neutral=neutral, progress=progress, turn=turn, beside=beside)
     return write_video(frames, p, anim.fps, audio=audio, n_frames=anim.n_frames)
