@@ -47,12 +47,14 @@ from voicepuppet import audio as vaudio
 from voicepuppet._files import check_output_path
 from voicepuppet.animation import Animation
 from voicepuppet.audio import AudioWarning, FeatureSet
-from voicepuppet.audio.loading import DEFAULT_RATE
+from voicepuppet.audio.extract import extract_file
+from voicepuppet.audio.loading import DEFAULT_RATE, AudioReader
+from voicepuppet.audio.stream import STREAMABLE
 from voicepuppet.blas import limited
 from voicepuppet.face import FaceSpace
 from voicepuppet.layout import N_POINTS, close_crossed_lips
 from voicepuppet.limits import check_limit
-from voicepuppet.puppet import training
+from voicepuppet.puppet import long, training
 from voicepuppet.puppet.metadata import check_metadata
 from voicepuppet.puppet.training import TrainOptions
 from voicepuppet.trajectory import MAX_MOTION_GAIN, widen_motion
@@ -63,6 +65,7 @@ _D = TrainOptions()  # the defaults of Puppet.train's options
 #: used unless told otherwise (chosen on the leave-one-reader-out protocol, docs/results.md).
 ADAPT_KINDS = ("full",)
 ADAPT_DEFAULTS = {"tau": 30.0, "n_iter": 1}
+_DECODE_ROWS = 20_000  # frames of landmarks decoded at a time on the chunked path
 
 
 @dataclass
@@ -415,7 +418,7 @@ class Puppet:
                 features=None, states=None, states_fps: float | None = None,
                 adapt: str | None = None, adapt_tau: float = ADAPT_DEFAULTS["tau"],
                 adapt_iter: int = ADAPT_DEFAULTS["n_iter"], guide_weight: float | None = None,
-                full_motion: bool = True, progress: bool = False) -> Animated:
+                full_motion: bool = True, progress: bool = False, chunked: bool | None = None) -> Animated:
         """Facial animation for novel audio (any voice, any language).
 
         Parameters
@@ -471,6 +474,17 @@ class Puppet:
             guide, or trained before they were stored).
         progress : bool
             Show a progress bar while extracting features from ``audio`` (default False).
+        chunked : bool, optional
+            Long audio in bounded memory (:mod:`voicepuppet.puppet.long`): the features read from
+            an audio file in blocks (:func:`voicepuppet.audio.extract.extract_file`), the core run
+            on overlapping windows. None (default): for audio or features longer than
+            :data:`~voicepuppet.puppet.long.LONG_AUDIO_S` (10 min); True: always; False: never.
+            Not with ``states`` or ``adapt`` (they stay whole-utterance: their memory grows with
+            the length). The result equals the whole-utterance one to 1e-6 (docs/benchmarks.md,
+            "Long audio") except ``log_likelihood``, which is NaN (the windows' do not add up
+            to the whole's). The returned landmarks still hold every frame (T' × P × 2 float64:
+            235 MB for 2 h of 68 points at 29.97 fps): :meth:`animate_to` writes them to a file
+            without holding them.
 
         Returns
         -------
@@ -486,8 +500,50 @@ class Puppet:
             ``states``); ``adapt`` not None or "full", or given with ``states``; ``posterior``
             with ``states``; ``guide_weight`` not None or a finite number >= 0, or positive for
             states without audio; ``states`` not integers of shape (T,) or (T, parts);
-            ``adapt_iter`` not an integer.
+            ``adapt_iter`` not an integer; ``chunked=True`` with ``states`` or ``adapt``.
         """
+        r = self._animate(audio, fps, posterior, features, states, states_fps, adapt, adapt_tau, adapt_iter,
+                          guide_weight, full_motion, progress, chunked)
+        pts = r.pop("points")
+        if pts is None:  # chunked: the landmarks decoded window by window into one array
+            face = r["face"]
+            pts = np.empty((len(face), self.n_points, 2))
+            for i in range(0, len(face), _DECODE_ROWS):
+                pts[i:i + _DECODE_ROWS] = self._points(face[i:i + _DECODE_ROWS], r["widened"])
+        return Animated(Animation(pts, r["out_fps"], neutral=self.rest_face()), r["face"], r["states"], r["states_fps"],
+                        r["log_likelihood"], r["transforms"])
+
+    def _chunk(self, chunked, audio, features, states, adapt) -> bool:
+        """Whether to animate in windows (``animate``'s ``chunked``)."""
+        if chunked is not None and not isinstance(chunked, (bool, np.bool_)):
+            raise ValueError(f"chunked must be None, True or False, got {chunked!r}")
+        if states is not None or adapt is not None:
+            if chunked:
+                raise ValueError("chunked animation decodes the audio window by window: given states and adapt "
+                                 "(which fits one transform to all of the audio) are whole-utterance only; drop "
+                                 "chunked=True")
+            return False
+        if chunked is not None:
+            return bool(chunked)
+        if features is not None:
+            return len(features) / self.fps > long.LONG_AUDIO_S
+        if isinstance(audio, vaudio.Audio):
+            return audio.duration > long.LONG_AUDIO_S
+        duration = AudioReader(audio).duration
+        return duration is None or duration > long.LONG_AUDIO_S
+
+    def _points(self, face: np.ndarray, widened: bool) -> np.ndarray:
+        """Landmarks (T, P, 2) of face coordinates, as ``animate`` makes them (C++ ``to_points``,
+        or for a widened trajectory the face space's decoding with crossed lips closed)."""
+        if not widened:
+            return self._core.to_points(np.ascontiguousarray(face)).reshape(len(face), -1, 2)
+        pts = self.face_space.decode(face)
+        return close_crossed_lips(pts) if pts.shape[1] == N_POINTS else pts
+
+    def _animate(self, audio, fps, posterior, features, states, states_fps, adapt, adapt_tau, adapt_iter,
+                 guide_weight, full_motion, progress, chunked) -> dict:
+        """``animate``'s work: a dict of ``face``, ``points`` (None when chunked), ``states``,
+        ``states_fps``, ``out_fps``, ``log_likelihood``, ``transforms``, ``widened``."""
         out_fps = self.fps if fps is None else check_limit(fps, "fps", "output fps")
         sound = (audio is not None) + (features is not None)
         if sound > 1 or (sound == 0 and states is None):
@@ -527,24 +583,47 @@ class Puppet:
                 r = self._core.animate_states(s, sf, out_fps)
             else:
                 if features is None:
-                    features = self.audio_features(audio, progress=progress)
+                    features = self.extract(audio, progress=progress, stacklevel=4).values
                 r = self._core.animate_states_guided(s, sf, np.ascontiguousarray(features, dtype=np.float64),
                                                      out_fps, lam)
+        elif self._chunk(chunked, audio, features, states, adapt):
+            _count(adapt_iter, "adapt_iter")
+            if features is None:
+                features = self._long_features(audio, progress)
+            r = long.animate_windows(self._core, np.ascontiguousarray(features, dtype=np.float64), self.fps,
+                                     out_fps, posterior, lam, progress=progress)
+            r["points"], r["log_likelihood"] = None, float("nan")
+            sf = self.fps
         else:
             if features is None:
-                features = self.audio_features(audio, progress=progress)
+                features = self.extract(audio, progress=progress, stacklevel=4).values
             r = self._core.animate(np.ascontiguousarray(features, dtype=np.float64), out_fps, posterior,
                                    adapt or "none", float(adapt_tau), _count(adapt_iter, "adapt_iter"), lam)
             sf = self.fps
-        face, pts = r["face"], r["points"].reshape(len(r["points"]), -1, 2)
+        face = r["face"]
+        pts = None if r["points"] is None else r["points"].reshape(len(r["points"]), -1, 2)
         own_weight = guide_weight is None or lam == self.guide_weight
-        if full_motion and sound and own_weight and "face/motion_gain" in self.arrays:
+        widened = bool(full_motion and sound and own_weight and "face/motion_gain" in self.arrays)
+        if widened:  # about the mean of the whole animation (of every window's centre, when chunked)
             face = widen_motion(face, self.arrays["face/motion_gain"])
-            pts = self.face_space.decode(face)
-            if pts.shape[1] == N_POINTS:  # widened about its mean, a closed mouth must not cross
-                pts = close_crossed_lips(pts)
-        return Animated(Animation(pts, out_fps, neutral=self.rest_face()), face, r["states"], sf,
-                        float(r["log_likelihood"]), list(r.get("transforms", [])))
+            if pts is not None:  # widened about its mean, a closed mouth must not cross
+                pts = self._points(face, True)
+        return {"face": face, "points": pts, "states": r["states"], "states_fps": sf, "out_fps": out_fps,
+                "log_likelihood": float(r["log_likelihood"]), "transforms": list(r.get("transforms", [])),
+                "widened": widened}
+
+    def _long_features(self, audio, progress: bool) -> np.ndarray:
+        """Raw features of long audio: read from a file in blocks when the feature set streams."""
+        streams = all(f in STREAMABLE for f in self.feature_set.features)
+        if isinstance(audio, vaudio.Audio) or not streams:
+            if not streams and not isinstance(audio, vaudio.Audio):
+                warnings.warn(f"this puppet's features {', '.join(f for f in self.feature_set.features if f not in STREAMABLE)} "
+                              "need the whole recording at once: the audio is loaded whole (its memory grows with "
+                              "its length: about 0.5 GB per hour at 16 kHz)", AudioWarning, stacklevel=4)
+            return self.extract(audio, progress=progress, stacklevel=5).values
+        reader = AudioReader(audio)
+        self.check_band(reader.source_rate, f"audio {reader.path!r}", stacklevel=4)
+        return extract_file(audio, fps=self.fps, features=self.feature_set, progress=progress).values
 
     # ---------------------------------------------------------------------------- storage
     def save(self, path) -> Path:
