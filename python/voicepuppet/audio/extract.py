@@ -161,15 +161,22 @@ def extract_file(path, fps: float = 29.97, features=None, *, progress: bool = Fa
         level = opt["level_db"]
     stream = StreamingFeatures(fset, fps=fps, rate=rate, input_level_db=level)
     T = n_frames(reader.n_samples, rate, fps)
-    rows = []
+    values = np.empty((T, stream.n_features))
+    k = 0
+
+    def put(rows):
+        nonlocal k
+        rows = rows[:max(0, T - k)]
+        values[k:k + len(rows)] = rows
+        k += len(rows)
+
     with tqdm(total=round(reader.duration, 1), desc="features", unit="s", disable=not progress, leave=False) as bar:
         for x in reader.blocks():
-            rows.append(stream.push(x))
+            put(stream.push(x))
             bar.update(round(x.size / rate, 1))
-        rows.append(stream.flush())
-    values = np.ascontiguousarray(np.vstack(rows)[:T])
-    if values.shape[0] != T or not np.all(np.isfinite(values)):  # a bug, not bad input
-        raise RuntimeError(f"features: the stream gave {values.shape[0]} frames for {T}, or non-finite values")
+        put(stream.flush())
+    if k != T or not np.all(np.isfinite(values)):  # a bug, not bad input
+        raise RuntimeError(f"features: the stream gave {k} frames for {T}, or non-finite values")
     return Features(values, stream.names, fps, stream.fset, reader.duration, None)
 
 

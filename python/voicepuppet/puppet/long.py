@@ -24,8 +24,8 @@ from tqdm import tqdm
 
 __all__ = ["LONG_AUDIO_S", "WINDOW_S", "MARGIN_S", "frame_period", "plan_windows", "animate_windows"]
 
-#: Audio longer than this (seconds) is animated in windows (``Puppet.animate(chunked=None)``).
-LONG_AUDIO_S = 600.0
+#: Audio longer than this (seconds; 5 min) is animated in windows (``Puppet.animate(chunked=None)``).
+LONG_AUDIO_S = 300.0
 #: Seconds of each window that are kept (its centre).
 WINDOW_S = 120.0
 #: Seconds of audio on each side of a window's centre that the window also analyses.

@@ -34,6 +34,7 @@ read by C++ too (magic number, format version, CRC-32), so a C++ program animate
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import warnings
@@ -65,7 +66,7 @@ _D = TrainOptions()  # the defaults of Puppet.train's options
 #: used unless told otherwise (chosen on the leave-one-reader-out protocol, docs/results.md).
 ADAPT_KINDS = ("full",)
 ADAPT_DEFAULTS = {"tau": 30.0, "n_iter": 1}
-_DECODE_ROWS = 20_000  # frames of landmarks decoded at a time on the chunked path
+_DECODE_ROWS = 5_000  # frames of landmarks decoded at a time on the chunked path
 
 
 @dataclass
@@ -100,6 +101,48 @@ class Animated:
     states_fps: float
     log_likelihood: float
     transforms: list = field(default_factory=list)
+
+
+@dataclass
+class AnimatedFiles:
+    """What :meth:`Puppet.animate_to` returns: :class:`Animated` without the landmarks, which
+    went to the files.
+
+    Each parameter is kept as the attribute of the same name.
+
+    Parameters
+    ----------
+    paths : list of pathlib.Path
+        The files written.
+    n_frames : int
+        Frames T' of the animation.
+    fps : float
+        Its frame rate.
+    neutral : ndarray (P, 2) or None
+        The face at rest written with it (scaled as the motion with ``exaggerate``).
+    face, states, states_fps, log_likelihood, transforms
+        As in :class:`Animated`.
+
+    Attributes
+    ----------
+    duration : float
+        Seconds covered: ``n_frames / fps``.
+    """
+
+    paths: list
+    n_frames: int
+    fps: float
+    neutral: np.ndarray | None
+    face: np.ndarray
+    states: np.ndarray
+    states_fps: float
+    log_likelihood: float
+    transforms: list = field(default_factory=list)
+
+    @property
+    def duration(self) -> float:
+        """Seconds covered: ``n_frames / fps``."""
+        return self.n_frames / self.fps
 
 
 class Puppet:
@@ -478,7 +521,7 @@ class Puppet:
             Long audio in bounded memory (:mod:`voicepuppet.puppet.long`): the features read from
             an audio file in blocks (:func:`voicepuppet.audio.extract.extract_file`), the core run
             on overlapping windows. None (default): for audio or features longer than
-            :data:`~voicepuppet.puppet.long.LONG_AUDIO_S` (10 min); True: always; False: never.
+            :data:`~voicepuppet.puppet.long.LONG_AUDIO_S` (5 min); True: always; False: never.
             Not with ``states`` or ``adapt`` (they stay whole-utterance: their memory grows with
             the length). The result equals the whole-utterance one to 1e-6 (docs/benchmarks.md,
             "Long audio") except ``log_likelihood``, which is NaN (the windows' do not add up
@@ -512,6 +555,75 @@ class Puppet:
                 pts[i:i + _DECODE_ROWS] = self._points(face[i:i + _DECODE_ROWS], r["widened"])
         return Animated(Animation(pts, r["out_fps"], neutral=self.rest_face()), r["face"], r["states"], r["states_fps"],
                         r["log_likelihood"], r["transforms"])
+
+    def animate_to(self, path, audio=None, *, features=None, fps: float | None = None, posterior: bool = False,
+                   adapt: str | None = None, adapt_tau: float = ADAPT_DEFAULTS["tau"],
+                   adapt_iter: int = ADAPT_DEFAULTS["n_iter"], guide_weight: float | None = None,
+                   full_motion: bool = True, exaggerate: float | None = None, progress: bool = False,
+                   chunked: bool | None = None) -> AnimatedFiles:
+        """:meth:`animate` straight to animation files (``.npz`` or ``.csv``), in memory that
+        stays flat with the audio's length when it is chunked (long audio: the landmarks are
+        decoded and written a block of frames at a time, never held; docs/benchmarks.md, "Long
+        audio"). What ``voicepuppet animate`` and ``batch animate`` call. The files are those
+        :func:`voicepuppet.animation.save_animation` writes for :meth:`animate`'s animation
+        (``exaggerate``: :func:`voicepuppet.animation.exaggerate` of it), written atomically.
+
+        Parameters
+        ----------
+        path : str or os.PathLike, or a list of them
+            The file(s) to write, each ending in ``.npz`` or ``.csv``.
+        audio, features, fps, posterior, adapt, adapt_tau, adapt_iter, guide_weight, full_motion, progress, chunked
+            As for :meth:`animate` (no ``states``: use :meth:`animate`).
+        exaggerate : float, optional
+            Scale the motion about the animation's mean shape by this factor (default: as is).
+
+        Returns
+        -------
+        AnimatedFiles
+            The files, the frame count and rate, face coordinates, states and log-likelihood.
+
+        Raises
+        ------
+        ValueError
+            As for :meth:`animate`; an output path that cannot be written (checked first), an
+            ``exaggerate`` factor that is negative or not finite.
+        """
+        from voicepuppet.animation import AnimationWriter, exaggerate as scale, save_animation
+
+        paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
+        paths = [check_output_path(p, (".npz", ".csv"), "animation file") for p in paths]
+        if exaggerate is not None:
+            scale(Animation(np.zeros((1, 1, 2)), 30.0), exaggerate)  # the factor checked before the work
+        r = self._animate(audio, fps, posterior, features, None, None, adapt, adapt_tau, adapt_iter, guide_weight,
+                          full_motion, progress, chunked)
+        face, neutral = r["face"], self.rest_face()
+        if r["points"] is not None:  # whole-utterance: as animate + save_animation
+            anim = Animation(r["points"], r["out_fps"], neutral=neutral)
+            if exaggerate is not None:
+                anim = scale(anim, exaggerate)
+            for p in paths:
+                save_animation(anim, p)
+            neutral = anim.neutral
+        else:
+            def blocks():
+                for i in range(0, len(face), _DECODE_ROWS):
+                    yield self._points(face[i:i + _DECODE_ROWS], r["widened"])
+
+            mean = None
+            if exaggerate is not None:  # exaggerate's mean shape, over all frames
+                mean = sum(b.sum(axis=0) for b in blocks()) / len(face)
+                if neutral is not None:
+                    neutral = scale(Animation(neutral[None], 30.0, neutral=neutral), exaggerate, mean).neutral
+            with contextlib.ExitStack() as stack:
+                writers = [stack.enter_context(AnimationWriter(p, len(face), self.n_points, r["out_fps"],
+                                                               neutral=neutral)) for p in paths]
+                for b in blocks():
+                    if mean is not None:
+                        b = scale(Animation(b, r["out_fps"]), exaggerate, mean).points
+                    for w in writers:
+                        w.write(b)
+        return AnimatedFiles([Path(p) for p in paths], len(face), r["out_fps"], neutral, face, r["states"],
+                             r["states_fps"], r["log_likelihood"], r["transforms"])
 
     def _chunk(self, chunked, audio, features, states, adapt) -> bool:
         """Whether to animate in windows (``animate``'s ``chunked``)."""
