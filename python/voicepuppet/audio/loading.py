@@ -16,6 +16,8 @@ from fractions import Fraction
 
 import numpy as np
 
+from voicepuppet import _core
+
 #: Lowest sample rate accepted: below it the formant and band features have no meaning.
 MIN_RATE = 8000
 #: Default analysis rate: 16 kHz keeps everything up to 8 kHz, enough for speech features.
@@ -133,6 +135,26 @@ def _read_pyav(path: str):
     elif shift < 0:
         data = data[-shift:]
     return np.ascontiguousarray(data), int(rate)
+
+
+def resample_taps(up: int, down: int) -> np.ndarray:
+    """The filter of ``scipy.signal.resample_poly(x, up, down)`` (Kaiser(5)-windowed sinc,
+    ``half_len = 10 max(up, down)``, times ``up``).
+
+    Parameters
+    ----------
+    up, down : int
+        Up- and down-sampling factors.
+
+    Returns
+    -------
+    ndarray, shape (2 half_len + 1,)
+        The filter taps.
+    """
+    from scipy.signal import firwin
+
+    half_len = 10 * max(up, down)
+    return firwin(2 * half_len + 1, 1.0 / max(up, down), window=("kaiser", 5.0)) * up
 
 
 def resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
@@ -456,15 +478,15 @@ class AudioReader:
 
     def _mono(self, on_raw=None):
         """Mono float64 blocks at :attr:`rate` (``prepare``'s mix and resampling), DC not removed."""
-        from voicepuppet.audio.conditioning import StreamResampler  # it stands below this module
-
-        rs = StreamResampler(self.source_rate, self.rate)
+        frac = Fraction(self.rate, self.source_rate)  # conditioning.StreamResampler, which stands below
+        up, down = frac.numerator, frac.denominator
+        rs = None if up == down else _core.PolyphaseResampler(up, down, resample_taps(up, down))
         for data in self._raw():
             if on_raw is not None:
                 on_raw(data)
             mono = data.mean(axis=1, dtype=np.float64) if data.shape[1] > 1 else data[:, 0].astype(np.float64)
-            yield mono if rs.identity else rs.push(mono)
-        if not rs.identity:
+            yield mono if rs is None else rs.push(np.ascontiguousarray(mono))
+        if rs is not None:
             yield rs.flush()
 
     def scan(self, frame: int | None = None):

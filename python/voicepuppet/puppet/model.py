@@ -34,7 +34,6 @@ read by C++ too (magic number, format version, CRC-32), so a C++ program animate
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import warnings
@@ -48,12 +47,9 @@ from voicepuppet import audio as vaudio
 from voicepuppet._files import check_output_path
 from voicepuppet.animation import Animation
 from voicepuppet.audio import AudioWarning, FeatureSet
-from voicepuppet.audio.extract import extract_file
-from voicepuppet.audio.loading import DEFAULT_RATE, AudioReader
-from voicepuppet.audio.stream import STREAMABLE
+from voicepuppet.audio.loading import DEFAULT_RATE
 from voicepuppet.blas import limited
 from voicepuppet.face import FaceSpace
-from voicepuppet.layout import N_POINTS, close_crossed_lips
 from voicepuppet.limits import check_limit
 from voicepuppet.puppet import long, training
 from voicepuppet.puppet.metadata import check_metadata
@@ -66,7 +62,6 @@ _D = TrainOptions()  # the defaults of Puppet.train's options
 #: used unless told otherwise (chosen on the leave-one-reader-out protocol, docs/results.md).
 ADAPT_KINDS = ("full",)
 ADAPT_DEFAULTS = {"tau": 30.0, "n_iter": 1}
-_DECODE_ROWS = 5_000  # frames of landmarks decoded at a time on the chunked path
 
 
 @dataclass
@@ -101,48 +96,6 @@ class Animated:
     states_fps: float
     log_likelihood: float
     transforms: list = field(default_factory=list)
-
-
-@dataclass
-class AnimatedFiles:
-    """What :meth:`Puppet.animate_to` returns: :class:`Animated` without the landmarks, which
-    went to the files.
-
-    Each parameter is kept as the attribute of the same name.
-
-    Parameters
-    ----------
-    paths : list of pathlib.Path
-        The files written.
-    n_frames : int
-        Frames T' of the animation.
-    fps : float
-        Its frame rate.
-    neutral : ndarray (P, 2) or None
-        The face at rest written with it (scaled as the motion with ``exaggerate``).
-    face, states, states_fps, log_likelihood, transforms
-        As in :class:`Animated`.
-
-    Attributes
-    ----------
-    duration : float
-        Seconds covered: ``n_frames / fps``.
-    """
-
-    paths: list
-    n_frames: int
-    fps: float
-    neutral: np.ndarray | None
-    face: np.ndarray
-    states: np.ndarray
-    states_fps: float
-    log_likelihood: float
-    transforms: list = field(default_factory=list)
-
-    @property
-    def duration(self) -> float:
-        """Seconds covered: ``n_frames / fps``."""
-        return self.n_frames / self.fps
 
 
 class Puppet:
@@ -518,16 +471,11 @@ class Puppet:
         progress : bool
             Show a progress bar while extracting features from ``audio`` (default False).
         chunked : bool, optional
-            Long audio in bounded memory (:mod:`voicepuppet.puppet.long`): the features read from
-            an audio file in blocks (:func:`voicepuppet.audio.extract.extract_file`), the core run
-            on overlapping windows. None (default): for audio or features longer than
-            :data:`~voicepuppet.puppet.long.LONG_AUDIO_S` (5 min); True: always; False: never.
-            Not with ``states`` or ``adapt`` (they stay whole-utterance: their memory grows with
-            the length). The result equals the whole-utterance one to 1e-6 (docs/benchmarks.md,
-            "Long audio") except ``log_likelihood``, which is NaN (the windows' do not add up
-            to the whole's). The returned landmarks still hold every frame (T' × P × 2 float64:
-            235 MB for 2 h of 68 points at 29.97 fps): :meth:`animate_to` writes them to a file
-            without holding them.
+            Long audio in bounded memory (:mod:`voicepuppet.puppet.long`: features read in blocks,
+            the core run on overlapping windows; equal to the whole to 1e-6, ``log_likelihood``
+            NaN). None (default): above :data:`~voicepuppet.puppet.long.LONG_AUDIO_S` (5 min);
+            True: always; False: never. Not with ``states`` or ``adapt``. The landmarks returned
+            hold every frame (235 MB for 2 h at 68 points): :meth:`animate_to` does not.
 
         Returns
         -------
@@ -547,12 +495,7 @@ class Puppet:
         """
         r = self._animate(audio, fps, posterior, features, states, states_fps, adapt, adapt_tau, adapt_iter,
                           guide_weight, full_motion, progress, chunked)
-        pts = r.pop("points")
-        if pts is None:  # chunked: the landmarks decoded window by window into one array
-            face = r["face"]
-            pts = np.empty((len(face), self.n_points, 2))
-            for i in range(0, len(face), _DECODE_ROWS):
-                pts[i:i + _DECODE_ROWS] = self._points(face[i:i + _DECODE_ROWS], r["widened"])
+        pts = long.all_points(self, r)
         return Animated(Animation(pts, r["out_fps"], neutral=self.rest_face()), r["face"], r["states"], r["states_fps"],
                         r["log_likelihood"], r["transforms"])
 
@@ -560,18 +503,15 @@ class Puppet:
                    adapt: str | None = None, adapt_tau: float = ADAPT_DEFAULTS["tau"],
                    adapt_iter: int = ADAPT_DEFAULTS["n_iter"], guide_weight: float | None = None,
                    full_motion: bool = True, exaggerate: float | None = None, progress: bool = False,
-                   chunked: bool | None = None) -> AnimatedFiles:
-        """:meth:`animate` straight to animation files (``.npz`` or ``.csv``), in memory that
-        stays flat with the audio's length when it is chunked (long audio: the landmarks are
-        decoded and written a block of frames at a time, never held; docs/benchmarks.md, "Long
-        audio"). What ``voicepuppet animate`` and ``batch animate`` call. The files are those
-        :func:`voicepuppet.animation.save_animation` writes for :meth:`animate`'s animation
-        (``exaggerate``: :func:`voicepuppet.animation.exaggerate` of it), written atomically.
+                   chunked: bool | None = None) -> long.AnimatedFiles:
+        """:meth:`animate` straight to animation files (``.npz``, ``.csv``: those
+        :func:`~voicepuppet.animation.save_animation` writes), in memory flat with the audio's length
+        when chunked (:func:`voicepuppet.puppet.long.animate_to`). Raises what :meth:`animate` does.
 
         Parameters
         ----------
         path : str or os.PathLike, or a list of them
-            The file(s) to write, each ending in ``.npz`` or ``.csv``.
+            The file(s) to write, each ending in ``.npz`` or ``.csv`` (checked first).
         audio, features, fps, posterior, adapt, adapt_tau, adapt_iter, guide_weight, full_motion, progress, chunked
             As for :meth:`animate` (no ``states``: use :meth:`animate`).
         exaggerate : float, optional
@@ -579,83 +519,16 @@ class Puppet:
 
         Returns
         -------
-        AnimatedFiles
+        voicepuppet.puppet.long.AnimatedFiles
             The files, the frame count and rate, face coordinates, states and log-likelihood.
-
-        Raises
-        ------
-        ValueError
-            As for :meth:`animate`; an output path that cannot be written (checked first), an
-            ``exaggerate`` factor that is negative or not finite.
         """
-        from voicepuppet.animation import AnimationWriter, exaggerate as scale, save_animation
-
-        paths = [path] if isinstance(path, (str, os.PathLike)) else list(path)
-        paths = [check_output_path(p, (".npz", ".csv"), "animation file") for p in paths]
-        if exaggerate is not None:
-            scale(Animation(np.zeros((1, 1, 2)), 30.0), exaggerate)  # the factor checked before the work
-        r = self._animate(audio, fps, posterior, features, None, None, adapt, adapt_tau, adapt_iter, guide_weight,
-                          full_motion, progress, chunked)
-        face, neutral = r["face"], self.rest_face()
-        if r["points"] is not None:  # whole-utterance: as animate + save_animation
-            anim = Animation(r["points"], r["out_fps"], neutral=neutral)
-            if exaggerate is not None:
-                anim = scale(anim, exaggerate)
-            for p in paths:
-                save_animation(anim, p)
-            neutral = anim.neutral
-        else:
-            def blocks():
-                for i in range(0, len(face), _DECODE_ROWS):
-                    yield self._points(face[i:i + _DECODE_ROWS], r["widened"])
-
-            mean = None
-            if exaggerate is not None:  # exaggerate's mean shape, over all frames
-                mean = sum(b.sum(axis=0) for b in blocks()) / len(face)
-                if neutral is not None:
-                    neutral = scale(Animation(neutral[None], 30.0, neutral=neutral), exaggerate, mean).neutral
-            with contextlib.ExitStack() as stack:
-                writers = [stack.enter_context(AnimationWriter(p, len(face), self.n_points, r["out_fps"],
-                                                               neutral=neutral)) for p in paths]
-                for b in blocks():
-                    if mean is not None:
-                        b = scale(Animation(b, r["out_fps"]), exaggerate, mean).points
-                    for w in writers:
-                        w.write(b)
-        return AnimatedFiles([Path(p) for p in paths], len(face), r["out_fps"], neutral, face, r["states"],
-                             r["states_fps"], r["log_likelihood"], r["transforms"])
-
-    def _chunk(self, chunked, audio, features, states, adapt) -> bool:
-        """Whether to animate in windows (``animate``'s ``chunked``)."""
-        if chunked is not None and not isinstance(chunked, (bool, np.bool_)):
-            raise ValueError(f"chunked must be None, True or False, got {chunked!r}")
-        if states is not None or adapt is not None:
-            if chunked:
-                raise ValueError("chunked animation decodes the audio window by window: given states and adapt "
-                                 "(which fits one transform to all of the audio) are whole-utterance only; drop "
-                                 "chunked=True")
-            return False
-        if chunked is not None:
-            return bool(chunked)
-        if features is not None:
-            return len(features) / self.fps > long.LONG_AUDIO_S
-        if isinstance(audio, vaudio.Audio):
-            return audio.duration > long.LONG_AUDIO_S
-        duration = AudioReader(audio).duration
-        return duration is None or duration > long.LONG_AUDIO_S
-
-    def _points(self, face: np.ndarray, widened: bool) -> np.ndarray:
-        """Landmarks (T, P, 2) of face coordinates, as ``animate`` makes them (C++ ``to_points``,
-        or for a widened trajectory the face space's decoding with crossed lips closed)."""
-        if not widened:
-            return self._core.to_points(np.ascontiguousarray(face)).reshape(len(face), -1, 2)
-        pts = self.face_space.decode(face)
-        return close_crossed_lips(pts) if pts.shape[1] == N_POINTS else pts
+        return long.animate_to(self, path, audio, features=features, fps=fps, posterior=posterior, adapt=adapt,
+                               adapt_tau=adapt_tau, adapt_iter=adapt_iter, guide_weight=guide_weight,
+                               full_motion=full_motion, exaggerate=exaggerate, progress=progress, chunked=chunked)
 
     def _animate(self, audio, fps, posterior, features, states, states_fps, adapt, adapt_tau, adapt_iter,
                  guide_weight, full_motion, progress, chunked) -> dict:
-        """``animate``'s work: a dict of ``face``, ``points`` (None when chunked), ``states``,
-        ``states_fps``, ``out_fps``, ``log_likelihood``, ``transforms``, ``widened``."""
+        """``animate``'s work: a dict (face, points or None when chunked, states, ..., widened)."""
         out_fps = self.fps if fps is None else check_limit(fps, "fps", "output fps")
         sound = (audio is not None) + (features is not None)
         if sound > 1 or (sound == 0 and states is None):
@@ -681,6 +554,7 @@ class Puppet:
             if states is not None and not sound and lam > 0:
                 raise ValueError("guide_weight weighs the guide's prediction from the audio; given states "
                                  "without their audio are synthesised unguided: give the audio or drop guide_weight")
+        chunk = long.should_chunk(self, chunked, audio, features, states, adapt)
         if states is not None:
             s = np.asarray(states)
             if s.ndim == 1:
@@ -698,14 +572,13 @@ class Puppet:
                     features = self.extract(audio, progress=progress, stacklevel=4).values
                 r = self._core.animate_states_guided(s, sf, np.ascontiguousarray(features, dtype=np.float64),
                                                      out_fps, lam)
-        elif self._chunk(chunked, audio, features, states, adapt):
+        elif chunk:
             _count(adapt_iter, "adapt_iter")
             if features is None:
-                features = self._long_features(audio, progress)
+                features = long.long_features(self, audio, progress)
             r = long.animate_windows(self._core, np.ascontiguousarray(features, dtype=np.float64), self.fps,
                                      out_fps, posterior, lam, progress=progress)
-            r["points"], r["log_likelihood"] = None, float("nan")
-            sf = self.fps
+            r["points"], r["log_likelihood"], sf = None, float("nan"), self.fps
         else:
             if features is None:
                 features = self.extract(audio, progress=progress, stacklevel=4).values
@@ -719,23 +592,10 @@ class Puppet:
         if widened:  # about the mean of the whole animation (of every window's centre, when chunked)
             face = widen_motion(face, self.arrays["face/motion_gain"])
             if pts is not None:  # widened about its mean, a closed mouth must not cross
-                pts = self._points(face, True)
+                pts = long.points_of(self, face, True)
         return {"face": face, "points": pts, "states": r["states"], "states_fps": sf, "out_fps": out_fps,
                 "log_likelihood": float(r["log_likelihood"]), "transforms": list(r.get("transforms", [])),
                 "widened": widened}
-
-    def _long_features(self, audio, progress: bool) -> np.ndarray:
-        """Raw features of long audio: read from a file in blocks when the feature set streams."""
-        streams = all(f in STREAMABLE for f in self.feature_set.features)
-        if isinstance(audio, vaudio.Audio) or not streams:
-            if not streams and not isinstance(audio, vaudio.Audio):
-                warnings.warn(f"this puppet's features {', '.join(f for f in self.feature_set.features if f not in STREAMABLE)} "
-                              "need the whole recording at once: the audio is loaded whole (its memory grows with "
-                              "its length: about 0.5 GB per hour at 16 kHz)", AudioWarning, stacklevel=4)
-            return self.extract(audio, progress=progress, stacklevel=5).values
-        reader = AudioReader(audio)
-        self.check_band(reader.source_rate, f"audio {reader.path!r}", stacklevel=4)
-        return extract_file(audio, fps=self.fps, features=self.feature_set, progress=progress).values
 
     # ---------------------------------------------------------------------------- storage
     def save(self, path) -> Path:
