@@ -14,6 +14,8 @@ face with planted jaw, smile, pucker, brow and blink motion for demos, tests and
 
 from __future__ import annotations
 
+import sys
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -25,7 +27,7 @@ from voicepuppet.layout import neutral_landmarks
 from voicepuppet._files import atomic_path, read_npz, write_npz
 from voicepuppet.limits import check_limit
 
-__all__ = ["Animation", "load_animation", "save_animation", "check_points",
+__all__ = ["Animation", "AnimationWriter", "load_animation", "save_animation", "check_points",
            "neutral_landmarks", "procedural_animation", "exaggerate", "add_offset", "apply_controls"]
 
 
@@ -219,6 +221,123 @@ def save_animation(anim: Animation, path) -> Path:
             np.savetxt(tmp, table, fmt=["%d", "%.9g"] + ["%.9g"] * (2 * P), delimiter=",",
                        header=_csv_header(P), comments="")
     return Path(path)
+
+
+class AnimationWriter:
+    """An animation written frame block by frame block, in bounded memory: the file
+    :func:`save_animation` writes for the same frames (``.npz``: ``points`` [T, P, 2] float64,
+    ``fps``, optional ``names`` and ``neutral``; ``.csv``: ``frame,time,x0,y0,...``), atomically:
+    the file appears when the context ends after all ``n_frames`` frames were written, and not
+    at all on an error or Ctrl-C.
+
+    >>> with AnimationWriter("long.npz", n_frames=T, n_points=68, fps=29.97) as w:  # doctest: +SKIP
+    ...     for block in blocks:
+    ...         w.write(block)
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file, ending in ``.npz`` or ``.csv``.
+    n_frames, n_points : int
+        T and P.
+    fps : float
+        Frame rate.
+    names : list of str, optional
+        A name per point (``.npz`` only).
+    neutral : array_like, shape (P, 2), optional
+        The face at rest (``.npz`` only).
+
+    Raises
+    ------
+    ValueError
+        As :func:`save_animation`; a block of the wrong shape, non-finite points, more frames
+        than ``n_frames``, or fewer when the context ends.
+    """
+
+    def __init__(self, path, n_frames: int, n_points: int, fps: float, names=None, neutral=None):
+        self.path, self.n_frames, self.n_points = Path(path), int(n_frames), int(n_points)
+        self.fps = _check_fps(fps)
+        if self.n_frames < 1 or self.n_points < 1:
+            raise ValueError(f"an animation needs frames and points, got {n_frames} frames of {n_points} points")
+        self.names = None if names is None else [str(n) for n in names]
+        self.neutral = None if neutral is None else check_points(np.asarray(neutral)[None], "neutral",
+                                                                 self.n_points)[0]
+        self._done = 0
+
+    def __enter__(self) -> "AnimationWriter":
+        self._atomic = atomic_path(self.path, (".npz", ".csv"), "animation file")
+        tmp = self._atomic.__enter__()
+        self._npz = tmp.suffix == ".npz"
+        try:
+            self._fh = open(tmp, "wb" if self._npz else "w")
+            if self._npz:
+                self._zip = zipfile.ZipFile(self._fh, "w", compression=zipfile.ZIP_DEFLATED)
+                info = zipfile.ZipInfo("points.npy", date_time=(1980, 1, 1, 0, 0, 0))  # as write_npz
+                info.compress_type = zipfile.ZIP_DEFLATED
+                info.external_attr = 0o644 << 16
+                self._member = self._zip.open(info, "w", force_zip64=True)
+                header = {"descr": np.lib.format.dtype_to_descr(np.dtype(np.float64)), "fortran_order": False,
+                          "shape": (self.n_frames, self.n_points, 2)}
+                try:
+                    np.lib.format.write_array_header_1_0(self._member, header)
+                except ValueError:  # a header too long for format 1.0, as write_array falls back
+                    np.lib.format.write_array_header_2_0(self._member, header)
+            else:
+                self._fh.write(_csv_header(self.n_points) + "\n")
+        except BaseException:
+            self._atomic.__exit__(*sys.exc_info())
+            raise
+        return self
+
+    def write(self, points) -> None:
+        """Append frames.
+
+        Parameters
+        ----------
+        points : array_like, shape (n, P, 2)
+            The next ``n`` frames.
+        """
+        pts = check_points(points, "points", self.n_points)
+        n = len(pts)
+        if self._done + n > self.n_frames:
+            raise ValueError(f"animation writer: {self._done + n} frames written, more than the {self.n_frames} "
+                             "announced")
+        if self._npz:
+            self._member.write(np.ascontiguousarray(pts, dtype="<f8").tobytes("C"))
+        else:
+            k = np.arange(self._done, self._done + n)
+            table = np.column_stack([k, k / self.fps, pts.reshape(n, -1)])
+            np.savetxt(self._fh, table, fmt=["%d", "%.9g"] + ["%.9g"] * (2 * self.n_points), delimiter=",")
+        self._done += n
+
+    def __exit__(self, kind, value, tb):
+        error = None
+        if kind is None and self._done != self.n_frames:
+            error = ValueError(f"animation writer: {self._done} frames written of the {self.n_frames} announced")
+        try:
+            if self._npz:
+                self._member.close()
+                if kind is None and error is None:
+                    arrays = {"fps": np.float64(self.fps)}  # save_animation's members, in its order
+                    if self.names is not None:
+                        arrays["names"] = np.asarray(self.names, dtype=str)
+                    if self.neutral is not None:
+                        arrays["neutral"] = self.neutral
+                    for name, a in arrays.items():
+                        info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                        info.compress_type = zipfile.ZIP_DEFLATED
+                        info.external_attr = 0o644 << 16
+                        with self._zip.open(info, "w", force_zip64=True) as member:
+                            np.lib.format.write_array(member, np.asanyarray(a), allow_pickle=False)
+                self._zip.close()
+            self._fh.close()
+        except Exception as exc:  # noqa: BLE001 - reported below, after the temporary is removed
+            error = error or exc
+        if kind is None and error is not None:
+            self._atomic.__exit__(type(error), error, error.__traceback__)  # removes the temporary
+            raise error
+        self._atomic.__exit__(kind, value, tb)  # publishes the file, or removes it on an error
+        return False
 
 
 def load_animation(path, fps: Optional[float] = None) -> Animation:

@@ -13,7 +13,7 @@ import numpy as np
 
 from voicepuppet import _core
 from voicepuppet.audio.featureset import check_level_db
-from voicepuppet.audio.loading import AudioWarning
+from voicepuppet.audio.loading import AudioWarning, resample_taps
 
 __all__ = ["pcm_to_float", "resample_taps", "StreamResampler", "BandLimiter", "speech_level_db", "LevelNormalizer",
            "LEVEL_FRAME_S", "LEVEL_PERCENTILE", "MAX_GAIN_DB", "GATE_FRAME_S", "GATE_BELOW_DB", "DITHER_BELOW_DB",
@@ -59,26 +59,6 @@ def pcm_to_float(samples) -> np.ndarray:
         raise ValueError(f"stream: {bad} NaN or infinite samples in the chunk; the source is "
                          "corrupt (check the PCM format: e.g. --format s16le)")
     return np.ascontiguousarray(x)
-
-
-def resample_taps(up: int, down: int) -> np.ndarray:
-    """The filter of ``scipy.signal.resample_poly(x, up, down)`` (Kaiser(5)-windowed sinc,
-    ``half_len = 10 max(up, down)``, times ``up``).
-
-    Parameters
-    ----------
-    up, down : int
-        Up- and down-sampling factors.
-
-    Returns
-    -------
-    ndarray, shape (2 half_len + 1,)
-        The filter taps.
-    """
-    from scipy.signal import firwin
-
-    half_len = 10 * max(up, down)
-    return firwin(2 * half_len + 1, 1.0 / max(up, down), window=("kaiser", 5.0)) * up
 
 
 class StreamResampler:

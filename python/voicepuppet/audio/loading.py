@@ -16,6 +16,8 @@ from fractions import Fraction
 
 import numpy as np
 
+from voicepuppet import _core
+
 #: Lowest sample rate accepted: below it the formant and band features have no meaning.
 MIN_RATE = 8000
 #: Default analysis rate: 16 kHz keeps everything up to 8 kHz, enough for speech features.
@@ -135,6 +137,26 @@ def _read_pyav(path: str):
     return np.ascontiguousarray(data), int(rate)
 
 
+def resample_taps(up: int, down: int) -> np.ndarray:
+    """The filter of ``scipy.signal.resample_poly(x, up, down)`` (Kaiser(5)-windowed sinc,
+    ``half_len = 10 max(up, down)``, times ``up``).
+
+    Parameters
+    ----------
+    up, down : int
+        Up- and down-sampling factors.
+
+    Returns
+    -------
+    ndarray, shape (2 half_len + 1,)
+        The filter taps.
+    """
+    from scipy.signal import firwin
+
+    half_len = 10 * max(up, down)
+    return firwin(2 * half_len + 1, 1.0 / max(up, down), window=("kaiser", 5.0)) * up
+
+
 def resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
     """Resample by the rational factor ``rate_out / rate_in`` (polyphase filtering).
 
@@ -155,6 +177,25 @@ def resample(x: np.ndarray, rate_in: int, rate_out: int) -> np.ndarray:
         return x
     frac = Fraction(int(rate_out), int(rate_in))
     return resample_poly(x, frac.numerator, frac.denominator)
+
+
+def _count_clipped(x: np.ndarray, peak: float) -> int:
+    """Samples of ``x`` (any shape) within 1 ppm of the recording's ``peak`` magnitude."""
+    at = peak * (1.0 - 1e-6)
+    return int(np.count_nonzero(x >= at) + np.count_nonzero(x <= -at))
+
+
+def _warn_clipped(fraction: float, where: str, stacklevel: int) -> None:
+    if fraction > 1e-3:
+        warnings.warn(f"audio{where}: {100 * fraction:.2f}% of samples are at full scale "
+                      "(clipped); formants and LPC features will be distorted",
+                      AudioWarning, stacklevel=stacklevel + 1)
+
+
+def _warn_silent(where: str, stacklevel: int) -> None:
+    warnings.warn(f"audio{where}: the recording is silent; features are finite (energy at "
+                  "its floor, F0 unvoiced) but carry no information", AudioWarning,
+                  stacklevel=stacklevel + 1)
 
 
 def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc: bool = True,
@@ -232,12 +273,7 @@ def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc:
     # Without temporaries the size of x (an hour of 48 kHz stereo is 1.4 GB of float32).
     peak = max(float(x.max()), -float(x.min()))
     if peak >= 1.0 - 1e-6:
-        at = peak * (1.0 - 1e-6)
-        clipped = (np.count_nonzero(x >= at) + np.count_nonzero(x <= -at)) / x.size
-        if clipped > 1e-3:
-            warnings.warn(f"audio{where}: {100 * clipped:.2f}% of samples are at full scale "
-                          "(clipped); formants and LPC features will be distorted",
-                          AudioWarning, stacklevel=2)
+        _warn_clipped(_count_clipped(x, peak) / x.size, where, stacklevel=2)
     # Files are read as float32 (half the memory of float64); the mix and all after it are float64.
     mono = x.mean(axis=1, dtype=np.float64) if channels > 1 else x[:, 0].astype(np.float64)
     out_rate = rate if target_rate is None else int(target_rate)
@@ -245,9 +281,7 @@ def prepare(samples, rate, *, target_rate: int | None = DEFAULT_RATE, remove_dc:
     if remove_dc:
         mono = mono - mono.mean()
     if not np.any(np.abs(mono) > 1e-7):
-        warnings.warn(f"audio{where}: the recording is silent; features are finite (energy at "
-                      "its floor, F0 unvoiced) but carry no information", AudioWarning,
-                      stacklevel=2)
+        _warn_silent(where, stacklevel=2)
     return Audio(samples=np.ascontiguousarray(mono), rate=out_rate, source_rate=rate,
                  channels=channels, path=path)
 
@@ -292,3 +326,239 @@ def load_audio(path, *, rate: int | None = DEFAULT_RATE, remove_dc: bool = True)
     if data is None:
         data, file_rate = _read_pyav(path)
     return prepare(data, file_rate, target_rate=rate, remove_dc=remove_dc, path=path)
+
+
+def _soundfile_blocks(path: str, n: int):
+    import soundfile as sf
+
+    with sf.SoundFile(path) as f:
+        while True:
+            data = f.read(n, dtype="float32", always_2d=True)
+            if not len(data):
+                return
+            yield data
+
+
+def _pyav_blocks(path: str):
+    """``_read_pyav``'s samples (n, channels) float32, frame by frame (the same shift to the
+    video's start)."""
+    import av
+
+    with av.open(path) as container:
+        stream = [s for s in container.streams if s.type == "audio"][0]
+        rate = stream.codec_context.sample_rate or stream.rate
+        resampler = av.AudioResampler(format="fltp", layout=None, rate=None)
+        video_start = 0.0
+        for s in container.streams:
+            if s.type == "video" and s.start_time is not None and s.time_base is not None:
+                video_start = float(s.start_time * s.time_base)
+                break
+        drop = None
+        try:
+            for frame in container.decode(stream):
+                if drop is None:
+                    first = float(frame.time) if frame.time is not None else video_start
+                    shift = int(round((first - video_start) * rate))
+                    if shift > 0:
+                        yield np.zeros((shift, len(frame.layout.channels)), np.float32)
+                    drop = max(0, -shift)
+                for out in [*resampler.resample(frame)]:
+                    a = np.ascontiguousarray(out.to_ndarray().T)
+                    a, drop = a[drop:], max(0, drop - len(a))
+                    if len(a):
+                        yield a
+            for out in resampler.resample(None):
+                a = np.ascontiguousarray(out.to_ndarray().T)
+                a, drop = a[drop or 0:], max(0, (drop or 0) - len(a))
+                if len(a):
+                    yield a
+        except (av.error.FFmpegError, ValueError) as exc:
+            raise ValueError(f"audio: cannot decode the audio track of {path!r} ({exc}); convert it to wav, "
+                             "e.g. ffmpeg -i IN -vn -ac 1 out.wav") from exc
+
+
+class AudioReader:
+    """An audio file (or a video's sound) read in blocks in bounded memory: the samples
+    :func:`load_audio` gives, mono and resampled (by :class:`~voicepuppet.audio.conditioning.StreamResampler`,
+    equal to ``resample_poly`` to 1e-12), without holding the recording.
+
+    :meth:`scan` reads the file once for what needs all of it (the DC offset, the peak, the
+    length, and sums over frames of the caller's size); :meth:`blocks` then yields the samples
+    with the DC offset removed, as ``load_audio`` would have them, and at the end warns as
+    ``prepare`` does (clipping, silence).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        As for :func:`load_audio`.
+    rate : int
+        Output sample rate in Hz (default 16000).
+    block_s : float
+        Seconds of the file read at a time (default 10).
+
+    Attributes
+    ----------
+    path : str
+    rate, source_rate, channels : int
+    duration : float or None
+        The length (s) the file's header announces (None if it does not), until :meth:`scan`
+        measures it.
+    n_samples : int or None
+        Samples at ``rate`` (after :meth:`scan`).
+    mean : float or None
+        The DC offset (after :meth:`scan`).
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        As for :func:`load_audio`.
+    """
+
+    def __init__(self, path, rate: int = DEFAULT_RATE, block_s: float = 10.0):
+        path = os.fspath(path)
+        if not os.path.exists(path):
+            raise FileNotFoundError(f"audio: no such file {path!r}")
+        if os.path.isdir(path):
+            raise ValueError(f"audio: {path!r} is a directory; give an audio or video file")
+        if os.path.getsize(path) == 0:
+            raise ValueError(f"audio: {path!r} is an empty file (0 bytes); give a recording with sound")
+        self.path, self.rate, self.block_s = path, int(rate), float(block_s)
+        self.duration = None
+        self._soundfile = False
+        if os.path.splitext(path)[1].lower() not in VIDEO_EXTENSIONS:
+            import soundfile as sf
+
+            try:
+                info = sf.info(path)
+                self.source_rate, self.channels = int(info.samplerate), int(info.channels)
+                self.duration = info.frames / float(info.samplerate) if info.frames > 0 else None
+                self._soundfile = True
+            except (sf.LibsndfileError, RuntimeError, TypeError):
+                pass
+        if not self._soundfile:
+            import av
+
+            try:
+                container = av.open(path)
+            except (av.error.FFmpegError, OSError) as exc:
+                raise ValueError(f"audio: cannot open {path!r} as audio or video ({exc}); expected a wav, "
+                                 "flac, ogg, mp3 file or a video (mp4, mov, mkv, avi) with an audio "
+                                 "track") from exc
+            with container:
+                streams = [s for s in container.streams if s.type == "audio"]
+                if not streams:
+                    raise ValueError(f"audio: {path!r} has no audio track; give a video with sound or "
+                                     "the audio as a separate file")
+                ctx = streams[0].codec_context
+                if ctx is None:
+                    raise ValueError(f"audio: the audio codec of {path!r} is not supported (no decoder "
+                                     "in FFmpeg); convert it to wav or flac with the tool that made it")
+                self.source_rate = int(ctx.sample_rate or streams[0].rate)
+                self.channels = ctx.channels if hasattr(ctx, "channels") else len(ctx.layout.channels)
+                if container.duration:
+                    self.duration = container.duration / 1e6
+        if self.source_rate < MIN_RATE:
+            raise ValueError(f"audio: sample rate {self.source_rate} Hz in {path!r} is below the minimum "
+                             f"{MIN_RATE} Hz; speech features need at least telephone bandwidth (re-record or "
+                             "give the original file)")
+        self.n_samples = self.mean = None
+        self._peak = 0.0
+
+    def _raw(self):
+        """The file's blocks (n, channels) float32, checked finite."""
+        where = f" in {self.path!r}"
+        it = (_soundfile_blocks(self.path, max(1, int(self.block_s * self.source_rate))) if self._soundfile
+              else _pyav_blocks(self.path))
+        for data in it:
+            if not np.all(np.isfinite(data)):
+                bad = int(np.count_nonzero(~np.isfinite(data)))
+                raise ValueError(f"audio: {bad} NaN or infinite samples{where}; repair or re-encode the "
+                                 "file (e.g. ffmpeg -i IN out.wav)")
+            yield data
+
+    def _mono(self, on_raw=None):
+        """Mono float64 blocks at :attr:`rate` (``prepare``'s mix and resampling), DC not removed."""
+        frac = Fraction(self.rate, self.source_rate)  # conditioning.StreamResampler, which stands below
+        up, down = frac.numerator, frac.denominator
+        rs = None if up == down else _core.PolyphaseResampler(up, down, resample_taps(up, down))
+        for data in self._raw():
+            if on_raw is not None:
+                on_raw(data)
+            mono = data.mean(axis=1, dtype=np.float64) if data.shape[1] > 1 else data[:, 0].astype(np.float64)
+            yield mono if rs is None else rs.push(np.ascontiguousarray(mono))
+        if rs is not None:
+            yield rs.flush()
+
+    def scan(self, frame: int | None = None):
+        """Read the file once: its length, DC offset and peak, and optionally the sums of the
+        samples and of their squares over consecutive ``frame``-sample frames (time 0 the first
+        sample at :attr:`rate`; the last, partial frame left out).
+
+        Parameters
+        ----------
+        frame : int, optional
+            Frame length in samples at :attr:`rate`.
+
+        Returns
+        -------
+        ndarray, shape (F, 2), or None
+            Per frame, the sum of the samples and of their squares (DC not removed), with ``frame``.
+
+        Raises
+        ------
+        ValueError
+            No samples, or NaN or infinite ones.
+        """
+        total, n, peak = 0.0, 0, 0.0
+        sums, carry = [], np.zeros(0)
+
+        def on_raw(data):
+            nonlocal peak
+            peak = max(peak, float(data.max()), -float(data.min()))
+
+        for x in self._mono(on_raw):
+            total += float(np.sum(x))
+            n += x.size
+            if frame:
+                buf = np.concatenate([carry, x]) if carry.size else x
+                k = buf.size // frame
+                if k:
+                    v = buf[:k * frame].reshape(k, frame)
+                    sums.append(np.column_stack([v.sum(axis=1), np.einsum("ij,ij->i", v, v)]))
+                carry = buf[k * frame:].copy()
+        if n == 0:
+            raise ValueError(f"audio: no samples in {self.path!r} (empty audio); give a recording with sound")
+        self.n_samples, self.mean, self._peak = n, total / n, peak
+        self.duration = n / float(self.rate)
+        if frame:
+            return np.vstack(sums) if sums else np.zeros((0, 2))
+        return None
+
+    def blocks(self):
+        """The samples, mono at :attr:`rate` with the DC offset removed, block by block
+        (:meth:`scan` first); after the last block, ``prepare``'s warnings (clipping, silence).
+
+        Yields
+        ------
+        ndarray, shape (n,)
+            float64 samples.
+        """
+        if self.mean is None:
+            self.scan()
+        where = f" in {self.path!r}"
+        clipped, count, sound = 0, 0, False
+
+        def on_raw(data):
+            nonlocal clipped, count
+            count += data.size
+            if self._peak >= 1.0 - 1e-6:
+                clipped += _count_clipped(data, self._peak)
+
+        for x in self._mono(on_raw):
+            x = x - self.mean
+            sound = sound or bool(np.any(np.abs(x) > 1e-7))
+            yield x
+        if count:
+            _warn_clipped(clipped / count, where, stacklevel=2)
+        if not sound:
+            _warn_silent(where, stacklevel=2)

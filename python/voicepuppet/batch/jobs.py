@@ -81,6 +81,11 @@ def _format_tags(formats) -> dict[str, str]:
 
 
 def _animate_export(puppet, audio_path, out_stem, formats, fps, posterior) -> tuple[list[Path], float]:
+    tags = _format_tags(formats)
+    if set(tags) <= {"npz", "csv"}:  # landmark files: written a block at a time (long audio in bounded memory)
+        done = puppet.animate_to([Path(str(out_stem) + tag) for tag in tags.values()], str(audio_path), fps=fps,
+                                 posterior=posterior)
+        return done.paths, done.duration
     anim = puppet.animate(str(audio_path), fps=fps, posterior=posterior).animation
     written = []
     for fmt, tag in _format_tags(formats).items():

@@ -126,21 +126,26 @@ def _animate(args) -> int:
         result = puppet.animate(args.audio, states=states, states_fps=sfps, fps=args.fps,
                                 guide_weight=args.guide_weight, full_motion=not args.most_probable,
                                 progress=not args.quiet)
+        anim = result.animation
+        if args.exaggerate is not None:
+            anim = exaggerate(anim, args.exaggerate)
+        save_animation(anim, out)
+        done = (anim.duration, anim.n_frames, anim.fps, anim.neutral)
     else:
         if args.audio is None:
             raise ValueError("give the AUDIO to animate (or --states-in)")
-        result = puppet.animate(args.audio, fps=args.fps, posterior=args.posterior, progress=not args.quiet,
-                                guide_weight=args.guide_weight, full_motion=not args.most_probable, **adapt)
-    anim = result.animation
-    if args.exaggerate is not None:
-        anim = exaggerate(anim, args.exaggerate)
-    save_animation(anim, out)
+        # long audio in bounded memory: the landmarks go to the file a block at a time (docs/puppet.md)
+        result = puppet.animate_to(out, args.audio, fps=args.fps, posterior=args.posterior, progress=not args.quiet,
+                                   guide_weight=args.guide_weight, full_motion=not args.most_probable,
+                                   exaggerate=args.exaggerate, **adapt)
+        done = (result.duration, result.n_frames, result.fps, result.neutral)
     written = [out]
     if args.states_out:
         written.append(save_states(args.states_out, result.states, result.states_fps))
-    print(f"animated {anim.duration:.2f} s ({anim.n_frames} frame{'s' * (anim.n_frames != 1)} at "
-          f"{anim.fps:g} fps); wrote {', '.join(str(w) for w in written)}")
-    if anim.neutral is not None and Path(out).suffix.lower() == ".csv":
+    duration, n_frames, fps, neutral = done
+    print(f"animated {duration:.2f} s ({n_frames} frame{'s' * (n_frames != 1)} at "
+          f"{fps:g} fps); wrote {', '.join(str(w) for w in written)}")
+    if neutral is not None and Path(out).suffix.lower() == ".csv":
         print("note: a .csv holds the frames only, so render and export move the face from its first frame; "
               "write .npz to keep the puppet's face in silence as the rest (docs/rendering.md, \"Retargeting\")")
     return 0

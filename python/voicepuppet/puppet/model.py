@@ -50,9 +50,8 @@ from voicepuppet.audio import AudioWarning, FeatureSet
 from voicepuppet.audio.loading import DEFAULT_RATE
 from voicepuppet.blas import limited
 from voicepuppet.face import FaceSpace
-from voicepuppet.layout import N_POINTS, close_crossed_lips
 from voicepuppet.limits import check_limit
-from voicepuppet.puppet import training
+from voicepuppet.puppet import long, training
 from voicepuppet.puppet.metadata import check_metadata
 from voicepuppet.puppet.training import TrainOptions
 from voicepuppet.trajectory import MAX_MOTION_GAIN, widen_motion
@@ -415,7 +414,7 @@ class Puppet:
                 features=None, states=None, states_fps: float | None = None,
                 adapt: str | None = None, adapt_tau: float = ADAPT_DEFAULTS["tau"],
                 adapt_iter: int = ADAPT_DEFAULTS["n_iter"], guide_weight: float | None = None,
-                full_motion: bool = True, progress: bool = False) -> Animated:
+                full_motion: bool = True, progress: bool = False, chunked: bool | None = None) -> Animated:
         """Facial animation for novel audio (any voice, any language).
 
         Parameters
@@ -471,6 +470,12 @@ class Puppet:
             guide, or trained before they were stored).
         progress : bool
             Show a progress bar while extracting features from ``audio`` (default False).
+        chunked : bool, optional
+            Long audio in bounded memory (:mod:`voicepuppet.puppet.long`: features read in blocks,
+            the core run on overlapping windows; equal to the whole to 1e-6, ``log_likelihood``
+            NaN). None (default): above :data:`~voicepuppet.puppet.long.LONG_AUDIO_S` (5 min);
+            True: always; False: never. Not with ``states`` or ``adapt``. The landmarks returned
+            hold every frame (235 MB for 2 h at 68 points): :meth:`animate_to` does not.
 
         Returns
         -------
@@ -486,8 +491,44 @@ class Puppet:
             ``states``); ``adapt`` not None or "full", or given with ``states``; ``posterior``
             with ``states``; ``guide_weight`` not None or a finite number >= 0, or positive for
             states without audio; ``states`` not integers of shape (T,) or (T, parts);
-            ``adapt_iter`` not an integer.
+            ``adapt_iter`` not an integer; ``chunked=True`` with ``states`` or ``adapt``.
         """
+        r = self._animate(audio, fps, posterior, features, states, states_fps, adapt, adapt_tau, adapt_iter,
+                          guide_weight, full_motion, progress, chunked)
+        pts = long.all_points(self, r)
+        return Animated(Animation(pts, r["out_fps"], neutral=self.rest_face()), r["face"], r["states"], r["states_fps"],
+                        r["log_likelihood"], r["transforms"])
+
+    def animate_to(self, path, audio=None, *, features=None, fps: float | None = None, posterior: bool = False,
+                   adapt: str | None = None, adapt_tau: float = ADAPT_DEFAULTS["tau"],
+                   adapt_iter: int = ADAPT_DEFAULTS["n_iter"], guide_weight: float | None = None,
+                   full_motion: bool = True, exaggerate: float | None = None, progress: bool = False,
+                   chunked: bool | None = None) -> long.AnimatedFiles:
+        """:meth:`animate` straight to animation files (``.npz``, ``.csv``: those
+        :func:`~voicepuppet.animation.save_animation` writes), in memory flat with the audio's length
+        when chunked (:func:`voicepuppet.puppet.long.animate_to`). Raises what :meth:`animate` does.
+
+        Parameters
+        ----------
+        path : str or os.PathLike, or a list of them
+            The file(s) to write, each ending in ``.npz`` or ``.csv`` (checked first).
+        audio, features, fps, posterior, adapt, adapt_tau, adapt_iter, guide_weight, full_motion, progress, chunked
+            As for :meth:`animate` (no ``states``: use :meth:`animate`).
+        exaggerate : float, optional
+            Scale the motion about the animation's mean shape by this factor (default: as is).
+
+        Returns
+        -------
+        voicepuppet.puppet.long.AnimatedFiles
+            The files, the frame count and rate, face coordinates, states and log-likelihood.
+        """
+        return long.animate_to(self, path, audio, features=features, fps=fps, posterior=posterior, adapt=adapt,
+                               adapt_tau=adapt_tau, adapt_iter=adapt_iter, guide_weight=guide_weight,
+                               full_motion=full_motion, exaggerate=exaggerate, progress=progress, chunked=chunked)
+
+    def _animate(self, audio, fps, posterior, features, states, states_fps, adapt, adapt_tau, adapt_iter,
+                 guide_weight, full_motion, progress, chunked) -> dict:
+        """``animate``'s work: a dict (face, points or None when chunked, states, ..., widened)."""
         out_fps = self.fps if fps is None else check_limit(fps, "fps", "output fps")
         sound = (audio is not None) + (features is not None)
         if sound > 1 or (sound == 0 and states is None):
@@ -513,6 +554,7 @@ class Puppet:
             if states is not None and not sound and lam > 0:
                 raise ValueError("guide_weight weighs the guide's prediction from the audio; given states "
                                  "without their audio are synthesised unguided: give the audio or drop guide_weight")
+        chunk = long.should_chunk(self, chunked, audio, features, states, adapt)
         if states is not None:
             s = np.asarray(states)
             if s.ndim == 1:
@@ -527,24 +569,33 @@ class Puppet:
                 r = self._core.animate_states(s, sf, out_fps)
             else:
                 if features is None:
-                    features = self.audio_features(audio, progress=progress)
+                    features = self.extract(audio, progress=progress, stacklevel=4).values
                 r = self._core.animate_states_guided(s, sf, np.ascontiguousarray(features, dtype=np.float64),
                                                      out_fps, lam)
+        elif chunk:
+            _count(adapt_iter, "adapt_iter")
+            if features is None:
+                features = long.long_features(self, audio, progress)
+            r = long.animate_windows(self._core, np.ascontiguousarray(features, dtype=np.float64), self.fps,
+                                     out_fps, posterior, lam, progress=progress)
+            r["points"], r["log_likelihood"], sf = None, float("nan"), self.fps
         else:
             if features is None:
-                features = self.audio_features(audio, progress=progress)
+                features = self.extract(audio, progress=progress, stacklevel=4).values
             r = self._core.animate(np.ascontiguousarray(features, dtype=np.float64), out_fps, posterior,
                                    adapt or "none", float(adapt_tau), _count(adapt_iter, "adapt_iter"), lam)
             sf = self.fps
-        face, pts = r["face"], r["points"].reshape(len(r["points"]), -1, 2)
+        face = r["face"]
+        pts = None if r["points"] is None else r["points"].reshape(len(r["points"]), -1, 2)
         own_weight = guide_weight is None or lam == self.guide_weight
-        if full_motion and sound and own_weight and "face/motion_gain" in self.arrays:
+        widened = bool(full_motion and sound and own_weight and "face/motion_gain" in self.arrays)
+        if widened:  # about the mean of the whole animation (of every window's centre, when chunked)
             face = widen_motion(face, self.arrays["face/motion_gain"])
-            pts = self.face_space.decode(face)
-            if pts.shape[1] == N_POINTS:  # widened about its mean, a closed mouth must not cross
-                pts = close_crossed_lips(pts)
-        return Animated(Animation(pts, out_fps, neutral=self.rest_face()), face, r["states"], sf,
-                        float(r["log_likelihood"]), list(r.get("transforms", [])))
+            if pts is not None:  # widened about its mean, a closed mouth must not cross
+                pts = long.points_of(self, face, True)
+        return {"face": face, "points": pts, "states": r["states"], "states_fps": sf, "out_fps": out_fps,
+                "log_likelihood": float(r["log_likelihood"]), "transforms": list(r.get("transforms", [])),
+                "widened": widened}
 
     # ---------------------------------------------------------------------------- storage
     def save(self, path) -> Path:
