@@ -131,4 +131,4 @@ def test_ctrl_c_stops_a_long_cpp_call_inside_it():
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
-    assert 0 < stream.samples_in < len(x) // 2, stream.samples_in  # stopped early, by the handler
+    assert stream.samples_in < len(x) // 2, stream.samples_in  # stopped early, by the handler
