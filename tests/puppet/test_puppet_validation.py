@@ -229,14 +229,17 @@ def test_a_version_1_header_on_a_guided_file_is_refused(good, tmp_path):
     assert load(path).guided
 
 
-@pytest.mark.parametrize("key", ["guide/offset", "audio/std"])
-def test_an_animation_beyond_the_pixel_range_is_refused(good, tmp_path, key):
-    # the guide's prediction (scaled up) or the standardised features (the std scaled down) carry
-    # the face 1e10 px away: animate says so instead of returning it
+@pytest.mark.parametrize("key, factor, match", [
+    ("guide/offset", 1e10, r"the animation puts point \d+ of frame \d+ at .* px, outside"),
+    ("audio/std", 1e-10, r"audio feature \d+ of frame \d+ is .* standard deviations from the puppet's training mean"),
+])
+def test_an_animation_beyond_the_pixel_range_is_refused(good, tmp_path, key, factor, match):
+    # the guide's prediction (scaled up) carries the face 1e10 px away, the standardised features
+    # (the std scaled down) beyond any state: animate says so instead of returning it
     path = tmp_path / "m.vpp"
-    path.write_bytes(reencode(good[0], edit_arrays=_scale(key, 1e10 if key == "guide/offset" else 1e-10)))
+    path.write_bytes(reencode(good[0], edit_arrays=_scale(key, factor)))
     p = load(path)
-    with pytest.raises(ValueError, match=r"the animation puts point \d+ of frame \d+ at .* px, outside"):
+    with pytest.raises(ValueError, match=match):
         p.animate(features=good[1])
 
 
