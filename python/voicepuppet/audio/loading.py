@@ -8,6 +8,7 @@ polyphase filter (``scipy.signal.resample_poly``) and has its DC offset removed.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import warnings
@@ -82,7 +83,10 @@ def _read_soundfile(path: str):
     return data, int(rate), None
 
 
-def _read_pyav(path: str):
+@contextlib.contextmanager
+def _pyav_audio(path: str):
+    """``path`` opened with PyAV: yields ``(container, stream, rate, channels)`` for its first
+    audio track, or raises ValueError saying what to do (unreadable, no audio, no decoder)."""
     import av
 
     try:
@@ -101,40 +105,19 @@ def _read_pyav(path: str):
         if ctx is None:  # FFmpeg knows the container but has no decoder for this codec
             raise ValueError(f"audio: the audio codec of {path!r} is not supported (no decoder "
                              "in FFmpeg); convert it to wav or flac with the tool that made it")
-        rate = ctx.sample_rate or stream.rate
         channels = ctx.channels if hasattr(ctx, "channels") else len(ctx.layout.channels)
-        # Resample to planar float32 so every codec's sample format comes out the same.
-        resampler = av.AudioResampler(format="fltp", layout=None, rate=None)
-        chunks = []
-        # Keep audio in sync with the video: time 0 is the start of the first video stream,
-        # so audio that starts later is preceded by silence and audio before it is dropped.
-        video_start = 0.0
-        for s in container.streams:
-            if s.type == "video" and s.start_time is not None and s.time_base is not None:
-                video_start = float(s.start_time * s.time_base)
-                break
-        first_time = None
-        try:
-            for frame in container.decode(stream):
-                if first_time is None:
-                    first_time = float(frame.time) if frame.time is not None else video_start
-                for out in resampler.resample(frame):
-                    chunks.append(out.to_ndarray())
-            for out in resampler.resample(None):
-                chunks.append(out.to_ndarray())
-        except (av.error.FFmpegError, ValueError) as exc:
-            raise ValueError(f"audio: cannot decode the audio track of {path!r} "
-                             f"(codec {ctx.name!r}: {exc}); convert it to wav, "
-                             "e.g. ffmpeg -i IN -vn -ac 1 out.wav") from exc
-    if not chunks:
-        return np.zeros((0, max(1, channels)), np.float32), int(rate)
-    data = np.concatenate(chunks, axis=1).T  # (n, channels)
-    shift = int(round(((first_time or video_start) - video_start) * rate))
-    if shift > 0:
-        data = np.concatenate([np.zeros((shift, data.shape[1]), data.dtype), data])
-    elif shift < 0:
-        data = data[-shift:]
-    return np.ascontiguousarray(data), int(rate)
+        yield container, stream, int(ctx.sample_rate or stream.rate), channels
+
+
+def _read_pyav(path: str):
+    """The first audio track of ``path``, (n, channels) float32, and its rate: the blocks of
+    :func:`_pyav_blocks` joined."""
+    with _pyav_audio(path) as (_, _, rate, channels):
+        pass  # opened for its errors, rate and channel count; the blocks open it again
+    blocks = list(_pyav_blocks(path))
+    if not blocks:
+        return np.zeros((0, max(1, channels)), np.float32), rate
+    return np.ascontiguousarray(np.concatenate(blocks)), rate
 
 
 def resample_taps(up: int, down: int) -> np.ndarray:
@@ -344,9 +327,7 @@ def _pyav_blocks(path: str):
     video's start)."""
     import av
 
-    with av.open(path) as container:
-        stream = [s for s in container.streams if s.type == "audio"][0]
-        rate = stream.codec_context.sample_rate or stream.rate
+    with _pyav_audio(path) as (container, stream, rate, _):
         resampler = av.AudioResampler(format="fltp", layout=None, rate=None)
         video_start = 0.0
         for s in container.streams:
@@ -436,25 +417,7 @@ class AudioReader:
             except (sf.LibsndfileError, RuntimeError, TypeError):
                 pass
         if not self._soundfile:
-            import av
-
-            try:
-                container = av.open(path)
-            except (av.error.FFmpegError, OSError) as exc:
-                raise ValueError(f"audio: cannot open {path!r} as audio or video ({exc}); expected a wav, "
-                                 "flac, ogg, mp3 file or a video (mp4, mov, mkv, avi) with an audio "
-                                 "track") from exc
-            with container:
-                streams = [s for s in container.streams if s.type == "audio"]
-                if not streams:
-                    raise ValueError(f"audio: {path!r} has no audio track; give a video with sound or "
-                                     "the audio as a separate file")
-                ctx = streams[0].codec_context
-                if ctx is None:
-                    raise ValueError(f"audio: the audio codec of {path!r} is not supported (no decoder "
-                                     "in FFmpeg); convert it to wav or flac with the tool that made it")
-                self.source_rate = int(ctx.sample_rate or streams[0].rate)
-                self.channels = ctx.channels if hasattr(ctx, "channels") else len(ctx.layout.channels)
+            with _pyav_audio(path) as (container, _, self.source_rate, self.channels):
                 if container.duration:
                     self.duration = container.duration / 1e6
         if self.source_rate < MIN_RATE:
