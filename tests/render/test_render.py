@@ -14,6 +14,7 @@ import pytest
 from voicepuppet import layout as face_layout
 from voicepuppet import render as R
 from voicepuppet.render import video as V
+from voicepuppet.tracking import video as tracking_video
 from voicepuppet.animation import Animation, load_animation, neutral_landmarks, procedural_animation, save_animation
 
 pytest.importorskip("pyvista")
@@ -327,6 +328,15 @@ def test_a_video_beside_the_prediction(face, jaw_anim, tmp_path, write_avi):
         list(R.render_frames(Animation(anim.points[:5], anim.fps), face=face, beside=video))
     with pytest.raises(ValueError, match="not both"):
         list(R.render_frames(short, face=face, truth=short, beside=video))
+    # the verb: render --beside VIDEO, the video on the left
+    from voicepuppet.cli.main import main
+
+    save_animation(short, tmp_path / "a.npz")
+    assert main(["render", str(tmp_path / "a.npz"), "-o", str(tmp_path / "b.mp4"), "--renderer", "2d",
+                 "--beside", str(video), "--quiet"]) == 0
+    frames = list(R.render_frames(load_animation(tmp_path / "a.npz"), renderer="2d", beside=video))
+    info = tracking_video.probe_video(tmp_path / "b.mp4")
+    assert info.frame_count == 4 and (info.width, info.height) == frames[0].shape[1::-1]
 
 
 def _write_tone(path, seconds, rate=16000):

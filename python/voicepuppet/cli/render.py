@@ -50,7 +50,7 @@ def _cli(args: argparse.Namespace) -> int:
                 print(f"rendering the {W}x{H} face image at {w}x{h} (--size WxH for another size)")
         render(anim, args.output, audio=args.audio, face=face, mode=args.mode or "vertex", truth=truth,
                renderer=args.renderer, size=_size(args.size) if args.size else None, shading=args.shading,
-               progress=not args.quiet, turn=_turn(args.turn) if args.turn else None)
+               progress=not args.quiet, turn=_turn(args.turn) if args.turn else None, beside=args.beside)
     dt = time.perf_counter() - t0
     print(f"{args.animation}: {anim.n_frames} frames at {anim.fps:g} fps -> {args.output} "
           f"({dt:.1f} s, {anim.n_frames / max(dt, 1e-9):.1f} frames/s)")
@@ -83,6 +83,9 @@ def add_parser(sub) -> None:
                                          "{\"points\": [[x, y, z], ...]} or menpo .ljson (default: "
                                          "detected on its front view)")
     p.add_argument("--truth", help="ground-truth animation: render side by side (prediction | truth)")
+    p.add_argument("--beside", metavar="VIDEO",
+                   help="a video shown on the left, frame for frame (video | prediction), e.g. the recording "
+                        "whose sound drove the animation; it needs at least the animation's frames")
     p.add_argument("--mode", choices=["vertex", "au"], default=None,
                    help="drive vertices directly (default) or through the action-unit basis")
     p.add_argument("--renderer", choices=["mesh", "2d"], default="mesh",
