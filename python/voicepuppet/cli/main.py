@@ -88,6 +88,10 @@ class UserError(Exception):
 #: environment and numerics (``RuntimeError``: a missing tool, a numerical failure in the core).
 EXPECTED_ERRORS = (UserError, ValueError, OSError, RuntimeError)
 
+#: The kinds of ``RuntimeError`` that only a bug raises (runaway recursion, a code path called
+#: before it was written): caught before :data:`EXPECTED_ERRORS`, reported as bugs.
+BUG_ERRORS = (RecursionError, NotImplementedError)
+
 
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
@@ -154,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
 
             warnings.showwarning = show
             return int(args.func(args) or 0)
-    except (RecursionError, NotImplementedError):
+    except BUG_ERRORS:
         return _bug(args.verb)
     except EXPECTED_ERRORS as exc:
         print(f"voicepuppet {args.verb}: error: {_one_line(exc)}", file=sys.stderr)
