@@ -11,7 +11,10 @@ corners) over the inter-ocular distance, correlated with the reference's (Pearso
 share of frames whose inner lips cross (an upper inner-lip point more than 0.01 inter-ocular
 distances below its lower partner, along the face's own vertical: from the eyes' midpoint to the
 lower lip). Beside it, OpenCV's pyramidal Lucas-Kanade from the same first-frame points with the
-same patch and pyramid (:func:`voicepuppet.bench.tracker.track_lk`), the peer to beat.
+same patch and pyramid (:func:`voicepuppet.bench.tracker.track_lk`), the peer to beat, and dlib's
+shape predictor alone on every frame, each in the box its previous frame's points give
+(:func:`voicepuppet.tracking.detect.landmarks_near`), the detector the tracker's lips are
+anchored to; ``--no-anchors`` tracks without those anchors.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import numpy as np
 from voicepuppet.bench.tracker import track_lk
 from voicepuppet.evaluation.real import crossed_lips
 from voicepuppet.tracking import track_video
+from voicepuppet.tracking.detect import landmarks_near
 from voicepuppet.tracking.video import read_grey_frames
 
 #: MediaPipe Face Mesh indices: outer eye corners, inner lips' middles, mouth corners.
@@ -65,6 +69,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("real", nargs="?", default=str(Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
     ap.add_argument("--json", metavar="OUT.json")
+    ap.add_argument("--no-anchors", action="store_true", help="track without the detector's anchors")
     args = ap.parse_args(argv)
     real = Path(args.real)
     if not (real / "reference").is_dir():
@@ -72,12 +77,12 @@ def main(argv=None) -> int:
         return 2
     rows = []
     print(f"{'clip':<28}{'frames':>7}{'crossed %':>10}{'opening r':>10}{'width r':>9}{'s':>7}"
-          f"{'LK crossed %':>14}{'LK opening r':>13}{'LK width r':>11}")
+          f"{'LK crossed %':>14}{'LK opening r':>13}{'LK width r':>11}{'dlib opening r':>15}{'dlib width r':>13}")
     for name, video, ref_path in clips(real):
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = track_video(video, init="auto", progress=False)
+            res = track_video(video, init="auto", progress=False, detector_anchors=not args.no_anchors)
         seconds = time.perf_counter() - t0
         ref = np.load(ref_path).astype(np.float64)
         n = min(len(ref), len(res.points))
@@ -86,9 +91,14 @@ def main(argv=None) -> int:
         frames, _ = read_grey_frames(video)
         lk = track_lk(frames[:n], res.points[0])
         lo, lw, lcrossed = ours(lk)
+        alone = [res.points[0]]
+        for frame in frames[1:n]:
+            alone.append(landmarks_near(frame, alone[-1]))
+        do, dw, _ = ours(np.stack(alone))
         row = {"clip": name, "frames": n, "crossed": float(crossed.mean()), "opening_r": measures(o, ro),
                "width_r": measures(w, rw), "seconds": seconds, "lk_crossed": float(lcrossed.mean()),
-               "lk_opening_r": measures(lo, ro), "lk_width_r": measures(lw, rw)}
+               "lk_opening_r": measures(lo, ro), "lk_width_r": measures(lw, rw),
+               "dlib_opening_r": measures(do, ro), "dlib_width_r": measures(dw, rw)}
         rows.append(row)
         print(f"{name:<28}{n:>7}{100 * row['crossed']:>10.1f}{row['opening_r']:>10.2f}{row['width_r']:>9.2f}"
               f"{seconds:>7.1f}{100 * row['lk_crossed']:>14.1f}{row['lk_opening_r']:>13.2f}{row['lk_width_r']:>11.2f}")

@@ -86,7 +86,9 @@ void bind_tracker(py::module_& m) {
       .def_readwrite("reference_search_ncc", &TrackerOptions::reference_search_ncc)
       .def_readwrite("order_pairs", &TrackerOptions::order_pairs)
       .def_readwrite("order_axis", &TrackerOptions::order_axis)
-      .def_readwrite("order_margin", &TrackerOptions::order_margin);
+      .def_readwrite("order_margin", &TrackerOptions::order_margin)
+      .def_readwrite("anchor_precision", &TrackerOptions::anchor_precision)
+      .def_readwrite("anchor_slack", &TrackerOptions::anchor_slack);
 
   py::class_<TrackerFrame>(m, "TrackerFrame", "One frame's answer of SpringMeshTracker.track.")
       .def_readonly("points", &TrackerFrame::points, "#P by 2 positions (x, y)")
@@ -126,6 +128,16 @@ void bind_tracker(py::module_& m) {
              return self.track(g);
            },
            py::arg("frame"), "Track the next (height, width) uint8 frame.")
+      .def("track",
+           [](SpringMeshTracker& self, const py::array& frame, const RowMatrixXd& anchors) {
+             py::array keep;
+             const GreyImage g = grey_from_array(frame, "frame", keep);
+             py::gil_scoped_release release;
+             return self.track(g, anchors);
+           },
+           py::arg("frame"), py::arg("anchors"),
+           "Track the next frame with this frame's #P by 2 anchors (NaN rows: none), pulling with "
+           "options.anchor_precision.")
       .def("relocate", &SpringMeshTracker::relocate, py::arg("points"),
            "Restart the points at #P by 2 new positions (a face found again elsewhere): current "
            "templates reset to the first-frame ones, per-point state cleared; first-frame "

@@ -617,6 +617,7 @@ struct SpringMeshTracker::Impl {
   std::vector<double> prev_weight;  // data weight of each point at the end of the last frame
   RowMatrixXd init_pts;             // the first frame's points (the face frame's reference)
   std::vector<char> muted;          // points whose data term this frame's relaxations ignore
+  RowMatrixXd anchors;              // this frame's anchors (NaN: none), or empty
   std::vector<char> checked;        // points held by an offset spring (the consistency check)
   Eigen::Matrix2d to_face = Eigen::Matrix2d::Identity();  // this frame's A^-1 (offset springs)
   std::vector<Level> pyr;
@@ -1270,6 +1271,25 @@ struct SpringMeshTracker::Impl {
             rhs[i](1) -= c * m.by * scale;
           }
         }
+        if (anchors.rows() == P && opt.anchor_precision.size() == P) {
+          for (Index i = 0; i < P; ++i) {
+            const double lam = opt.anchor_precision[i];
+            if (!(lam > 0) || std::isnan(anchors(i, 0)) || std::isnan(anchors(i, 1))) continue;
+            // A spring of rest length `anchor_slack` from the point to its anchor that only
+            // pulls when stretched: energy lam (|d| - slack)² beyond the slack, d = a - p.
+            const Eigen::Vector2d d(anchors(i, 0) - pts(i, 0), anchors(i, 1) - pts(i, 1));
+            const double len = d.norm();
+            const double over = len - opt.anchor_slack;
+            if (opt.anchor_slack <= 0) {
+              diag[i] += lam * Eigen::Matrix2d::Identity();
+              rhs[i] += lam * d;
+            } else if (over > 0) {
+              const Eigen::Vector2d u = d / len;
+              diag[i] += lam * (u * u.transpose()) + (lam * over / len) * (Eigen::Matrix2d::Identity() - u * u.transpose());
+              rhs[i] += lam * over * u;
+            }
+          }
+        }
         for (Index e = 0; e < mesh.edges.rows(); ++e) {
           const Index a = mesh.edges(e, 0), b = mesh.edges(e, 1);
           Eigen::Vector2d g;
@@ -1384,6 +1404,15 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
     fail_argument("options.order_axis must be a finite non-zero direction, got (", options.order_axis(0), ", ",
                   options.order_axis(1), ")");
   }
+  if (!(std::isfinite(options.anchor_slack) && options.anchor_slack >= 0)) {
+    fail_argument("options.anchor_slack must be a finite number of pixels >= 0, got ", options.anchor_slack);
+  }
+  if (options.anchor_precision.size() != 0 &&
+      (options.anchor_precision.size() != points.rows() || !options.anchor_precision.allFinite() ||
+       options.anchor_precision.minCoeff() < 0)) {
+    fail_argument("options.anchor_precision must hold ", points.rows(), " finite precisions >= 0 (1/px², one per "
+                  "point; 0: no anchor) or be empty, got ", options.anchor_precision.size(), " values");
+  }
   if (options.reference_sides.size() != 0 &&
       (options.reference_sides.rows() != points.rows() || options.reference_sides.cols() != 2 ||
        !options.reference_sides.allFinite())) {
@@ -1481,6 +1510,28 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
 SpringMeshTracker::~SpringMeshTracker() = default;
 SpringMeshTracker::SpringMeshTracker(SpringMeshTracker&&) noexcept = default;
 SpringMeshTracker& SpringMeshTracker::operator=(SpringMeshTracker&&) noexcept = default;
+
+TrackerFrame SpringMeshTracker::track(const GreyImage& frame, const MatrixRef& anchors) {
+  Impl& s = *impl_;
+  if (anchors.rows() != s.P || anchors.cols() != 2) {
+    fail_argument("anchors must have shape (", s.P, ", 2), one (x, y) row per tracked point (NaN: none), got ",
+                  shape_of(anchors));
+  }
+  for (Index i = 0; i < s.P; ++i) {
+    if (std::isinf(anchors(i, 0)) || std::isinf(anchors(i, 1))) {
+      fail_argument("anchors row ", i, " is infinite; give a position or NaN for no anchor");
+    }
+  }
+  s.anchors = anchors;
+  try {
+    TrackerFrame out = track(frame);
+    s.anchors.resize(0, 2);
+    return out;
+  } catch (...) {
+    s.anchors.resize(0, 2);
+    throw;
+  }
+}
 
 TrackerFrame SpringMeshTracker::track(const GreyImage& frame) {
   check_grey_image(frame, "frame");

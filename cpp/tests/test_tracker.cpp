@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <set>
 #include <utility>
@@ -996,4 +997,50 @@ TEST_CASE("tracker: ordered points never cross, whatever their data say") {
   const TrackerFrame m = margin.track(f1.view());
   CHECK(m.points(3, 1) >= m.points(0, 1) - 2.0 - 1e-9);
   CHECK(m.points(3, 1) - m.points(0, 1) < -1.0);
+}
+
+TEST_CASE("tracker: anchors pull a point only beyond their slack") {
+  const Texture ta(21), tb(22);
+  RowMatrixXd p(6, 2);
+  p << 40, 50, 40, 95, 65, 72, 160, 54, 160, 105, 135, 82;
+  const SpringMesh mesh = springs_from_points(p, delaunay_edges(p), 0.5);
+  // The right half rises 8 px: its data put point 3 at y 46.
+  const Frame f0 = render_halves(ta, tb, 0), f1 = render_halves(ta, tb, 8);
+  SpringMeshTracker free_tracker(f0.view(), p, mesh);
+  const TrackerFrame free_answer = free_tracker.track(f1.view());
+  REQUIRE(std::abs(free_answer.points(3, 1) - 46) < 0.5);
+  TrackerOptions anchored;
+  anchored.anchor_precision = VectorXd::Zero(6);
+  anchored.anchor_precision[3] = 1e4;
+  RowMatrixXd none = RowMatrixXd::Constant(6, 2, std::nan(""));
+  // No anchor (NaN rows) and an anchor within its slack leave the answer bit for bit.
+  SpringMeshTracker a(f0.view(), p, mesh, anchored);
+  CHECK(a.track(f1.view(), none).points == free_answer.points);
+  RowMatrixXd near = none;
+  near.row(3) << 160, 50;  // 4 px from where the data put the point
+  anchored.anchor_slack = 5.0;
+  SpringMeshTracker b(f0.view(), p, mesh, anchored);
+  CHECK(b.track(f1.view(), near).points == free_answer.points);
+  // Beyond the slack a stiff anchor holds the point at the slack's edge: |y - 56| = 1.
+  RowMatrixXd far = none;
+  far.row(3) << 160, 56;
+  anchored.anchor_slack = 1.0;
+  SpringMeshTracker c(f0.view(), p, mesh, anchored);
+  const TrackerFrame held = c.track(f1.view(), far);
+  CHECK(held.points(3, 1) == doctest::Approx(55).epsilon(0.01));
+  CHECK(std::abs(held.points(0, 1) - 50) < 0.5);  // the others still follow their data
+  // Bad anchors and anchor options are refused with a reason.
+  CHECK_THROWS_WITH_AS(c.track(f1.view(), RowMatrixXd::Zero(5, 2)), doctest::Contains("anchors"),
+                       std::invalid_argument);
+  RowMatrixXd inf = none;
+  inf(2, 0) = std::numeric_limits<double>::infinity();
+  CHECK_THROWS_WITH_AS(c.track(f1.view(), inf), doctest::Contains("infinite"), std::invalid_argument);
+  TrackerOptions bad = anchored;
+  bad.anchor_precision = VectorXd::Ones(4);
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("anchor_precision"),
+                       std::invalid_argument);
+  bad = anchored;
+  bad.anchor_slack = -1.0;
+  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("anchor_slack"),
+                       std::invalid_argument);
 }

@@ -211,6 +211,15 @@ struct TrackerOptions {
   /// face-frame px a lower point may lie above its upper one before the pair is moved (>= 0):
   /// closed lips whose points meet within the tracker's noise are left as they are
   double order_margin = 0.0;
+  /// #P precisions (1/px², 0: none) of the per-frame anchors `track` may be given: point i
+  /// adds anchor_precision[i]·|p_i − a_i|² to the mesh's energy at every Gauss–Newton step of
+  /// that frame (an independent detector's answer as a soft observation beside the patches and
+  /// springs). Empty: no anchors.
+  VectorXd anchor_precision;
+  /// px a point may stray from its anchor before the anchor pulls (>= 0): the energy is then
+  /// anchor_precision[i]·(|p_i − a_i| − anchor_slack)² beyond it and 0 within, so the patches
+  /// place a point within the detector's noise and the anchor only bounds their drift
+  double anchor_slack = 0.0;
 };
 
 /// One frame's answer.
@@ -241,6 +250,11 @@ class SpringMeshTracker {
   /// Tracks the next frame (same size as the first) from the previous positions.
   /// @throws std::invalid_argument when the frame is empty or its size differs from the first.
   TrackerFrame track(const GreyImage& frame);
+
+  /// As `track`, with this frame's anchors: #P by 2 positions (x, y), a row of NaN for a point
+  /// without one, pulling with `TrackerOptions::anchor_precision`.
+  /// @throws std::invalid_argument when `anchors` is not #P by 2, or holds an infinite value.
+  TrackerFrame track(const GreyImage& frame, const MatrixRef& anchors);
 
   /// Restarts the points mid-sequence at `points` (a face found again elsewhere in the frame,
   /// e.g. after it left the frame or was covered): the current templates are reset to the

@@ -36,7 +36,8 @@ def _cli(args) -> int:
                              f"resized by; 1 tracks at full resolution), got {args.working_scale!r}")
     result = track_video(args.video, init, passes=args.passes, progress=not args.quiet,
                          patch_radius=args.patch_radius, levels=args.levels, working_scale=working_scale,
-                         reacquire=not args.no_reacquire)
+                         reacquire=not args.no_reacquire,
+                         detector_anchors=False if args.no_detector_anchors else None)
     written = save_landmarks(out, result)
     if args.overlay:
         # Every frame once, at the video's average rate: as long as the video (a variable-rate
@@ -88,5 +89,8 @@ def add_parser(sub) -> None:
     p.add_argument("--no-reacquire", action="store_true",
                    help="do not search the whole frame for a face lost for a few frames (by default the "
                         "mesh is restarted where the face is found again)")
+    p.add_argument("--no-detector-anchors", action="store_true",
+                   help="with --init auto, track the lips by their patches and springs alone (by default "
+                        "dlib's lips on every frame bound their drift)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cli)

@@ -11,6 +11,7 @@ tracker finds.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
@@ -242,6 +243,14 @@ def _file_digest(path) -> str:
     return h.hexdigest()
 
 
+@functools.lru_cache(maxsize=1)
+def tracker_digest() -> str:
+    """The tracker's code by content (the ``voicepuppet.tracking`` sources and the compiled core):
+    caches of tracked landmarks key on it, so a changed tracker tracks again."""
+    parts = [_file_digest(p) for p in sorted(Path(tracking.__file__).parent.glob("*.py"))]
+    return hashlib.sha256(json.dumps([parts, _file_digest(_core.__file__)]).encode()).hexdigest()
+
+
 def _track_key(video: str, init: np.ndarray) -> str:
     """What a cached track depends on: the video file (size, modification time), the initial
     points, and the tracker's code (the ``voicepuppet.tracking`` sources and the compiled core, by
@@ -249,8 +258,7 @@ def _track_key(video: str, init: np.ndarray) -> str:
     st = os.stat(video)
     src = dict(version=_TRACK_CACHE_VERSION, size=st.st_size, mtime_ns=st.st_mtime_ns,
                init=hashlib.sha256(np.ascontiguousarray(init, np.float64).tobytes()).hexdigest(),
-               tracking=[_file_digest(p) for p in sorted(Path(tracking.__file__).parent.glob("*.py"))],
-               core=_file_digest(_core.__file__))
+               tracker=tracker_digest())
     return hashlib.sha256(json.dumps(src, sort_keys=True).encode()).hexdigest()
 
 

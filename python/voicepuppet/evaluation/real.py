@@ -59,6 +59,7 @@ from tqdm.auto import tqdm
 from voicepuppet import audio as vaudio, data
 from voicepuppet._version import __version__
 from voicepuppet.blas import limited
+from voicepuppet.evaluation.corpus import tracker_digest
 from voicepuppet.evaluation.folds import mean_ci
 from voicepuppet.evaluation.learned import ConvRegressor
 from voicepuppet.evaluation.rhubarb import RECOGNIZERS, ShapeMap, frame_shapes
@@ -201,8 +202,8 @@ def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False) -> Path
         The recording.
     cache_dir : path, optional
         Where tracks are kept (default: ``real-tracks`` in ``$VOICEPUPPET_CACHE`` or
-        ``~/.cache/voicepuppet``); a track is reused while the video and voicepuppet's version
-        are the same.
+        ``~/.cache/voicepuppet``); a track is reused while the video and the tracker's code
+        (:func:`voicepuppet.evaluation.corpus.tracker_digest`) are the same.
     progress : bool
         Progress bars while tracking.
 
@@ -212,7 +213,7 @@ def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False) -> Path
         The landmark file (``points``, ``fps``, ``times``, ``lost``).
     """
     digest = _digest(str(clip.video))
-    path = _cache_dir(cache_dir) / f"{clip.key.replace('/', '-')}-{digest}-{__version__}.npz"
+    path = _cache_dir(cache_dir) / f"{clip.key.replace('/', '-')}-{digest}-{tracker_digest()[:16]}.npz"
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
         with warnings.catch_warnings():  # the training sequences resample, saying so
@@ -669,7 +670,7 @@ def sample_puppet(cache_dir=None, progress: bool = False) -> Puppet:
     ----------
     cache_dir : path, optional
         Where the puppet and the tracks are kept (default: ``$VOICEPUPPET_CACHE`` or
-        ``~/.cache/voicepuppet``); remade when voicepuppet's version changes.
+        ``~/.cache/voicepuppet``); remade when voicepuppet's version or its tracker changes.
     progress : bool
         Progress bars and a line saying it is being made.
 
@@ -678,7 +679,7 @@ def sample_puppet(cache_dir=None, progress: bool = False) -> Puppet:
     Puppet
     """
     base = Path(cache_dir) if cache_dir is not None else _cache_dir(None).parent
-    path = base / f"sample-obama-{__version__}.vpp"
+    path = base / f"sample-obama-{__version__}-{tracker_digest()[:12]}.vpp"
     if not path.is_file():
         if progress:
             print(f"making the sample puppet (Barack Obama, 83 s of video; once): {path}")

@@ -28,10 +28,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from voicepuppet import _core
-from voicepuppet.layout import INNER_LIP_PAIRS
+from voicepuppet.layout import INNER_LIP_PAIRS, MOUTH
 from voicepuppet.tracking import video
 from voicepuppet.tracking._checks import as_grey, check_inside, check_points
-from voicepuppet.tracking.detect import NoFaceError, first_face
+from voicepuppet.tracking.detect import NoFaceError, first_face, landmarks_near
 from voicepuppet.tracking.landmarks import TrackResult, load_init_points
 from voicepuppet.tracking.reacquire import REACQUIRE_FRAMES, REACQUIRE_LOST_SHARE, FaceSearch
 from voicepuppet.tracking.scale import points_to_full, points_to_working, working_scale_factor
@@ -45,6 +45,14 @@ from voicepuppet.tracking.springs import (FACE_FRAME_POINTS, LIP_GROUP_SEARCH_IO
 #: the pair apart: closed lips meet within this of each other in the tracker's noise.
 INNER_LIP_OVERLAP_IOD = 0.005
 
+#: Detector anchors (``detector_anchors``): each lip point (48-67) is pulled toward dlib's answer
+#: on its frame by a spring of standard deviation ANCHOR_SIGMA_IOD that is slack within
+#: ANCHOR_SLACK_IOD (inter-ocular distances): the patches place the lips within dlib's noise, and
+#: dlib stops their drift onto teeth, tongue and the mouth's cavity (docs/tracking.md, "Real
+#: recordings": chosen there, on the shared clips, over 0.003-0.1 and slacks of 0-0.045).
+ANCHOR_SIGMA_IOD = 0.005
+ANCHOR_SLACK_IOD = 0.01
+
 __all__ = ["track_frames", "track_video", "VariableFrameRateWarning"]
 
 
@@ -57,7 +65,8 @@ _OPTION_NAMES = ("patch_radius", "levels", "max_iterations", "tolerance", "inten
                  "spring_weight", "ncc_floor", "ncc_full", "lost_confidence", "drift_tolerance",
                  "damping", "patch_sides", "search_radius", "frame_points", "spring_outlier", "outlier_edges",
                  "search_groups", "group_search_radius", "reference_points", "reference_sides",
-                 "reference_search_radius", "reference_search_ncc", "order_pairs", "order_axis", "order_margin")
+                 "reference_search_radius", "reference_search_ncc", "order_pairs", "order_axis", "order_margin",
+                 "anchor_precision", "anchor_slack")
 
 
 def _options(opts: dict) -> "_core.TrackerOptions":
@@ -70,7 +79,7 @@ def _options(opts: dict) -> "_core.TrackerOptions":
 
 
 def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh, options,
-              n_hint: int | None, progress: bool, desc: str, reacquire: bool = True):
+              n_hint: int | None, progress: bool, desc: str, reacquire: bool = True, anchors=None):
     pts, conf, lost = [], [], []
     reacquired = []
     tracker = search = first = None
@@ -80,6 +89,8 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
         for t, frame in enumerate(frames()):
             g = as_grey(frame, t, shape)
             if tracker is None:
+                if anchors is not None and not anchors:
+                    anchors.append(init.copy())
                 shape = g.shape
                 check_inside(init, shape)
                 tracker = _core.SpringMeshTracker(g, init, mesh, options)
@@ -88,7 +99,11 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
                 conf.append(np.ones(len(init)))
                 lost.append(np.zeros(len(init), dtype=bool))
             else:
-                r = tracker.track(g)
+                if anchors is not None and len(anchors) <= t:
+                    detected = landmarks_near(g, pts[-1])
+                    anchors.append(np.full((len(init), 2), np.nan) if detected is None else detected)
+                step = (lambda: tracker.track(g)) if anchors is None else (lambda: tracker.track(g, anchors[t]))
+                r = step()
                 if reacquire and streak >= REACQUIRE_FRAMES:
                     # Lost for long enough: look for the face over the whole frame, restart the
                     # mesh where it is found and track this frame again from there (the search's
@@ -97,7 +112,7 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
                     found = search.find(g, init)
                     if found is not None:
                         tracker.relocate(found[0])
-                        r = tracker.track(g)
+                        r = step()
                         if np.mean(r.lost) <= REACQUIRE_LOST_SHARE:
                             reacquired.append(t)
                 streak = streak + 1 if np.mean(r.lost) > REACQUIRE_LOST_SHARE else 0
@@ -121,7 +136,7 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
            passes: int = 2, relative_sigma: float = 0.05, min_sigma: float = 0.5,
            initial_min_sigma: float | None = None, lips: bool | None = None, eyes: bool | None = None,
            n_hint: int | None = None, progress: bool = True, names=None, scale: float = 1.0,
-           work_shape=None, reacquire: bool = True, **options) -> TrackResult:
+           work_shape=None, reacquire: bool = True, detector_anchors: bool = False, **options) -> TrackResult:
     """Tracks ``frames`` (already resized by ``scale``, of shape ``work_shape``) from the
     full-resolution ``init_points``; the tracker runs in the resized frames, the result is
     mapped back to full-resolution pixels."""
@@ -177,6 +192,19 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
     # a 68-point face, otherwise all points (frame_points=() for the image frame).
     options.setdefault("frame_points", np.asarray(FACE_FRAME_POINTS if len(init) == 68 else range(len(init)),
                                                   dtype=np.int64))
+    # Detector anchors: dlib's lips on every frame (found in the box the previous frame's points
+    # give), computed in the first pass and kept for the others.
+    anchors = None
+    if detector_anchors:
+        if len(init) != 68:
+            raise ValueError(f"detector_anchors=True needs the 68 points of the iBUG 300-W layout, got {len(init)} "
+                             "points; pass detector_anchors=False")
+        iod = float(np.linalg.norm(init[45] - init[36]))
+        precision = np.zeros(68)
+        precision[MOUTH] = 1.0 / (ANCHOR_SIGMA_IOD * iod) ** 2
+        options.setdefault("anchor_precision", precision)
+        options.setdefault("anchor_slack", ANCHOR_SLACK_IOD * iod)
+        anchors = []
     opts = _options(options)
     # The first pass's lip springs are guesses: their check on the data (spring_outlier) waits
     # for the springs re-estimated from a pass.
@@ -186,7 +214,8 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
     prev = None
     for k in range(passes):
         pts, conf, lost, reacquired = _one_pass(frames, init, mesh, first_opts if k == 0 else opts, n_hint,
-                                                progress, f"tracking pass {k + 1}/{passes}", reacquire)
+                                                progress, f"tracking pass {k + 1}/{passes}", reacquire,
+                                                anchors)
         row = {"pass": k + 1, "lost_fraction": float(lost.mean()), "reacquired": reacquired,
                "mean_point_change": None if prev is None else float(np.linalg.norm(pts - prev, axis=2).mean()),
                "max_rel_length_change": None, "max_length_change": None}
@@ -274,7 +303,12 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
         :data:`voicepuppet.tracking.reacquire.REACQUIRE_LOST_SHARE` of its points lost, is searched
         for over the whole frame each frame until found, the mesh restarted where it is
         (``TrackResult.reacquired``), and the frames it is gone have every point lost; False: points
-        stay where they were lost).
+        stay where they were lost), ``detector_anchors`` (default False; a 68-point face only: dlib's
+        shape predictor is run on every frame in the box the previous frame's points give
+        (:func:`voicepuppet.tracking.detect.landmarks_near`), and each lip point is pulled toward
+        its answer by a spring that is slack within :data:`ANCHOR_SLACK_IOD` inter-ocular
+        distances (:data:`ANCHOR_SIGMA_IOD`): on real faces the patches alone drift onto teeth,
+        tongue and the mouth's cavity; ``track_video`` with ``init="auto"`` turns it on).
 
     Returns
     -------
@@ -305,7 +339,7 @@ def track_frames(frames: Sequence[np.ndarray] | np.ndarray, init_points, *, fps:
 
 def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = "auto", *,
                 names=None, edges=None, passes: int = 2, progress: bool = True, cache_bytes: int = 1 << 30,
-                working_scale="auto", **options) -> TrackResult:
+                working_scale="auto", detector_anchors: bool | None = None, **options) -> TrackResult:
     """Tracks landmarks through a video file.
 
     Parameters
@@ -336,6 +370,10 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
         each pass.
     working_scale : {"auto"} or float, default "auto"
         As in :func:`track_frames`.
+    detector_anchors : bool, optional
+        As in :func:`track_frames`; default: on with ``init="auto"`` (the detector that placed
+        the first frame's points keeps the lips from drifting), off with given points (their
+        layout may not be dlib's).
     **options
         As in :func:`track_frames`.
 
@@ -370,7 +408,10 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
         raise ValueError(f"video {str(path)!r} holds no decodable frames; check the file")
     times = video.frame_times(path)
     start = 0
-    if isinstance(init, str) and init == "auto":
+    auto = isinstance(init, str) and init == "auto"
+    if detector_anchors is None:
+        detector_anchors = auto
+    if auto:
         try:
             start, first, points = first_face(path, first, fps, progress)
         except NoFaceError as exc:
@@ -403,7 +444,8 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
         source = decode
         n_hint = (info.frame_count - start) or None
     result = _track(source, points, fps=fps, edges=edges, passes=passes, n_hint=n_hint,
-                    progress=progress, names=names, scale=scale, work_shape=work_shape, **options)
+                    progress=progress, names=names, scale=scale, work_shape=work_shape,
+                    detector_anchors=detector_anchors, **options)
     if start:
         result = _lost_before(result, start)
     if times is not None and len(times) == len(result.points):  # else OpenCV decoded others
