@@ -137,7 +137,8 @@ def _run_real(args) -> int:
         voices = None
     with _rhubarb_said():
         result = real.evaluate_real(args.real, speaker=args.speaker, options=options, cache_dir=args.cache,
-                                    voices=voices, progress=not args.quiet, **tools)
+                                    voices=voices, progress=not args.quiet,
+                                    detector_anchors=not args.no_detector_anchors, **tools)
     text = real.format_real(result)
     command = " ".join(["voicepuppet evaluate --corpus real"]
                        + [f"{flag} {shlex.quote(str(v))}" for flag, v in
@@ -145,7 +146,8 @@ def _run_real(args) -> int:
                            ("--states", args.states if args.states != 40 else None),
                            ("--seed", args.seed or None), ("--rhubarb", args.rhubarb), ("-o", args.out),
                            ("--json", args.json)) if v is not None]
-                       + (["--peers"] if args.peers else []))
+                       + (["--peers"] if args.peers else [])
+                       + (["--no-detector-anchors"] if args.no_detector_anchors else []))
     return _report(args, result, command, text)
 
 
@@ -155,7 +157,8 @@ def _run(args) -> int:
 
     if args.corpus == "real":
         return _run_real(args)
-    for flag, val in (("--real", args.real), ("--cache", args.cache), ("--speaker", args.speaker != "obama")):
+    for flag, val in (("--real", args.real), ("--cache", args.cache), ("--speaker", args.speaker != "obama"),
+                      ("--no-detector-anchors", args.no_detector_anchors)):
         if val:
             raise ValueError(f"{flag} is for --corpus real; leave it out or add --corpus real")
 
@@ -220,6 +223,9 @@ def add_parser(sub) -> None:
     p.add_argument("--speaker", default="obama", help="with --corpus real: the speaker the models learn (default obama)")
     p.add_argument("--cache", metavar="DIR", help="with --corpus real: where the tracks of the recordings are kept "
                    "(default: real-tracks in $VOICEPUPPET_CACHE or ~/.cache/voicepuppet)")
+    p.add_argument("--no-detector-anchors", action="store_true",
+                   help="with --corpus real: train on tracks made without dlib's lips anchoring the tracker's "
+                        "(voicepuppet track --no-detector-anchors)")
     p.add_argument("--data", metavar="DIR", help="user data: NAME.npz + NAME.wav + NAME.TextGrid|.lab "
                    "per sequence (default: the synthetic performer)")
     p.add_argument("--alphabet", choices=["arpabet", "espeak"], default="arpabet",

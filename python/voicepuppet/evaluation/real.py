@@ -193,7 +193,7 @@ def _digest(path: str) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
-def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False) -> Path:
+def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False, detector_anchors: bool = True) -> Path:
     """The clip tracked as ``voicepuppet track --init auto`` does (a landmark file, cached).
 
     Parameters
@@ -206,6 +206,9 @@ def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False) -> Path
         (:func:`voicepuppet.evaluation.corpus.tracker_digest`) are the same.
     progress : bool
         Progress bars while tracking.
+    detector_anchors : bool
+        Track with dlib's lips anchoring the mesh's (as ``--init auto`` does by default; False:
+        ``voicepuppet track --no-detector-anchors``).
 
     Returns
     -------
@@ -213,12 +216,13 @@ def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False) -> Path
         The landmark file (``points``, ``fps``, ``times``, ``lost``).
     """
     digest = _digest(str(clip.video))
-    path = _cache_dir(cache_dir) / f"{clip.key.replace('/', '-')}-{digest}-{tracker_digest()[:16]}.npz"
+    kind = "" if detector_anchors else "-unanchored"
+    path = _cache_dir(cache_dir) / f"{clip.key.replace('/', '-')}-{digest}-{tracker_digest()[:16]}{kind}.npz"
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
         with warnings.catch_warnings():  # the training sequences resample, saying so
             warnings.simplefilter("ignore", VariableFrameRateWarning)
-            result = track_video(str(clip.video), init="auto", progress=progress)
+            result = track_video(str(clip.video), init="auto", progress=progress, detector_anchors=detector_anchors)
         save_landmarks(path, result, csv=False)  # through a temporary file and a rename
     return path
 
@@ -283,7 +287,7 @@ def _fit_length(x: np.ndarray, n: int) -> np.ndarray:
     return np.concatenate([x, np.repeat(x[-1:], n - len(x), axis=0)])
 
 
-def _in_sync(clips, cache_dir, progress) -> list:
+def _in_sync(clips, cache_dir, progress, anchors: bool = True) -> list:
     """Each clip's sound, shifted into sync with its face (offsets per session, as train does)."""
     sounds = [vaudio.load_audio(c.video) for c in clips]
     by_session: dict = {}
@@ -291,7 +295,8 @@ def _in_sync(clips, cache_dir, progress) -> list:
         by_session.setdefault(c.session, []).append(i)
     for idx in by_session.values():
         fps = clips[idx[0]].fps
-        recs = [(load_landmarks(tracked_clip(clips[i], cache_dir, progress))["points"], sounds[i], "") for i in idx]
+        recs = [(load_landmarks(tracked_clip(clips[i], cache_dir, progress, anchors))["points"], sounds[i], "")
+                for i in idx]
         for i, off in zip(idx, av_offsets(recs, fps)):
             sounds[i] = shift_audio(sounds[i], off)
     return sounds
@@ -311,8 +316,9 @@ class _Models:
     learned: ConvRegressor | None = None
 
 
-def _train(train: list, options: dict, cache_dir, progress: bool, learned: bool = False) -> _Models:
-    tracks = [tracked_clip(c, cache_dir, progress) for c in train]
+def _train(train: list, options: dict, cache_dir, progress: bool, learned: bool = False,
+           anchors: bool = True) -> _Models:
+    tracks = [tracked_clip(c, cache_dir, progress, anchors) for c in train]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # resampled frame grids and dropped frames, said in train
         points, sounds, fps, offsets = training_sequences(landmarks=tracks, audio=[c.video for c in train])
@@ -388,7 +394,8 @@ def _shape_maps(shapes: dict, clips: list, train: list) -> dict:
 
 @limited
 def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir=None,
-                          rhubarb=None, learned: bool = False, progress: bool = False) -> dict:
+                          rhubarb=None, learned: bool = False, progress: bool = False,
+                          detector_anchors: bool = True) -> dict:
     """Leave-one-session-out over one speaker's clips (see the module's description).
 
     Parameters
@@ -410,6 +417,9 @@ def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir
         standardises them to its face coordinates, mapped to the reference as the ridge is.
     progress : bool
         Progress bars.
+    detector_anchors : bool
+        Train on tracks made with dlib's lips anchoring the mesh's (:func:`tracked_clip`; the
+        default, as ``--init auto`` tracks).
 
     Returns
     -------
@@ -426,11 +436,12 @@ def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir
     sessions = list(dict.fromkeys(c.session for c in clips))
     if len(sessions) < 2:
         raise ValueError(f"leaving one session out needs two or more sessions, got {sessions}")
-    sounds = _in_sync(clips, cache_dir, progress)
+    sounds = _in_sync(clips, cache_dir, progress, detector_anchors)
     shapes = _rhubarb_openings(rhubarb, clips, sounds) if rhubarb is not None else {}
     rows, info = [], {}
     for s in tqdm(sessions, desc="sessions", disable=not progress):
-        models = _train([c for c in clips if c.session != s], dict(options or {}), cache_dir, progress, learned)
+        models = _train([c for c in clips if c.session != s], dict(options or {}), cache_dir, progress, learned,
+                        detector_anchors)
         info[s] = {"training_offsets_s": [float(o) for o in models.offsets]}
         maps = _shape_maps(shapes, clips, [i for i, c in enumerate(clips) if c.session != s])
         for i, (c, sound) in enumerate(zip(clips, sounds)):
@@ -442,7 +453,8 @@ def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir
 
 @limited
 def any_voice(train: list, tests: list, *, options: dict | None = None, cache_dir=None,
-              rhubarb=None, learned: bool = False, voices: list | None = None, progress: bool = False) -> dict:
+              rhubarb=None, learned: bool = False, voices: list | None = None, progress: bool = False,
+              detector_anchors: bool = True) -> dict:
     """The models trained on all of ``train`` animate other speakers' recordings.
 
     Parameters
@@ -465,6 +477,9 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
         against how much the training speaker's does.
     progress : bool
         Progress bars.
+    detector_anchors : bool
+        Train on tracks made with dlib's lips anchoring the mesh's (:func:`tracked_clip`; the
+        default, as ``--init auto`` tracks).
 
     Returns
     -------
@@ -477,11 +492,11 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
         standard deviation over ``truth_spread``) and ``r_loudness`` (its correlation with the
         speech loudness in dB: does it move with the voice).
     """
-    models = _train(train, dict(options or {}), cache_dir, progress, learned)
-    sounds = _in_sync(tests, cache_dir, progress)
+    models = _train(train, dict(options or {}), cache_dir, progress, learned, detector_anchors)
+    sounds = _in_sync(tests, cache_dir, progress, detector_anchors)
     shapes, maps = {}, {}
     if rhubarb is not None:
-        own = _in_sync(train, cache_dir, progress)
+        own = _in_sync(train, cache_dir, progress, detector_anchors)
         maps = _shape_maps(_rhubarb_openings(rhubarb, train, own), train, list(range(len(train))))
         shapes = _rhubarb_openings(rhubarb, tests, sounds)
     out = {"clips": [{"key": c.key, "session": c.session,
@@ -556,7 +571,8 @@ def summarize(rows: list) -> dict:
 
 
 def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = None, cache_dir=None,
-                  rhubarb=None, learned: bool = False, voices: list | None = None, progress: bool = False) -> dict:
+                  rhubarb=None, learned: bool = False, voices: list | None = None, progress: bool = False,
+                  detector_anchors: bool = True) -> dict:
     """Both protocols on the real recordings: leave one of ``speaker``'s sessions out, and
     ``speaker``'s models animating every other speaker.
 
@@ -578,6 +594,9 @@ def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = N
         Speech without faces to animate too (:func:`any_voice`).
     progress : bool
         Progress bars.
+    detector_anchors : bool
+        Train on tracks made with dlib's lips anchoring the mesh's (:func:`tracked_clip`; the
+        default, as ``--init auto`` tracks).
 
     Returns
     -------
@@ -589,12 +608,12 @@ def evaluate_real(root=None, *, speaker: str = "obama", options: dict | None = N
     own = real_clips(root, speaker)
     others = [c for c in real_clips(root) if c.key.split("/")[0] != speaker]
     loso = leave_one_session_out(own, options=options, cache_dir=cache_dir, rhubarb=rhubarb, learned=learned,
-                                 progress=progress)
+                                 progress=progress, detector_anchors=detector_anchors)
     loso["summary"] = summarize(loso["clips"])
     result = {"speaker": speaker, "options": dict(options or {}), "loso": loso}
     if others:
         heard = any_voice(own, others, options=options, cache_dir=cache_dir, rhubarb=rhubarb, learned=learned,
-                          voices=voices, progress=progress)
+                          voices=voices, progress=progress, detector_anchors=detector_anchors)
         heard["summary"] = summarize(heard["clips"])
         by_speaker: dict = {}
         for row in heard["clips"]:

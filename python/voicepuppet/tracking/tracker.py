@@ -373,7 +373,7 @@ def track_video(path: str | os.PathLike, init: str | os.PathLike | np.ndarray = 
     detector_anchors : bool, optional
         As in :func:`track_frames`; default: on with ``init="auto"`` (the detector that placed
         the first frame's points keeps the lips from drifting), off with given points (their
-        layout may not be dlib's).
+        layout need not be dlib's).
     **options
         As in :func:`track_frames`.
 
