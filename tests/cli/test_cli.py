@@ -58,7 +58,7 @@ def test_info_describes_puppet_files(tmp_path, capsys):
             "audio features, full covariances") in out
     cv = guided.metadata["training"]["guide"]["weight_cv"]
     assert (f"guide: the ridge's face over ±2 frames, weight {guided.guide_weight:g}, chosen by "
-            f"cross-validation (face error per frame at each weight: 0: {cv['mse'][0]:.4g}, ") in out
+            f"cross-validation (error of the face's motion per frame at each weight: 0: {cv['mse'][0]:.4g}, ") in out
     assert "guide: none (Brand's trajectory solve alone)" in out
     bad = tmp_path / "bad.vpp"
     bad.write_bytes(g.read_bytes()[:100])

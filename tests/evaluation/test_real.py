@@ -82,8 +82,12 @@ def test_the_obama_puppet_left_out_one_session_at_a_time(result):
 
 def test_the_obama_puppet_animates_other_voices(result):
     """Reagan's and five GRID speakers' audio: the puppet's opening follows each speaker's real
-    mouth better than the loudness mouth, moving about as much as theirs."""
+    mouth better than the loudness mouth on every clip, moving 0.5-2 times as much as theirs."""
     by = result["any_voice"]["by_speaker"]
+    for clip in result["any_voice"]["clips"]:  # every clip with a reference, not only on average
+        m = clip["models"]
+        assert m["voice puppet"]["r"] > m["loudness mouth"]["r"], clip["key"]
+        assert 0.5 <= m["voice puppet"]["spread"] <= 2.0, clip["key"]
     for who in ("reagan", "grid"):
         pup = by[who]["voice puppet"]
         assert pup["r"] > by[who]["loudness mouth"]["r"], who

@@ -82,7 +82,7 @@ def describe_puppet(path) -> list[str]:
     cv = guide.get("weight_cv")
     if cv:
         errors = ", ".join(f"{w:g}: {e:.4g}" for w, e in zip(cv["weights"], cv["mse"]))
-        line += f", chosen by cross-validation (face error per frame at each weight: {errors})"
+        line += f", chosen by cross-validation (error of the face's motion per frame at each weight: {errors})"
     lines.append(line)
     return lines
 

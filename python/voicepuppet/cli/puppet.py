@@ -71,7 +71,7 @@ def _train(args) -> int:
     if "weight_cv" in guide:
         cv = guide["weight_cv"]
         print(f"guide weight {puppet.guide_weight:g}, chosen by cross-validation on the training audio "
-              f"(face error per frame {min(cv['mse']):.4g}; unguided {cv['mse'][0]:.4g})")
+              f"(error of the face's motion per frame {min(cv['mse']):.4g}; unguided {cv['mse'][0]:.4g})")
     print(f"trained on {sum(len(p) for p in points_list)} frames at {fps:g} fps; wrote {out}")
     return 0
 

@@ -14,7 +14,8 @@ The metadata, as :func:`voicepuppet.puppet.training.train` writes it:
 - ``training`` (optional): ``frames``, ``sequences``, ``options`` (dict), ``parts`` (one dict
   per part: ``part`` name, ``states``, ``arcs``, ``face_dims`` whole numbers, ``perplexity``,
   ``context_memory`` numbers), ``guide`` (dict; ``weight_cv`` with as many
-  ``mse`` as ``weights``).
+  ``mse`` (error about each held-out run's mean) as ``weights``, and ``mse_raw`` (with the means)
+  in puppets trained since it was added).
 """
 
 from __future__ import annotations

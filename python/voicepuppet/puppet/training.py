@@ -26,12 +26,17 @@ from voicepuppet.hmm.diagnostics import diagnostics
 from voicepuppet.hmm.gaussian import GaussianHMM
 from voicepuppet.puppet.guide import (GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES, cross_fit_folds,
                                      fit_guide, fit_projection, sequence_runs)
-from voicepuppet.trajectory import MAX_MOTION_GAIN
 
-__all__ = ["TrainOptions", "TRAIN_DEFAULTS", "VOCAL_COVARIANCES", "train", "training_feature_set", "remap"]
+__all__ = ["TrainOptions", "TRAIN_DEFAULTS", "VOCAL_COVARIANCES", "TRAINED_MOTION_GAIN", "train",
+           "training_feature_set", "remap"]
 
 #: Vocal covariance models of :func:`remap` (training option ``vocal_covariance``).
 VOCAL_COVARIANCES = ("full", "diag", "tied")
+#: The most training widens a face coordinate's motion (``face/motion_gain``; files may hold up to
+#: :data:`voicepuppet.trajectory.MAX_MOTION_GAIN`): at 3, voices other than the training
+#: speaker's, which the guide already moves more, opened the mouth up to 2.5 times as wide as
+#: their own speakers' (docs/results.md, "Real people").
+TRAINED_MOTION_GAIN = 2.0
 
 
 def _check_context(k, name: str, reader: str) -> None:
@@ -278,12 +283,13 @@ def train(points_list, audio_list=None, *, features_list=None, fps: float = 29.9
                     "options": _jsonable(opt), "parts": report}}
     metadata["training"].update(vocal_info)
     if opt["guide"] == "ridge" and opt["guide_weight"] == "cv":
-        lam, mse, gain = _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt,
-                                                       noisy=noisy, progress=progress)
+        lam, mse, mse_raw, gain = _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas,
+                                                                opt, noisy=noisy, progress=progress)
         arrays["guide/weight"] = np.array([lam])
         arrays["face/motion_gain"] = gain
         metadata["training"]["guide"]["weight"] = lam
-        metadata["training"]["guide"]["weight_cv"] = {"weights": list(GUIDE_WEIGHTS), "mse": mse}
+        metadata["training"]["guide"]["weight_cv"] = {"weights": list(GUIDE_WEIGHTS), "mse": mse,
+                                                      "mse_raw": mse_raw}
     return metadata, arrays
 
 
@@ -406,22 +412,27 @@ def _noisy_conditions(sounds, lengths, fps, fset, opt, standardize) -> list:
 
 
 def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt, *, noisy=(),
-                                  progress: bool = False) -> tuple[float, list]:
-    """λ of :data:`GUIDE_WEIGHTS` with the least squared error of the face on held-out
+                                  progress: bool = False) -> tuple[float, list, list, np.ndarray]:
+    """λ of :data:`GUIDE_WEIGHTS` with the least squared error of the face's motion on held-out
     training audio (training option ``guide_weight="cv"``).
 
     Over the folds of :func:`cross_fit_folds`, the vocal side (guide, projection, vocal
     Gaussians: :func:`_fit_vocal_side`) is refitted on the other folds, with the facial HMMs and
     their occupancies of the training frames kept, and each held-out run of frames is animated
     from its raw features ``raw``: decoded once (Viterbi), its trajectory solved at every λ.
-    Returns the λ, the mean squared error per frame for each λ (in the face coordinates of all
-    parts) and, per face coordinate, how much less the held-out animations at that λ move than
-    the training faces: the square root of the ratio of the two's variances about each held-out
-    run's own mean, at least 1 (what ``Puppet.animate(full_motion=True)`` widens by)."""
+    The error is measured about each held-out run's own mean, in the animation and the truth
+    alike: a recording's resting face (its head pose, lighting, the tracker's bias on it) is
+    no motion the audio can tell, and on real sessions it outweighed the motion, so that the
+    choice swung from 0 to 256 with the sessions trained on (docs/results.md, "Real people").
+    Returns the λ, the mean squared error per frame about the runs' means for each λ (in the
+    face coordinates of all parts), the same error with the means (``mse_raw``) and, per face
+    coordinate, how much less the held-out animations at that λ move than the training faces:
+    the square root of the ratio of the two's variances about each held-out run's own mean, at
+    least 1 (what ``Puppet.animate(full_motion=True)`` widens by)."""
     seq = np.repeat(np.arange(len(lengths)), lengths)
     bounds = np.concatenate([[0], np.cumsum(lengths)])
     weights = [float(lam) for lam in GUIDE_WEIGHTS]
-    sse = np.zeros(len(weights))
+    sse, sse_raw = np.zeros(len(weights)), np.zeros(len(weights))
     moved = np.zeros((len(weights), Y.shape[1]))  # Σ over held-out runs of (face - its mean)²
     truth_moved = np.zeros(Y.shape[1])
     folds = cross_fit_folds(lengths)
@@ -440,14 +451,16 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
             s = seq[piece[0]]
             x = np.ascontiguousarray(raw[s][piece - bounds[s]], dtype=np.float64)
             faces = core.animate_faces(x, weights)
-            sse += [float(np.sum((face - Y[piece]) ** 2)) for face in faces]
+            truth_motion = Y[piece] - Y[piece].mean(axis=0)
+            sse += [float(np.sum((face - face.mean(axis=0) - truth_motion) ** 2)) for face in faces]
+            sse_raw += [float(np.sum((face - Y[piece]) ** 2)) for face in faces]
             moved += [np.sum((face - face.mean(axis=0)) ** 2, axis=0) for face in faces]
-            truth_moved += np.sum((Y[piece] - Y[piece].mean(axis=0)) ** 2, axis=0)
-    mse = [float(v) / len(A) for v in sse]
+            truth_moved += np.sum(truth_motion ** 2, axis=0)
+    mse, mse_raw = [float(v) / len(A) for v in sse], [float(v) / len(A) for v in sse_raw]
     best = int(np.argmin(sse))
     with np.errstate(divide="ignore", invalid="ignore"):
         gain = np.sqrt(np.where(moved[best] > 0, truth_moved / moved[best], 1.0))
-    return weights[best], mse, np.clip(gain, 1.0, MAX_MOTION_GAIN)
+    return weights[best], mse, mse_raw, np.clip(gain, 1.0, TRAINED_MOTION_GAIN)
 
 
 def _start_distribution(gamma: np.ndarray, lengths) -> np.ndarray:
