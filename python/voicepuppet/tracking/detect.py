@@ -195,8 +195,10 @@ def landmarks_near(frame: np.ndarray, points: np.ndarray) -> np.ndarray | None:
     model = landmark_model()
     if model is None or not np.all(np.isfinite(points)):
         return None
-    import dlib
-
+    try:
+        import dlib
+    except ImportError:
+        return None
     eyes = points[45] - points[36]
     iod = float(np.hypot(*eyes))
     if not iod > 1.0:
