@@ -282,7 +282,7 @@ def test_auto_init_waits_for_a_face_that_appears_later(tmp_path, write_avi):
     with pytest.warns(UserWarning, match=f"found one at frame {expect} "):
         r = tracking.track_video(path, "auto", passes=1, progress=False, patch_radius=4, levels=2)
     alone = tracking.track_frames(decoded[expect:], init, fps=fps, passes=1, progress=False,
-                                  patch_radius=4, levels=2)
+                                  patch_radius=4, levels=2, detector_anchors=True)  # as "auto" tracks
     assert r.start == expect and r.points.shape == (50, 68, 2)
     assert r.lost[:expect].all() and not r.confidence[:expect].any()
     np.testing.assert_array_equal(r.points[expect:], alone.points)
