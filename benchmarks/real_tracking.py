@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from voicepuppet.bench.tracker import track_lk
-from voicepuppet.evaluation.real import crossed_lips
+from voicepuppet.layout import crossed_lips
 from voicepuppet.tracking import track_video
 from voicepuppet.tracking.detect import landmarks_near
 from voicepuppet.tracking.video import read_grey_frames

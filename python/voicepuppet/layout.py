@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["N_POINTS", "GROUPS", "NAMES", "MOUTH", "UPPER_FACE", "LOWER_FACE", "OUTER_EYE_CORNERS",
-           "EYE_CORNERS", "RIGID", "LIP_GAP", "INNER_LIP_PAIRS", "inter_ocular_distance", "inner_lip_gaps", "close_crossed_lips",
-           "neutral_landmarks"]
+           "EYE_CORNERS", "RIGID", "LIP_GAP", "INNER_LIP_PAIRS", "inter_ocular_distance", "inner_lip_gaps",
+           "crossed_lips", "CROSSED_IOD", "close_crossed_lips", "neutral_landmarks"]
 
 N_POINTS = 68
 
@@ -113,6 +113,28 @@ def inner_lip_gaps(points: np.ndarray) -> np.ndarray:
     p = _faces(points, "the inner lips' gaps")
     down = _face_down(p)
     return np.stack([np.einsum("ij,ij->i", p[:, lo] - p[:, up], down) for up, lo in INNER_LIP_PAIRS], axis=1)
+
+
+#: An overlap of the inner lips beyond this (inter-ocular distances) counts as crossed.
+CROSSED_IOD = 0.01
+
+
+def crossed_lips(points) -> np.ndarray:
+    """Per frame, whether the inner lips cross: an upper inner-lip point more than
+    :data:`CROSSED_IOD` inter-ocular distances below its lower partner, along the face's own
+    vertical (from the eyes' midpoint to the lower lip).
+
+    Parameters
+    ----------
+    points : array_like, shape (T, 68, 2)
+        Landmarks in the 68-point layout.
+
+    Returns
+    -------
+    ndarray of bool, shape (T,)
+    """
+    p = np.asarray(points, dtype=np.float64)
+    return (inner_lip_gaps(p) < -CROSSED_IOD * inter_ocular_distance(p)[:, None]).any(axis=1)
 
 
 def close_crossed_lips(points: np.ndarray) -> np.ndarray:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from voicepuppet.evaluation import real
+from voicepuppet.layout import crossed_lips
 from voicepuppet.tracking import track_video
 from voicepuppet.tracking.detect import auto_init, landmarks_near
 from voicepuppet.tracking.video import read_grey_frames
@@ -33,7 +34,7 @@ def test_detector_anchors_keep_reagans_lips_on_his_mouth(reagan):
     alone = track_video(reagan.video, init="auto", progress=False, detector_anchors=False)
     r_anchored, r_alone = _opening_r(anchored.points, reagan), _opening_r(alone.points, reagan)
     assert r_anchored >= 0.6 and r_anchored > r_alone + 0.15, (r_anchored, r_alone)
-    assert not real.crossed_lips(anchored.points).any()
+    assert not crossed_lips(anchored.points).any()
 
 
 def test_given_points_track_without_anchors(reagan):

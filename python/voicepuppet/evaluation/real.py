@@ -64,7 +64,7 @@ from voicepuppet.evaluation.folds import mean_ci
 from voicepuppet.evaluation.learned import ConvRegressor
 from voicepuppet.evaluation.rhubarb import RECOGNIZERS, ShapeMap, frame_shapes
 from voicepuppet.evaluation.report import markdown_table
-from voicepuppet.layout import inner_lip_gaps, inter_ocular_distance
+from voicepuppet.layout import crossed_lips
 from voicepuppet.puppet.guide import RidgeBaseline
 from voicepuppet.puppet.model import Puppet, load
 from voicepuppet.puppet.sources import av_offsets, training_sequences
@@ -72,8 +72,8 @@ from voicepuppet.puppet.sync import mouth_opening, shift_audio, speech_loudness
 from voicepuppet.tracking.landmarks import load_landmarks, save_landmarks
 from voicepuppet.tracking.tracker import VariableFrameRateWarning, track_video
 
-__all__ = ["RECORDINGS", "MODELS", "CROSSED_IOD", "MAX_LAG", "RealClip", "real_clips", "cues_cache", "tracked_clip",
-           "crossed_lips", "opening_measures", "leave_one_session_out", "any_voice", "summarize", "evaluate_real",
+__all__ = ["RECORDINGS", "MODELS", "MAX_LAG", "RealClip", "real_clips", "cues_cache", "tracked_clip",
+           "opening_measures", "leave_one_session_out", "any_voice", "summarize", "evaluate_real",
            "format_real", "sample_puppet"]
 
 #: The real recordings inside the package: ``index.json``, ``reference.npz`` and the videos.
@@ -83,8 +83,6 @@ MODELS = ("voice puppet", "voice puppet, most probable", "voice puppet, unguided
           "ridge", "learned", "rhubarb", "loudness mouth", "mean face")
 #: The models that give no landmarks (no crossed share).
 _NO_LANDMARKS = ("rhubarb", "loudness mouth", "mean face")
-#: An overlap of the inner lips beyond this (inter-ocular distances) counts as crossed.
-CROSSED_IOD = 0.01
 #: The largest lag (frames) the best-lag search looks at, either way.
 MAX_LAG = 6
 
@@ -225,24 +223,6 @@ def tracked_clip(clip: RealClip, cache_dir=None, progress: bool = False, detecto
             result = track_video(str(clip.video), init="auto", progress=progress, detector_anchors=detector_anchors)
         save_landmarks(path, result, csv=False)  # through a temporary file and a rename
     return path
-
-
-def crossed_lips(points) -> np.ndarray:
-    """Per frame, whether the inner lips cross: an upper inner-lip point more than
-    :data:`CROSSED_IOD` inter-ocular distances below its lower partner, along the face's own
-    vertical (from the eyes' midpoint to the lower lip).
-
-    Parameters
-    ----------
-    points : array_like, shape (T, 68, 2)
-        Landmarks in the 68-point layout.
-
-    Returns
-    -------
-    ndarray of bool, shape (T,)
-    """
-    p = np.asarray(points, dtype=np.float64)
-    return (inner_lip_gaps(p) < -CROSSED_IOD * inter_ocular_distance(p)[:, None]).any(axis=1)
 
 
 def _best_lag(pred: np.ndarray, truth: np.ndarray) -> int:
