@@ -48,8 +48,8 @@ INNER_LIP_OVERLAP_IOD = 0.005
 #: Detector anchors (``detector_anchors``): each lip point (48-67) is pulled toward dlib's answer
 #: on its frame by a spring of standard deviation ANCHOR_SIGMA_IOD that is slack within
 #: ANCHOR_SLACK_IOD (inter-ocular distances): the patches place the lips within dlib's noise, and
-#: dlib stops their drift onto teeth, tongue and the mouth's cavity (docs/tracking.md, "Real
-#: recordings": chosen there, on the shared clips, over 0.003-0.1 and slacks of 0-0.045).
+#: dlib stops their drift onto teeth, tongue and the mouth's cavity (docs/tracking.md, "Detector
+#: anchors": chosen there, on the shared real clips, over sds of 0.003-0.1 and slacks of 0-0.045).
 ANCHOR_SIGMA_IOD = 0.005
 ANCHOR_SLACK_IOD = 0.01
 
