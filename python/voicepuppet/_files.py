@@ -16,7 +16,8 @@ from typing import Iterator
 
 import numpy as np
 
-__all__ = ["check_output_path", "publish", "atomic_path", "remove_stale_temporaries", "write_npz", "read_npz"]
+__all__ = ["check_output_path", "publish", "atomic_path", "signals_held", "remove_stale_temporaries", "write_npz",
+           "read_npz"]
 
 
 def check_output_path(path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Path:
@@ -161,16 +162,36 @@ def atomic_path(path, suffixes: tuple[str, ...] | None = None, what: str = "outp
     """
     p = check_output_path(path, suffixes, what)
     remove_stale_temporaries(p)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.{os.getpid()}.", suffix=f".partial{p.suffix}",
-                               dir=p.parent or ".")
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tmp_path = None
     try:
+        with signals_held():  # a Ctrl-C or SIGTERM between creating the file and naming it
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.{os.getpid()}.", suffix=f".partial{p.suffix}",
+                                       dir=p.parent or ".")
+            tmp_path = Path(tmp)
+            os.close(fd)
         yield tmp_path
         publish(tmp_path, p)
     finally:
-        if tmp_path.exists():
+        if tmp_path is not None and tmp_path.exists():
             tmp_path.unlink()
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM are held back (not lost) while the block runs, on POSIX, in the calling
+    thread: a step that creates something to clean up (a temporary file, an encoder process) and
+    the name its cleanup needs cannot be cut apart by Ctrl-C; the signal's handler runs when the
+    block ends. Elsewhere a no-op."""
+    import signal
+
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def write_npz(fh, arrays: dict) -> None:

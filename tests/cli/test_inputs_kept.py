@@ -8,6 +8,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 from voicepuppet.animation import procedural_animation, save_animation
 from voicepuppet.cli.main import main
@@ -132,3 +133,33 @@ def test_ctrl_c_stops_a_long_cpp_call_inside_it():
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
     assert stream.samples_in < len(x) // 2, stream.samples_in  # stopped early, by the handler
+
+
+def test_a_signal_held_back_while_a_temporary_is_named_still_cleans_it(tmp_path, monkeypatch):
+    """SIGTERM sent while atomic_path creates its temporary is answered when the name is kept, so
+    the interruption that follows removes the file (before, a signal between the creation and the
+    try block left it)."""
+    from voicepuppet import _files
+
+    seen = []
+
+    def terminate(*_):
+        seen.append("term")
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        real_close = os.close
+
+        def close_then_signal(fd):  # the signal arrives right after the file was created
+            real_close(fd)
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert seen == []  # held back while the name is not yet kept
+
+        monkeypatch.setattr(_files.os, "close", close_then_signal)
+        with pytest.raises(KeyboardInterrupt):
+            with _files.atomic_path(tmp_path / "a.npz"):
+                pytest.fail("the held signal is answered before the body runs")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert seen == ["term"] and list(tmp_path.iterdir()) == []

@@ -22,7 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from voicepuppet import layout as face_layout
-from voicepuppet._files import atomic_path, check_output_path, publish
+from voicepuppet._files import atomic_path, check_output_path, publish, signals_held
 from voicepuppet.animation import Animation
 from voicepuppet.audio.loading import load_audio
 from voicepuppet.face import shape_distance
@@ -534,8 +534,9 @@ def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: 
             raise ValueError(f"FFmpeg could not write {str(path)!r}: "
                              f"{last[-1] if last else type(exc).__name__}") from None
 
-    send(None)
     try:
+        with signals_held():  # FFmpeg started and the generator inside its cleanup, or neither
+            send(None)
         send(np.ascontiguousarray(first))
         for img in it:
             send(np.ascontiguousarray(img))
