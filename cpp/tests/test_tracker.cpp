@@ -943,6 +943,13 @@ TEST_CASE("tracker: relocate restarts lost points where the texture came back, a
   }
 }
 
+// Three points on each half of a `render_halves` frame.
+RowMatrixXd halves_points() {
+  RowMatrixXd p(6, 2);
+  p << 40, 50, 40, 95, 65, 72, 160, 54, 160, 105, 135, 82;
+  return p;
+}
+
 // Texture A on the left half of a 200 x 140 frame, texture B on the right half raised by `rise` px.
 Frame render_halves(const Texture& ta, const Texture& tb, double rise) {
   return render_with(200, 140, [&](double x, double y) { return x < 100 ? ta(x, y) : tb(x, y + rise); });
@@ -951,8 +958,7 @@ Frame render_halves(const Texture& ta, const Texture& tb, double rise) {
 TEST_CASE("tracker: ordered points never cross, whatever their data say") {
   const Texture ta(21), tb(22);
   // Three points on each half; point 0 (left, y 50) is to stay above point 3 (right, y 60).
-  RowMatrixXd p(6, 2);
-  p << 40, 50, 40, 95, 65, 72, 160, 54, 160, 105, 135, 82;
+  const RowMatrixXd p = halves_points();
   const SpringMesh mesh = springs_from_points(p, delaunay_edges(p), 0.5);  // weak springs
   EdgeMatrix order(1, 2);
   order << 0, 3;
@@ -1001,8 +1007,7 @@ TEST_CASE("tracker: ordered points never cross, whatever their data say") {
 
 TEST_CASE("tracker: anchors pull a point only beyond their slack") {
   const Texture ta(21), tb(22);
-  RowMatrixXd p(6, 2);
-  p << 40, 50, 40, 95, 65, 72, 160, 54, 160, 105, 135, 82;
+  const RowMatrixXd p = halves_points();
   const SpringMesh mesh = springs_from_points(p, delaunay_edges(p), 0.5);
   // The right half rises 8 px: its data put point 3 at y 46.
   const Frame f0 = render_halves(ta, tb, 0), f1 = render_halves(ta, tb, 8);

@@ -175,7 +175,7 @@ BOX_DROP_IOD = 0.128
 BOX_SIDE_IOD = 1.73
 
 
-def landmarks_near(frame: np.ndarray, points: np.ndarray) -> np.ndarray | None:
+def landmarks_near(frame: np.ndarray, points: np.ndarray, model: str | None = None) -> np.ndarray | None:
     """dlib's 68 points on ``frame`` for the face where ``points`` (a 68-point face, e.g. the
     previous frame's) put it: its shape predictor run in the box dlib's detector would draw around
     those points (:data:`BOX_DROP_IOD`, :data:`BOX_SIDE_IOD`), without the detector.
@@ -186,13 +186,16 @@ def landmarks_near(frame: np.ndarray, points: np.ndarray) -> np.ndarray | None:
         The grey frame.
     points : ndarray, shape (68, 2)
         Where the face is (iBUG 300-W layout), in the frame's pixels.
+    model : str, optional
+        dlib's 68-point model file; default :func:`landmark_model` (looked up on every call: a
+        caller asking frame after frame looks it up once and passes it).
 
     Returns
     -------
     ndarray, shape (68, 2), float64, or None
         The points, or None when dlib or its model is not installed or the box is degenerate.
     """
-    model = landmark_model()
+    model = model or landmark_model()
     if model is None or not np.all(np.isfinite(points)):
         return None
     try:

@@ -31,7 +31,7 @@ from voicepuppet import _core
 from voicepuppet.layout import INNER_LIP_PAIRS, MOUTH
 from voicepuppet.tracking import video
 from voicepuppet.tracking._checks import as_grey, check_inside, check_points
-from voicepuppet.tracking.detect import NoFaceError, first_face, landmarks_near
+from voicepuppet.tracking.detect import NoFaceError, first_face, landmark_model, landmarks_near
 from voicepuppet.tracking.landmarks import TrackResult, load_init_points
 from voicepuppet.tracking.reacquire import REACQUIRE_FRAMES, REACQUIRE_LOST_SHARE, FaceSearch
 from voicepuppet.tracking.scale import points_to_full, points_to_working, working_scale_factor
@@ -82,6 +82,7 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
               n_hint: int | None, progress: bool, desc: str, reacquire: bool = True, anchors=None):
     pts, conf, lost = [], [], []
     reacquired = []
+    model = landmark_model() if anchors is not None else None  # once, not per frame
     tracker = search = first = None
     shape = None
     streak = 0  # frames in a row with more than REACQUIRE_LOST_SHARE of the points lost
@@ -100,7 +101,7 @@ def _one_pass(frames: Callable[[], Iterable[np.ndarray]], init: np.ndarray, mesh
                 lost.append(np.zeros(len(init), dtype=bool))
             else:
                 if anchors is not None and len(anchors) <= t:
-                    detected = landmarks_near(g, pts[-1])
+                    detected = landmarks_near(g, pts[-1], model)
                     anchors.append(np.full((len(init), 2), np.nan) if detected is None else detected)
                 step = (lambda: tracker.track(g)) if anchors is None else (lambda: tracker.track(g, anchors[t]))
                 r = step()
