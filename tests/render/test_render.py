@@ -427,6 +427,49 @@ def test_bad_input_gives_clear_errors_and_no_files(tmp_path, face):
     assert sorted(os.listdir(tmp_path)) == ["ro"]
 
 
+def test_an_interrupted_mp4_reaps_its_encoder_before_the_interruption_leaves(tmp_path, monkeypatch):
+    pytest.importorskip("imageio_ffmpeg")
+    started = []
+    popen = V.subprocess.Popen
+
+    def spy(*args, **kwargs):
+        started.append(popen(*args, **kwargs))
+        return started[-1]
+
+    monkeypatch.setattr(V.subprocess, "Popen", spy)
+
+    def frames():
+        for t in range(40):
+            yield np.full((64, 64, 3), t, np.uint8)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        V.write_video(frames(), tmp_path / "a.mp4", 30.0)
+    # killed and waited for: an encoder still running could create the removed temporary again
+    assert len(started) == 1 and started[0].returncode is not None
+    assert os.listdir(tmp_path) == []
+
+
+def test_mp4_encoder_errors_and_odd_sizes(tmp_path):
+    av = pytest.importorskip("av")
+    pytest.importorskip("imageio_ffmpeg")
+    with pytest.raises(ValueError, match=r"FFmpeg could not write '.*wide\.mp4': invalid width x height \(40000x2\)"):
+        V.write_video([np.zeros((2, 40000, 3), np.uint8)] * 3, tmp_path / "wide.mp4", 10.0)
+    with pytest.raises(ValueError, match="every frame must be 4x4x3 uint8 like the first; one is 4x4 uint8"):
+        V.write_video([np.zeros((4, 4, 3), np.uint8), np.zeros((4, 4), np.uint8)], tmp_path / "b.mp4", 10.0)
+    with pytest.raises(ValueError, match=r"frames must be \(height, width, 3\) RGB"):
+        V.write_video([np.zeros((4, 4), np.uint8)], tmp_path / "c.mp4", 10.0)
+    assert os.listdir(tmp_path) == []
+    # odd sides: padded by one black column and row (yuv420p needs even ones), the picture kept
+    img = np.zeros((17, 33, 3), np.uint8)
+    img[:, :, 1] = 200
+    V.write_video([img] * 3, tmp_path / "odd.mp4", 10.0)
+    with av.open(str(tmp_path / "odd.mp4")) as c:
+        got = next(c.decode(video=0)).to_ndarray(format="rgb24")
+    assert got.shape == (18, 34, 3)
+    assert abs(int(got[8, 16, 1]) - 200) <= 6 and got[-1, -1].max() <= 20
+
+
 def test_animation_files_round_trip(tmp_path):
     anim = procedural_animation(7, 29.97, seed=3)
     save_animation(anim, tmp_path / "a.npz")

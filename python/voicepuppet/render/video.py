@@ -11,8 +11,12 @@ fast 2-D landmark drawing instead of the mesh (``renderer="2d"``, :func:`draw_la
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import os
+import re
 import shutil
+import subprocess
 import tempfile
 from fractions import Fraction
 from pathlib import Path
@@ -498,13 +502,41 @@ def write_video(frames: Iterable[np.ndarray], path, fps: float, *, audio=None, n
             images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
                            duration=max(20, int(round(1000.0 / fps / 10.0)) * 10), loop=0)
         else:
-            _write_mp4(frames, tmp, fps, audio, n_frames)
+            _write_mp4(frames, tmp, fps, audio, n_frames, p)
     return p
 
 
-def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: Optional[int]) -> None:
+def _ffmpeg_command(path: Path, size: tuple[int, int], rate: Fraction, audio: Optional[Path],
+                    n_frames: Optional[int]) -> list[str]:
+    import imageio_ffmpeg
+
+    # the same frames give the same bytes: one encoder thread (x264's automatic count follows
+    # the CPUs the process may use: 3 frame threads on 2 cores, 1 under taskset) and no B-frames
+    # (with them x264's macroblock tree reads heap memory it has not written; see synth.video)
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{size[0]}x{size[1]}",
+           "-pix_fmt", "rgb24", "-r", str(rate), "-i", "-"]
+    cmd += ["-an"] if audio is None else ["-i", str(audio)]
+    if size != (even(size[0]), even(size[1])):  # yuv420p needs even sides: one black row or column more
+        cmd += ["-vf", f"pad={even(size[0])}:{even(size[1])}"]
+    cmd += ["-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", "15", "-v", "error",
+            "-movflags", "+faststart", "-preset", "veryfast", "-threads", "1", "-bf", "0"]
+    if audio is not None:
+        if n_frames is not None:
+            cmd += ["-t", f"{n_frames / float(rate):.6f}"]
+        cmd += ["-acodec", "aac", "-map", "0:v:0", "-map", "1:a:0"]
+    return cmd + [str(path)]
+
+
+def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: Optional[int], name: Path) -> None:
+    """H.264 through the FFmpeg that imageio-ffmpeg ships, fed raw RGB frames on its stdin, into
+    ``path`` (the temporary file of the output ``name``, which the messages give).
+
+    The encoder is this function's own process: on any exception (a Ctrl-C or SIGTERM too) it is
+    killed and waited for before the exception leaves, so it cannot create ``path`` again after
+    :func:`~voicepuppet._files.atomic_path` has removed it.
+    """
     try:
-        import imageio_ffmpeg
+        import imageio_ffmpeg  # noqa: F401  (it ships FFmpeg's executable)
     except ImportError:
         raise ValueError("writing .mp4 needs imageio-ffmpeg: pip install imageio-ffmpeg") from None
 
@@ -513,35 +545,49 @@ def _write_mp4(frames, path: Path, fps: float, audio: Optional[Path], n_frames: 
         first = next(it)
     except StopIteration:
         raise ValueError("no frames to write") from None
+    if first.ndim != 3 or first.shape[2] != 3:
+        raise ValueError(f"frames must be (height, width, 3) RGB; the first is {first.shape}")
     h, w = first.shape[:2]
     rate = Fraction(30000, 1001) if abs(fps - 30000 / 1001) < 1e-3 else Fraction(fps).limit_denominator(1001)
-    # the same frames give the same bytes: one encoder thread (x264's automatic count follows
-    # the CPUs the process may use: 3 frame threads on 2 cores, 1 under taskset) and no B-frames
-    # (with them x264's macroblock tree reads heap memory it has not written; see synth.video)
-    out_params = ["-movflags", "+faststart", "-preset", "veryfast", "-threads", "1", "-bf", "0"]
-    if audio is not None and n_frames is not None:
-        out_params += ["-t", f"{n_frames / float(rate):.6f}"]
-    writer = imageio_ffmpeg.write_frames(str(path), (w, h), fps=rate, codec="libx264", quality=7,
-                                         macro_block_size=2, ffmpeg_log_level="error", output_params=out_params,
-                                         audio_path=None if audio is None else str(audio),
-                                         audio_codec=None if audio is None else "aac")
+    cmd = _ffmpeg_command(path, (w, h), rate, audio, n_frames)
+    proc = None
+    with tempfile.TemporaryFile() as log:
+        def failed() -> ValueError:
+            proc.kill()
+            proc.wait()
+            log.seek(0)
+            # the first line says why ("invalid width x height"); later ones are its consequences
+            lines = [re.sub(r"^(\[[^]]* @ 0x[0-9a-f]+\]\s*)+", "", line).strip()
+                     for line in log.read().decode("utf-8", "replace").splitlines()]
+            why = next((line for line in lines if line), f"it stopped with exit code {proc.returncode}")
+            return ValueError(f"FFmpeg could not write {str(name)!r}: {why}")
 
-    def send(frame) -> None:
         try:
-            writer.send(frame)
-        except (OSError, RuntimeError) as exc:  # FFmpeg stopped: a broken pipe with its log
-            last = [line for line in str(exc).splitlines() if line.strip()]
-            raise ValueError(f"FFmpeg could not write {str(path)!r}: "
-                             f"{last[-1] if last else type(exc).__name__}") from None
-
-    try:
-        with signals_held():  # FFmpeg started and the generator inside its cleanup, or neither
-            send(None)
-        send(np.ascontiguousarray(first))
-        for img in it:
-            send(np.ascontiguousarray(img))
-    finally:
-        writer.close()
+            with signals_held():  # the encoder started and its cleanup armed, or neither
+                proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log,
+                                        start_new_session=True)
+            for img in itertools.chain([first], it):
+                if img.shape != first.shape or img.dtype != np.uint8:
+                    raise ValueError(f"every frame must be {h}x{w}x3 uint8 like the first; "
+                                     f"one is {'x'.join(map(str, img.shape))} {img.dtype}")
+                try:
+                    proc.stdin.write(memoryview(np.ascontiguousarray(img)))
+                except BrokenPipeError:
+                    raise failed() from None
+            try:
+                proc.stdin.close()
+            except BrokenPipeError:
+                raise failed() from None
+            if proc.wait() != 0:
+                raise failed()
+        finally:
+            if proc is not None:
+                with signals_held():  # killed and reaped: it writes nothing after this
+                    if proc.poll() is None:
+                        proc.kill()
+                        proc.wait()
+                    with contextlib.suppress(OSError):
+                        proc.stdin.close()  # frames still buffered for a dead encoder: dropped
 
 
 def render(anim: Animation, path, *, audio=None, face: Optional[FaceMesh] = None, mode: str = "vertex",
