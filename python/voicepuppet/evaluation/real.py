@@ -267,15 +267,21 @@ def _fit_length(x: np.ndarray, n: int) -> np.ndarray:
     return np.concatenate([x, np.repeat(x[-1:], n - len(x), axis=0)])
 
 
-def _in_sync(clips, cache_dir, progress, anchors: bool = True) -> list:
-    """Each clip's sound, shifted into sync with its face (offsets per session, as train does)."""
+def _tracker(cache_dir, progress: bool, detector_anchors: bool):
+    """The clip -> cached track function of one evaluation (:func:`tracked_clip` with its options)."""
+    return functools.partial(tracked_clip, cache_dir=cache_dir, progress=progress, detector_anchors=detector_anchors)
+
+
+def _in_sync(clips, track) -> list:
+    """Each clip's sound, shifted into sync with its face (offsets per session, as train does);
+    ``track``: clip -> its track file (:func:`_tracker`)."""
     sounds = [vaudio.load_audio(c.video) for c in clips]
     by_session: dict = {}
     for i, c in enumerate(clips):
         by_session.setdefault(c.session, []).append(i)
     for idx in by_session.values():
         fps = clips[idx[0]].fps
-        recs = [(load_landmarks(tracked_clip(clips[i], cache_dir, progress, anchors))["points"], sounds[i], "")
+        recs = [(load_landmarks(track(clips[i]))["points"], sounds[i], "")
                 for i in idx]
         for i, off in zip(idx, av_offsets(recs, fps)):
             sounds[i] = shift_audio(sounds[i], off)
@@ -296,9 +302,8 @@ class _Models:
     learned: ConvRegressor | None = None
 
 
-def _train(train: list, options: dict, cache_dir, progress: bool, learned: bool = False,
-           anchors: bool = True) -> _Models:
-    tracks = [tracked_clip(c, cache_dir, progress, anchors) for c in train]
+def _train(train: list, options: dict, track, learned: bool = False) -> _Models:
+    tracks = [track(c) for c in train]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # resampled frame grids and dropped frames, said in train
         points, sounds, fps, offsets = training_sequences(landmarks=tracks, audio=[c.video for c in train])
@@ -416,12 +421,12 @@ def leave_one_session_out(clips: list, *, options: dict | None = None, cache_dir
     sessions = list(dict.fromkeys(c.session for c in clips))
     if len(sessions) < 2:
         raise ValueError(f"leaving one session out needs two or more sessions, got {sessions}")
-    sounds = _in_sync(clips, cache_dir, progress, detector_anchors)
+    track = _tracker(cache_dir, progress, detector_anchors)
+    sounds = _in_sync(clips, track)
     shapes = _rhubarb_openings(rhubarb, clips, sounds) if rhubarb is not None else {}
     rows, info = [], {}
     for s in tqdm(sessions, desc="sessions", disable=not progress):
-        models = _train([c for c in clips if c.session != s], dict(options or {}), cache_dir, progress, learned,
-                        detector_anchors)
+        models = _train([c for c in clips if c.session != s], dict(options or {}), track, learned)
         info[s] = {"training_offsets_s": [float(o) for o in models.offsets]}
         maps = _shape_maps(shapes, clips, [i for i, c in enumerate(clips) if c.session != s])
         for i, (c, sound) in enumerate(zip(clips, sounds)):
@@ -472,11 +477,12 @@ def any_voice(train: list, tests: list, *, options: dict | None = None, cache_di
         standard deviation over ``truth_spread``) and ``r_loudness`` (its correlation with the
         speech loudness in dB: does it move with the voice).
     """
-    models = _train(train, dict(options or {}), cache_dir, progress, learned, detector_anchors)
-    sounds = _in_sync(tests, cache_dir, progress, detector_anchors)
+    track = _tracker(cache_dir, progress, detector_anchors)
+    models = _train(train, dict(options or {}), track, learned)
+    sounds = _in_sync(tests, track)
     shapes, maps = {}, {}
     if rhubarb is not None:
-        own = _in_sync(train, cache_dir, progress, detector_anchors)
+        own = _in_sync(train, track)
         maps = _shape_maps(_rhubarb_openings(rhubarb, train, own), train, list(range(len(train))))
         shapes = _rhubarb_openings(rhubarb, tests, sounds)
     out = {"clips": [{"key": c.key, "session": c.session,
