@@ -101,7 +101,8 @@ def test_compare_training_pairs_folds_and_separates_a_crippled_variant():
     # unguided: the guide's ridge would steer the face from the audio past a deaf vocal model
     # (at λ = 4 the crippled variant scores 0.07)
     base = {"n_states": 6, "n_iter": 12, "n_components": 3, "guide": "none"}
-    variants = {"good": base, "same": dict(base), "deaf": dict(base, vocal_shrinkage=1e6)}
+    variants = {"good": base, "same": dict(base), "guided": dict(base, guide="ridge", guide_weight=2.0),
+                "deaf": dict(base, vocal_shrinkage=1e6)}
     r = crossval.compare_training(seqs, variants, k=3, seed=0, n_components=3, features=feats)
     good, deaf = r["variants"]["good"], r["variants"]["deaf"]
     print({n: v["err"]["folds"] for n, v in r["variants"].items()})
@@ -116,8 +117,13 @@ def test_compare_training_pairs_folds_and_separates_a_crippled_variant():
     assert all(0 <= v < np.log(6) for v in good["entropy_rate"]["folds"])
     assert "closed" not in good  # the planted sequences' labels hold no B, P, M
     assert sum(len(f) for f in r["config"]["folds"]) == len(seqs)
+    # what each fold's puppet is: its guide's weight (0 without a guide), states and arcs
+    assert good["guide_weight"]["folds"] == [0.0] * 3 and r["variants"]["guided"]["guide_weight"]["folds"] == [2.0] * 3
+    assert all(0 < a <= s * s for a, s in zip(good["arcs"]["folds"], good["states"]["folds"]))
     table = report.format_comparison(r)
     assert "| good − deaf |" in table and "| deaf |" in table
+    assert table.splitlines()[0].endswith("| states | arcs | guide_weight |")
+    assert "states, arcs, guide_weight: what the puppets are" in table
 
 
 def test_compare_training_refuses_bad_input():

@@ -47,7 +47,7 @@ from voicepuppet.puppet.model import Puppet
 from voicepuppet.puppet.training import TRAIN_DEFAULTS, training_feature_set
 from voicepuppet.render.export import mouth_cues
 
-__all__ = ["METRICS", "BASELINES", "TOOLS", "UNGUIDED", "MOST_PROBABLE", "COMPARE_MEASURES", "cross_validate",
+__all__ = ["METRICS", "BASELINES", "TOOLS", "UNGUIDED", "MOST_PROBABLE", "COMPARE_MEASURES", "COMPARE_KEPT", "cross_validate",
            "compare_training"]
 
 #: measure -> (column title, better: "lower" or "higher")
@@ -367,6 +367,9 @@ def _pooled(per_fold: list) -> dict:
 
 #: measures of :func:`compare_training` (all: lower is better)
 COMPARE_MEASURES = ("err", "lve", "rmse_iod", "closed", "entropy_rate", "states_err")
+#: What each fold's puppet of a variant is, kept beside the measures: states and arcs left after
+#: training (summed over face parts) and the guide's weight λ (chosen per fold with ``guide_weight="cv"``).
+COMPARE_KEPT = ("states", "arcs", "guide_weight")
 
 @limited
 def compare_training(sequences, variants: dict, *, baseline: str | None = None, k: int = 10,
@@ -382,7 +385,8 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     :class:`voicepuppet.face.FaceSpace` fitted on the fold's training sequences (as
     :func:`voicepuppet.evaluation.crossval.cross_validate`), ``entropy_rate`` of decoding the test audio
     (nats per frame, frame-weighted) and ``states_err``, the Err of the reconstruction from the
-    facial HMM's Viterbi states of the true motion; plus ``states`` and ``arcs`` kept.
+    facial HMM's Viterbi states of the true motion; plus what the puppet is (:data:`COMPARE_KEPT`:
+    ``states``, ``arcs``, ``guide_weight``).
 
     Puppets and each fold's face space learn from the training sequences'
     :func:`voicepuppet.evaluation.crossval.learnt_points` (``train_points`` where set, e.g. tracked
@@ -467,11 +471,12 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
             parts = puppet.metadata["training"]["parts"]
             row["states"] = int(sum(p["states"] for p in parts))
             row["arcs"] = int(sum(p["arcs"] for p in parts))
+            row["guide_weight"] = puppet.guide_weight
             per_fold[name].append(row)
             bar.update()
     bar.close()
 
-    measures = [m for m in COMPARE_MEASURES + ("states", "arcs")
+    measures = [m for m in COMPARE_MEASURES + COMPARE_KEPT
                 if over_folds([(i, r[m]) for i, r in enumerate(per_fold[baseline]) if m in r], len(folds), m)]
     out = {"variants": {}, "differences": {}, "config": {
         "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from voicepuppet._files import atomic_path
-from voicepuppet.evaluation.crossval import COMPARE_MEASURES, METRICS
+from voicepuppet.evaluation.crossval import COMPARE_KEPT, COMPARE_MEASURES, METRICS
 
 __all__ = ["markdown_table", "format_interval", "format_difference", "format_split", "format_table",
            "format_comparison", "write_results"]
@@ -236,7 +236,7 @@ def format_comparison(result: dict) -> str:
     str
         The two tables and a line on how they were made, ending in a newline.
     """
-    measures = [m for m in COMPARE_MEASURES + ("states", "arcs") if m in next(iter(result["variants"].values()))]
+    measures = [m for m in COMPARE_MEASURES + COMPARE_KEPT if m in next(iter(result["variants"].values()))]
     lines = markdown_table(["variant"] + measures, ((name, *(format_interval(row[m]) for m in measures))
                                                     for name, row in result["variants"].items()))
     base = result["config"]["baseline"]
@@ -247,7 +247,8 @@ def format_comparison(result: dict) -> str:
     lines += ["", f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} frames "
               f"at {c['fps']:.4g} fps, seed {c['seed']}); variants: mean over folds ± half-width of the 95% "
               f"interval; differences: mean [95% interval] of the per-fold differences (Student's t, "
-              f"{c['k'] - 1} degrees of freedom). Lower is better for every measure."
+              f"{c['k'] - 1} degrees of freedom). Lower is better for every measure; "
+              f"{', '.join(m for m in COMPARE_KEPT if m in measures)}: what the puppets are."
               + (" Puppets and face spaces learnt from the sequences' separate training landmarks (e.g. "
                  "tracked); measured against the ground truth." if c.get("separate_training_landmarks") else "")]
     return "\n".join(lines) + "\n"
