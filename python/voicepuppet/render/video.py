@@ -458,7 +458,8 @@ def write_video(frames: Iterable[np.ndarray], path, fps: float, *, audio=None, n
     ------
     ValueError
         the audio file is missing or the output is not an ``.mp4`` with audio, the output exists
-        or its folder is not writable, there are no frames, or the encoder is missing.
+        or its folder is not writable, there are no frames, a frame is not (H, W, 3) uint8 like
+        the first, or the encoder is missing or fails (FFmpeg's first error line).
     """
     p = Path(path)
     suffix = p.suffix.lower()
