@@ -117,13 +117,15 @@ def test_evaluate_corpus_real_on_the_command_line(cache, tmp_path, capsys):
     printed and written with the command that makes it."""
     md, js = tmp_path / "real.md", tmp_path / "real.json"
     assert main(["evaluate", "--corpus", "real", "--speaker", "grid", "--states", "6", "--cache", str(cache),
-                 "-o", str(md), "--json", str(js), "-q"]) == 0
+                 "--variant", "diag:vocal_covariance=diag", "-o", str(md), "--json", str(js), "-q"]) == 0
     out = capsys.readouterr().out
     assert "Leave one session out (grid, 5 held-out clips, 5 sessions)" in out
     assert "Any voice: the grid models animate obama (10 clips)" in out
-    assert md.read_text().startswith("```\nvoicepuppet evaluate --corpus real --speaker grid --states 6")
+    assert md.read_text().startswith("```\nvoicepuppet evaluate --corpus real --speaker grid --states 6 "
+                                     "--variant diag:vocal_covariance=diag")
     saved = json.loads(js.read_text())
     assert saved["speaker"] == "grid" and len(saved["loso"]["clips"]) == 5
+    assert saved["options"] == {"n_states": 6, "seed": 0, "vocal_covariance": "diag"}
 
 
 def test_rhubarb_and_the_learned_peer_on_real_people(cache):
@@ -155,6 +157,9 @@ def test_rhubarb_and_the_learned_peer_on_real_people(cache):
     (["--corpus", "real", "--no-puppet"], "--no-puppet do(es) not apply to --corpus real"),
     (["--real", "somewhere"], "--real is for --corpus real"),
     (["--corpus", "real", "--real", "nowhere"], "holds no real recordings"),
+    (["--corpus", "real", "--variant", "a:n_stats=3"], "unknown training options ['n_stats']"),
+    (["--corpus", "real", "--variant", "a:z=1", "--variant", "b:z=2"], "--corpus real takes one --variant"),
+    (["--variant", "a:z=1"], "add --compare-training"),
 ])
 def test_evaluate_corpus_real_refuses_what_does_not_apply(argv, message, capsys):
     assert main(["evaluate", *argv, "-q"]) == 2

