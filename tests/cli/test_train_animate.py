@@ -242,7 +242,8 @@ def test_guide_switches(workdir, tmp_path, capsys):
               "--iterations", "12", "--quiet"]
     assert main(common + ["-o", str(tmp_path / "none.vpp"), "--guide", "none"]) == 0
     capsys.readouterr()
-    assert main(common + ["-o", str(tmp_path / "k2.vpp"), "--guide", "ridge", "--guide-context", "2"]) == 0
+    assert main(common + ["-o", str(tmp_path / "k2.vpp"), "--guide", "ridge", "--guide-context", "2",
+                          "--guide-alpha", "per_coordinate"]) == 0
     k2_out = capsys.readouterr().out
     assert main(common + ["-o", str(tmp_path / "w3.vpp"), "--guide-weight", "3"]) == 0
     none, k2, default = load(tmp_path / "none.vpp"), load(tmp_path / "k2.vpp"), load(d / "p.vpp")
@@ -253,6 +254,9 @@ def test_guide_switches(workdir, tmp_path, capsys):
     assert w3.guide_weight == 3.0 and "weight_cv" not in w3.metadata["training"]["guide"]
     assert not none.guided and none.metadata["training"]["options"]["guide"] == "none"
     assert k2.guided and k2._core.guide_context == 2 and default.guided and default._core.guide_context == 5
+    assert k2.metadata["training"]["options"]["guide_alpha"] == "per_coordinate"
+    assert len(k2.metadata["training"]["guide"]["alpha"]) == k2.face_space.n_dims
+    assert default.metadata["training"]["options"]["guide_alpha"] == "shared"
     # --guide-weight 0 on the default (guided) puppet is the unguided puppet's animation
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "zero.npz"),
                  "--guide-weight", "0", "--quiet"]) == 0
@@ -266,6 +270,8 @@ def test_guide_switches(workdir, tmp_path, capsys):
     capsys.readouterr()
     assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide", "none", "--guide-context", "3"]) == 2
     assert "--guide-context" in capsys.readouterr().err
+    assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide", "none", "--guide-alpha", "shared"]) == 2
+    assert "--guide-alpha" in capsys.readouterr().err
     assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-context", "101"]) == 2
     assert "guide_context" in capsys.readouterr().err
     assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-weight", "auto"]) == 2

@@ -214,6 +214,38 @@ def test_stored_guide_is_the_ridge_baseline_and_its_cross_fitted_residuals(puppe
     assert pup.metadata["training"]["options"]["guide"] == "ridge"
 
 
+def test_alpha_per_target_is_each_target_fitted_alone():
+    """Per target, the α and map are those of a ridge on that target alone; with one target
+    audible and one noise the two choices differ, and neither is the shared α of both."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(400, 6))
+    audible = X @ rng.normal(size=6) + rng.normal(0, 0.3, 400)
+    noise = 0.2 * X[:, 0] + rng.normal(0, 5.0, 400)
+    Y = np.c_[audible, noise]
+    both = RidgeBaseline(1, per_target=True).fit([X], [Y])
+    shared = RidgeBaseline(1).fit([X], [Y])
+    for j in range(2):
+        alone = RidgeBaseline(1).fit([X], [Y[:, [j]]])
+        assert both.alpha[j] == alone.alpha
+        np.testing.assert_allclose(both.W[:, j], alone.W[:, 0], rtol=1e-12, atol=1e-12)
+    assert both.alpha[0] < both.alpha[1]
+    assert shared.alpha != both.alpha[0]
+    assert both.predict(X[:5]).shape == shared.predict(X[:5]).shape == (5, 2)
+
+
+def test_the_guide_alpha_option_fits_the_guide_per_coordinate(data):
+    (pts, feats), _ = data
+    pup = Puppet.train([pts], features_list=[feats], guide_context=3, guide_alpha="per_coordinate", **OPTS)
+    Z, Y = pup.ridge_input(feats), pup.face_space.encode(pts)[0]
+    ridge = RidgeBaseline(3, per_target=True).fit([Z], [Y])
+    np.testing.assert_allclose(pup.arrays["guide/map"], ridge.W, rtol=1e-10, atol=1e-12)
+    assert pup.metadata["training"]["guide"]["alpha"] == ridge.alpha.tolist()
+    assert pup.metadata["training"]["options"]["guide_alpha"] == "per_coordinate"
+    assert TRAIN_DEFAULTS["guide_alpha"] == "shared"
+    with pytest.raises(ValueError, match="guide_alpha must be one of"):
+        Puppet.train([pts], features_list=[feats], guide_alpha="each", **OPTS)
+
+
 def test_file_round_trip_and_format_version(puppets, data, tmp_path):
     _, (_, feats) = data
     for (parts, guide), pup in puppets.items():

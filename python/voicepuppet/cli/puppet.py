@@ -49,11 +49,14 @@ def _train(args) -> int:
                                   "vocal_covariance": args.vocal_covariance,
                                   "guide": args.guide, "guide_context": args.guide_context,
                                   "guide_weight": _guide_weight_option(args.guide_weight),
+                                  "guide_alpha": args.guide_alpha,
                                   "seed": args.seed}.items() if v is not None}
     if args.audio_level is not None:
         options["audio_level"] = level
-    if args.guide == "none" and (args.guide_context is not None or args.guide_weight is not None):
-        raise ValueError("--guide-context and --guide-weight set the guide: drop them with --guide none")
+    if args.guide == "none" and (args.guide_context is not None or args.guide_weight is not None
+                                 or args.guide_alpha is not None):
+        raise ValueError("--guide-context, --guide-weight and --guide-alpha set the guide: drop them with "
+                         "--guide none")
     if args.scheduler or args.workers:
         from voicepuppet.hmm import distributed
 
@@ -159,7 +162,7 @@ def add_parser(sub) -> None:
     sub : argparse._SubParsersAction
         The sub-command parsers of the ``voicepuppet`` command line.
     """
-    from voicepuppet.puppet.guide import GUIDE_WEIGHTS
+    from voicepuppet.puppet.guide import GUIDE_ALPHAS, GUIDE_WEIGHTS
 
     p = sub.add_parser("train", help="train a voice puppet from video of a talking face",
                        description="Track the face (unless --landmarks are given), learn the facial "
@@ -206,6 +209,9 @@ def add_parser(sub) -> None:
                    help="the guide's weight written into the puppet: cv (default) chooses it from "
                         f"{', '.join(f'{w:g}' for w in GUIDE_WEIGHTS)} by cross-validation on the training "
                         "audio; a number fixes it")
+    p.add_argument("--guide-alpha", choices=list(GUIDE_ALPHAS),
+                   help="the guide's ridge regularisation, chosen by cross-validation: one for all face "
+                        "coordinates (shared, default) or one per coordinate (per_coordinate; docs/puppet.md)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run the HMM's E-steps on this Dask scheduler "
                    "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process (default: all in "

@@ -64,21 +64,26 @@ class RidgeBaseline:
         The regularisation weights α to choose from (default ``RIDGE_ALPHAS``, 10⁻² .. 10⁴).
     n_folds : int
         Folds of the cross-validation that chooses α (default 5).
+    per_target : bool
+        Choose α for each face coordinate on its own cross-validated error (default False: one α
+        for all, on their summed error). Coordinates differ in how much of them the audio
+        predicts: one α, chosen where the summed error is lowest, over-shrinks those it predicts
+        best when the others dominate the sum.
 
     Attributes
     ----------
-    k, alphas, n_folds
+    k, alphas, n_folds, per_target
         The constructor's arguments.
-    alpha : float
-        The α chosen by :meth:`fit`.
+    alpha : float or ndarray of shape (K,)
+        The α chosen by :meth:`fit` (one per face coordinate with ``per_target``).
     W : ndarray, shape (A·(2k+1), K)
         The fitted map (on centred data).
     x_mean, y_mean : ndarray
         The means of the context-stacked features and of the face coordinates, set by :meth:`fit`.
     """
 
-    def __init__(self, k: int = RIDGE_CONTEXT, alphas=RIDGE_ALPHAS, n_folds: int = 5):
-        self.k, self.alphas, self.n_folds = int(k), tuple(alphas), int(n_folds)
+    def __init__(self, k: int = RIDGE_CONTEXT, alphas=RIDGE_ALPHAS, n_folds: int = 5, per_target: bool = False):
+        self.k, self.alphas, self.n_folds, self.per_target = int(k), tuple(alphas), int(n_folds), bool(per_target)
 
     @staticmethod
     def _solve(G, B, alpha):
@@ -114,15 +119,19 @@ class RidgeBaseline:
         # Normal equations per fold once; a fold's training system is the total minus the fold.
         parts = [(Xc[f].T @ Xc[f], Xc[f].T @ Yc[f]) for f in folds]
         G, B = sum(p[0] for p in parts), sum(p[1] for p in parts)
-        scores = []
-        for alpha in self.alphas:
-            sse = 0.0
+        sse = np.zeros((len(self.alphas), Y.shape[1]))  # per α and face coordinate
+        for i, alpha in enumerate(self.alphas):
             for f, (Gf, Bf) in zip(folds, parts):
-                W = self._solve(G - Gf, B - Bf, alpha)
-                sse += float(np.sum((Xc[f] @ W - Yc[f]) ** 2))
-            scores.append(sse)
-        self.alpha = self.alphas[int(np.argmin(scores))]
-        self.W = self._solve(G, B, self.alpha)
+                sse[i] += np.sum((Xc[f] @ self._solve(G - Gf, B - Bf, alpha) - Yc[f]) ** 2, axis=0)
+        if not self.per_target:
+            self.alpha = self.alphas[int(np.argmin(sse.sum(axis=1)))]
+            self.W = self._solve(G, B, self.alpha)
+            return self
+        best = np.argmin(sse, axis=0)
+        self.alpha = np.asarray(self.alphas, dtype=np.float64)[best]
+        self.W = np.empty((X.shape[1], Y.shape[1]))
+        for i in np.unique(best):
+            self.W[:, best == i] = self._solve(G, B[:, best == i], self.alphas[i])
         return self
 
     def predict(self, A) -> np.ndarray:
@@ -211,7 +220,7 @@ def sequence_runs(frames, sequence) -> list:
     return np.split(frames, cut)
 
 
-def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None) -> np.ndarray:
+def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None, per_target: bool = False) -> np.ndarray:
     """Cross-fitted ridge predictions (T, K) of ``Y`` from the rows of ``X`` (T, C).
 
     The frames of each fold of :func:`cross_fit_folds` are predicted by a :class:`RidgeBaseline`
@@ -230,6 +239,8 @@ def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None) -> np.ndarray:
         Cross-fitting folds (default 5).
     groups : array_like, shape (S,), optional
         One label per sequence: sequences that are copies of one recording (:func:`cross_fit_folds`).
+    per_target : bool
+        α per face coordinate (:class:`RidgeBaseline`).
 
     Returns
     -------
@@ -242,7 +253,7 @@ def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None) -> np.ndarray:
     labels = None if groups is None else np.asarray(groups)
     for fold in cross_fit_folds(lengths, n_folds, labels):
         rest = np.setdiff1d(np.arange(len(X)), fold)
-        ridge = RidgeBaseline(0)
+        ridge = RidgeBaseline(0, per_target=per_target)
         if labels is None:
             ridge.fit([X[rest]], [Y[rest]])
         else:  # α's own folds keep the copies together too
@@ -253,12 +264,13 @@ def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None) -> np.ndarray:
     return yhat
 
 
-def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, what: str, option: str, groups=None):
+def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, what: str, option: str, groups=None,
+                   per_target: bool = False):
     """The ridge from ±k frames of the first ``columns`` of ``standardized`` (T, A') to ``face``
     (T, K), its arguments checked (``option`` names the context in errors, ``what`` the map):
     ``(Y, k, yhat, full)``, the face as float, k, the cross-fitted predictions (T, K) and the
     :class:`RidgeBaseline` fitted on all frames (rows context-stacked per sequence, edges
-    repeated)."""
+    repeated); ``per_target``: α per face coordinate."""
     Z = np.asarray(standardized, dtype=np.float64)
     Y = np.asarray(face, dtype=np.float64)
     lengths = np.asarray(lengths, dtype=np.int64)
@@ -277,9 +289,9 @@ def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, wh
     bounds = np.concatenate([[0], np.cumsum(lengths)])
     # Context is stacked per sequence (edges repeated), then frames go to folds.
     X = np.vstack([context_stack(Z[a:b], k) for a, b in zip(bounds[:-1], bounds[1:])])
-    full = RidgeBaseline(0)
+    full = RidgeBaseline(0, per_target=per_target)
     full.fit([X], [Y], folds=None if groups is None else cross_fit_folds(lengths, full.n_folds, groups))
-    return Y, k, cross_fit(X, Y, lengths, n_folds, groups), full
+    return Y, k, cross_fit(X, Y, lengths, n_folds, groups, per_target), full
 
 
 #: The guide's fixed weight λ (training option ``guide_weight`` given as a number; the default
@@ -294,9 +306,13 @@ GUIDE_WEIGHT = 4.0
 #: 128 and 256 added on 2026-12-02, "The top of the guide's weight grid").
 GUIDE_WEIGHTS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0)
 
+#: How the guide's ridge regularises (training option ``guide_alpha``): one α for all face
+#: coordinates, or one per coordinate, each chosen by cross-validation (:class:`RidgeBaseline`).
+GUIDE_ALPHAS = ("shared", "per_coordinate")
+
 
 def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5,
-              weight: float = GUIDE_WEIGHT, groups=None):
+              weight: float = GUIDE_WEIGHT, groups=None, alpha: str = "shared"):
     """Fit the guide: the ridge's prediction ŷ of the face from ±k frames of audio and the
     covariance R of its cross-fitted residuals, used as evidence in the trajectory solve
     (``+ λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)``, ``cpp/include/voicepuppet/puppet.hpp``).
@@ -320,6 +336,9 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
         λ written as ``guide/weight`` (>= 0).
     groups : array of labels, optional
         One per sequence: sequences that are copies of one recording (:func:`cross_fit_folds`).
+    alpha : {"shared", "per_coordinate"}
+        One ridge α for all face coordinates, or one per coordinate (:data:`GUIDE_ALPHAS`,
+        :class:`RidgeBaseline`'s ``per_target``).
 
     Returns
     -------
@@ -330,10 +349,14 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
         cross-fitted residuals y − ŷ_cf, as large as novel audio makes them), ``guide/weight``
         [1] (λ = ``weight``).
     info : dict
-        α, folds, context, columns and the residuals' mean variance (for the metadata).
+        α (a list of one per coordinate with ``alpha="per_coordinate"``), folds, context, columns
+        and the residuals' mean variance (for the metadata).
     """
+    if alpha not in GUIDE_ALPHAS:
+        raise ValueError(f"the guide's alpha must be one of {GUIDE_ALPHAS}, got {alpha!r}")
     Y, k, yhat, full = _context_ridge(standardized, face, lengths, context=context, columns=columns,
-                                      n_folds=n_folds, what="the guide", option="guide_context", groups=groups)
+                                      n_folds=n_folds, what="the guide", option="guide_context", groups=groups,
+                                      per_target=alpha == "per_coordinate")
     res = Y - yhat
     R = np.cov(res, rowvar=False, bias=True).reshape(Y.shape[1], Y.shape[1])
     arrays = {"guide/map": np.ascontiguousarray(full.W),
@@ -342,8 +365,8 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
               "guide/columns": np.array([int(columns)], dtype=np.int64),
               "guide/covariance": np.ascontiguousarray(0.5 * (R + R.T)),
               "guide/weight": np.array([float(weight)])}
-    info = {"alpha": float(full.alpha), "folds": int(n_folds), "context": k, "columns": int(columns),
-            "residual_variance": float(np.trace(R) / len(R))}
+    info = {"alpha": full.alpha.tolist() if full.per_target else float(full.alpha), "folds": int(n_folds),
+            "context": k, "columns": int(columns), "residual_variance": float(np.trace(R) / len(R))}
     return arrays, info
 
 

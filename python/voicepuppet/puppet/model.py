@@ -274,8 +274,8 @@ class Puppet:
               vocal_covariance: str = _D.vocal_covariance, vocal_shrinkage: float = _D.vocal_shrinkage,
               vocal_features: str = _D.vocal_features, vocal_context: int = _D.vocal_context,
               guide: str = _D.guide, guide_context: int = _D.guide_context, guide_weight=_D.guide_weight,
-              min_covar: float = _D.min_covar, init: str = _D.init, noise_snrs=_D.noise_snrs,
-              audio_level=_D.audio_level, seed: int = _D.seed) -> "Puppet":
+              guide_alpha: str = _D.guide_alpha, min_covar: float = _D.min_covar, init: str = _D.init,
+              noise_snrs=_D.noise_snrs, audio_level=_D.audio_level, seed: int = _D.seed) -> "Puppet":
         """Train a puppet from synchronous landmark tracks and audio.
 
         Parameters
@@ -304,7 +304,7 @@ class Puppet:
             Training options of the audio features (as above).
         vocal_covariance, vocal_shrinkage, vocal_features, vocal_context
             Training options of the vocal Gaussians (as above).
-        guide, guide_context, guide_weight
+        guide, guide_context, guide_weight, guide_alpha
             Training options of the guide (as above).
 
         Returns
@@ -331,7 +331,8 @@ class Puppet:
             max_components=max_components, parts=parts, feature_set=feature_set, audio_deltas=audio_deltas,
             vocal_covariance=vocal_covariance, vocal_shrinkage=vocal_shrinkage, vocal_features=vocal_features,
             vocal_context=vocal_context, guide=guide, guide_context=guide_context, guide_weight=guide_weight,
-            min_covar=min_covar, init=init, noise_snrs=noise_snrs, audio_level=audio_level, seed=seed)
+            guide_alpha=guide_alpha, min_covar=min_covar, init=init, noise_snrs=noise_snrs, audio_level=audio_level,
+            seed=seed)
         metadata, arrays = training.train(points_list, audio_list, features_list=features_list, fps=fps,
                                           options=options, progress=progress, client=client)
         return cls(metadata, arrays)

@@ -24,8 +24,8 @@ from voicepuppet.hmm import distributed
 from voicepuppet.hmm.entropic import EntropicHMM, anneal_schedule
 from voicepuppet.hmm.diagnostics import diagnostics
 from voicepuppet.hmm.gaussian import GaussianHMM
-from voicepuppet.puppet.guide import (GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES, cross_fit_folds,
-                                     fit_guide, fit_projection, sequence_runs)
+from voicepuppet.puppet.guide import (GUIDE_ALPHAS, GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES,
+                                     cross_fit_folds, fit_guide, fit_projection, sequence_runs)
 
 __all__ = ["TrainOptions", "TRAIN_DEFAULTS", "VOCAL_COVARIANCES", "TRAINED_MOTION_GAIN", "check_option_names",
            "train", "training_feature_set", "remap"]
@@ -93,6 +93,9 @@ class TrainOptions:
     guide_weight : "cv" or float, default "cv"
         The guide's weight: chosen from :data:`voicepuppet.puppet.guide.GUIDE_WEIGHTS` by
         cross-validation on the training audio, or a number >= 0.
+    guide_alpha : {"shared", "per_coordinate"}, default "shared"
+        The guide's ridge regularisation, chosen by cross-validation: one α for all face
+        coordinates, or one per coordinate.
     min_covar : float, default 0.1
         Facial variance floor, times the mean data variance.
     init : {"kmeans", "frames"}, default "kmeans"
@@ -109,8 +112,8 @@ class TrainOptions:
     Raises
     ------
     ValueError
-        ``prior``, ``vocal_covariance``, ``vocal_features`` or ``guide`` not one of its values,
-        ``vocal_context`` or ``guide_context`` not an integer in [0, 100], ``guide_weight`` not
+        ``prior``, ``vocal_covariance``, ``vocal_features``, ``guide`` or ``guide_alpha`` not one of
+        its values, ``vocal_context`` or ``guide_context`` not an integer in [0, 100], ``guide_weight`` not
         "cv" or a finite number >= 0, or a numeric ``guide_weight`` with ``guide="none"``.
     """
 
@@ -131,6 +134,7 @@ class TrainOptions:
     guide: str = "ridge"
     guide_context: int = 5
     guide_weight: Union[str, float] = "cv"
+    guide_alpha: str = "shared"
     min_covar: float = 0.1
     init: str = "kmeans"
     noise_snrs: Any = ()
@@ -159,6 +163,8 @@ class TrainOptions:
         if self.guide not in GUIDES:
             raise ValueError(f"guide must be one of {GUIDES}, got {self.guide!r}")
         _check_context(self.guide_context, "guide_context", "the guide's ridge")
+        if self.guide_alpha not in GUIDE_ALPHAS:
+            raise ValueError(f"guide_alpha must be one of {GUIDE_ALPHAS}, got {self.guide_alpha!r}")
         gw = self.guide_weight
         if gw != "cv" and (isinstance(gw, bool) or not isinstance(gw, (int, float, np.integer, np.floating))
                            or not (np.isfinite(gw) and gw >= 0)):
@@ -383,6 +389,7 @@ def _fit_vocal_side(A, Y, lengths, gammas, opt: dict, *, columns: int, noisy=())
         k = len(noisy) + 1
         guide, info["guide"] = fit_guide(np.vstack([A, *noisy]), np.vstack([Y] * k), list(lengths) * k,
                                          context=int(opt["guide_context"]), columns=columns, weight=weight,
+                                         alpha=opt["guide_alpha"],
                                          groups=np.tile(np.arange(len(lengths)), k) if noisy else None)
         arrays.update(guide)
     V = A
