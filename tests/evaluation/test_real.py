@@ -128,6 +128,19 @@ def test_evaluate_corpus_real_on_the_command_line(cache, tmp_path, capsys):
     assert saved["options"] == {"n_states": 6, "seed": 0, "vocal_covariance": "diag"}
 
 
+def test_the_ridge_row_is_regularised_as_the_puppets_guide(cache):
+    """With ``guide_alpha="per_coordinate"`` the evaluation's ridge chooses α per face coordinate
+    too: it is then the puppet's own guide, map for map."""
+    clips = real.real_clips(speaker="grid")[:3]
+    track = real._tracker(cache, False, True)
+    for how in ("shared", "per_coordinate"):
+        m = real._train(clips, {"n_states": 6, "guide_alpha": how}, track)
+        guide = m.puppets["voice puppet"].arrays["guide/map"]
+        np.testing.assert_allclose(guide, m.ridge.W, rtol=1e-9, atol=1e-12)
+        assert m.ridge.per_target == (how == "per_coordinate")
+    assert len(set(m.ridge.alpha)) > 1  # the coordinates' choices differ: one α could not give this map
+
+
 def test_rhubarb_and_the_learned_peer_on_real_people(cache):
     """GRID's five one-clip sessions left out one at a time: Rhubarb (both recognisers, the better
     in the table) and the learned network give finite measures and the puppet's paired

@@ -21,20 +21,20 @@ Protocol:
 * **Any voice** (:func:`any_voice`): the models learn from all of the speaker's sessions and
   animate other speakers' recordings.
 
-Models, each giving the mouth's opening per video frame: the voice puppet (entropic, guided,
-full motion; also its most probable trajectory, not widened, its animation without its guide,
-Brand's solve, and the puppet trained by conventional Baum-Welch), the
-ridge regression from ±5 frames of the same standardised audio features to the face
-coordinates (:class:`voicepuppet.puppet.guide.RidgeBaseline`), a mouth that opens with the
-speech's loudness (linear in its log energy, fitted on the training frames: what many avatar
-apps do) and the training mean (the mean face); with ``rhubarb`` and ``learned``, what users would
-pick instead: Rhubarb Lip Sync's cues of the sound (each shape mapped to the mean reference
-opening of the training frames under it: its best possible mapping; both recognisers, the
-tables show the one of the lower RMSE) and a learned temporal network
-(:class:`voicepuppet.evaluation.learned.ConvRegressor`) from the same standardised features to
-the face coordinates, as the ridge. The tracker's opening is not the reference's
-(different points, a different scale), so every model's opening is mapped to the reference's by
-the straight line fitted between the two on the training clips' frames, never the held-out ones.
+Models, each giving the mouth's opening per video frame: the voice puppet (entropic, guided, full
+motion; also its most probable trajectory, not widened, its animation without its guide, Brand's
+solve, and the puppet trained by conventional Baum-Welch), the ridge regression from ±5 frames of
+the same standardised audio features to the face coordinates
+(:class:`voicepuppet.puppet.guide.RidgeBaseline`, its α as the guide's: option ``guide_alpha``), a
+mouth that opens with the speech's loudness (linear in its log energy, fitted on the training
+frames: what many avatar apps do) and the training mean (the mean face); with ``rhubarb`` and
+``learned``, what users would pick instead: Rhubarb Lip Sync's cues of the sound (each shape mapped
+to the mean reference opening of the training frames under it: its best possible mapping; both
+recognisers, the tables show the one of the lower RMSE) and a learned temporal network
+(:class:`voicepuppet.evaluation.learned.ConvRegressor`) from the same standardised features to the
+face coordinates, as the ridge. The tracker's opening is not the reference's (different points, a
+different scale), so every model's opening is mapped to the reference's by the straight line fitted
+between the two on the training clips' frames, never the held-out ones.
 
 Measures per held-out clip against the reference opening: Pearson r, RMSE (inter-ocular
 distances), spread (the model's standard deviation over the truth's), the best lag (frames
@@ -312,7 +312,8 @@ def _train(train: list, options: dict, track, learned: bool = False) -> _Models:
     main = puppets["voice puppet"]
     feats = [main.audio_features(a, n_out=len(p)) for p, a in zip(points, sounds)]
     faces = [main.face_space.encode(p)[0] for p in points]
-    ridge = RidgeBaseline().fit([main.ridge_input(f) for f in feats], faces)
+    per_target = main.metadata["training"]["options"]["guide_alpha"] == "per_coordinate"
+    ridge = RidgeBaseline(per_target=per_target).fit([main.ridge_input(f) for f in feats], faces)
     net = ConvRegressor(seed=options.get("seed", 0)).fit([main.ridge_input(f) for f in feats], faces) if learned else None
     loud = np.concatenate([speech_loudness(a, fps, len(p)) for p, a in zip(points, sounds)])
     opening = np.concatenate([mouth_opening(p) for p in points])
