@@ -61,9 +61,24 @@ def _open(path: str | os.PathLike):
     cap = cv2.VideoCapture(str(p))
     if not cap.isOpened():
         cap.release()
+        if _sound_only(p):
+            raise ValueError(f"{str(p)!r} is sound without pictures: faces are tracked from video; give a "
+                             "video of the face talking (voicepuppet animate is the verb that takes audio)")
         raise ValueError(f"video {str(p)!r} cannot be opened by OpenCV (unknown or corrupt format); "
                          "convert it to mp4 (H.264) or avi first")
     return cap
+
+
+def _sound_only(path: Path) -> bool:
+    """Whether FFmpeg (PyAV) reads ``path`` as audio streams without a video stream."""
+    import av
+    import av.logging
+
+    try:
+        with av.logging.Capture(), av.open(str(path)) as container:  # FFmpeg's own complaints kept quiet
+            return bool(container.streams.audio) and not container.streams.video
+    except (av.error.FFmpegError, OSError):
+        return False
 
 
 def probe_video(path: str | os.PathLike) -> VideoInfo:
