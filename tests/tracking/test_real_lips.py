@@ -37,6 +37,17 @@ def test_detector_anchors_keep_reagans_lips_on_his_mouth(reagan):
     assert not crossed_lips(anchored.points).any()
 
 
+def test_anchored_mouth_corners_follow_the_mouths_width():
+    """Obama's sentence 7, where the patches slid the mouth corners along the lip contour (width
+    r 0.77 against the reference with the corners anchored as the other lips and searched against
+    their first frame): with stiffer corner anchors and no corner search, r >= 0.8."""
+    (clip,) = [c for c in real.real_clips(speaker="obama") if c.key.endswith("sentence_7")]
+    pts = track_video(clip.video, init="auto", progress=False).points
+    width = np.linalg.norm(pts[:, 48] - pts[:, 54], axis=1) / np.linalg.norm(pts[:, 36] - pts[:, 45], axis=1)
+    n = min(len(width), len(clip.width))
+    assert np.corrcoef(width[:n], clip.width[:n])[0, 1] >= 0.8
+
+
 def test_given_points_track_without_anchors(reagan):
     """Points given by hand need not be in dlib's layout: no anchors unless asked for."""
     frames, _ = read_grey_frames(reagan.video)

@@ -52,6 +52,11 @@ INNER_LIP_OVERLAP_IOD = 0.005
 #: anchors": chosen there, on the shared real clips, over sds of 0.003-0.1 and slacks of 0-0.045).
 ANCHOR_SIGMA_IOD = 0.005
 ANCHOR_SLACK_IOD = 0.01
+#: The outer mouth corners' anchors are stiffer (standard deviation ANCHOR_CORNER_SIGMA_IOD, the same
+#: slack), and the corners are then left out of the reference search: the mouth's width changes by
+#: a few hundredths of the inter-ocular distance in speech, which the patches, sliding along the
+#: lip contour, follow worse than dlib does (docs/tracking.md, "Detector anchors").
+ANCHOR_CORNER_SIGMA_IOD = 0.001
 
 __all__ = ["track_frames", "track_video", "VariableFrameRateWarning"]
 
@@ -167,7 +172,8 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         options.setdefault("search_groups", groups)
         options.setdefault("group_search_radius", LIP_GROUP_SEARCH_IOD * iod)
         options.setdefault("spring_outlier", LIP_SPRING_OUTLIER)
-        options.setdefault("reference_points", np.asarray(OUTER_MOUTH_CORNERS + OUTER_UPPER_LIP, dtype=np.int64))
+        searched = OUTER_UPPER_LIP if detector_anchors else OUTER_MOUTH_CORNERS + OUTER_UPPER_LIP
+        options.setdefault("reference_points", np.asarray(searched, dtype=np.int64))
         reference_sides = np.zeros((68, 2))
         reference_sides[list(OUTER_UPPER_LIP)] = lip_patch_sides(init)[62]  # up the face
         options.setdefault("reference_sides", reference_sides)
@@ -203,6 +209,7 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         iod = float(np.linalg.norm(init[45] - init[36]))
         precision = np.zeros(68)
         precision[MOUTH] = 1.0 / (ANCHOR_SIGMA_IOD * iod) ** 2
+        precision[list(OUTER_MOUTH_CORNERS)] = 1.0 / (ANCHOR_CORNER_SIGMA_IOD * iod) ** 2
         options.setdefault("anchor_precision", precision)
         options.setdefault("anchor_slack", ANCHOR_SLACK_IOD * iod)
         anchors = []
