@@ -327,12 +327,11 @@ class Puppet:
         about 5 s instead of 22.
         """
         options = TrainOptions(
-            n_states=n_states, n_iter=n_iter, prior=prior, z=z, anneal=anneal, n_components=n_components,
+            n_states=n_states, n_iter=n_iter, prior=prior, z=z, anneal=anneal, n_components=n_components, seed=seed,
             max_components=max_components, parts=parts, feature_set=feature_set, audio_deltas=audio_deltas,
             vocal_covariance=vocal_covariance, vocal_shrinkage=vocal_shrinkage, vocal_features=vocal_features,
             vocal_context=vocal_context, guide=guide, guide_context=guide_context, guide_weight=guide_weight,
-            guide_alpha=guide_alpha, min_covar=min_covar, init=init, noise_snrs=noise_snrs, audio_level=audio_level,
-            seed=seed)
+            guide_alpha=guide_alpha, min_covar=min_covar, init=init, noise_snrs=noise_snrs, audio_level=audio_level)
         metadata, arrays = training.train(points_list, audio_list, features_list=features_list, fps=fps,
                                           options=options, progress=progress, client=client)
         return cls(metadata, arrays)
