@@ -1275,12 +1275,13 @@ struct SpringMeshTracker::Impl {
           for (Index i = 0; i < P; ++i) {
             const double lam = opt.anchor_precision[i];
             if (!(lam > 0) || std::isnan(anchors(i, 0)) || std::isnan(anchors(i, 1))) continue;
-            // A spring of rest length `anchor_slack` from the point to its anchor that only
+            // A spring of rest length `anchor_slack[i]` from the point to its anchor that only
             // pulls when stretched: energy lam (|d| - slack)² beyond the slack, d = a - p.
+            const double slack = opt.anchor_slack.size() == P ? opt.anchor_slack[i] : 0.0;
             const Eigen::Vector2d d(anchors(i, 0) - pts(i, 0), anchors(i, 1) - pts(i, 1));
             const double len = d.norm();
-            const double over = len - opt.anchor_slack;
-            if (opt.anchor_slack <= 0) {
+            const double over = len - slack;
+            if (slack <= 0) {
               diag[i] += lam * Eigen::Matrix2d::Identity();
               rhs[i] += lam * d;
             } else if (over > 0) {
@@ -1404,8 +1405,11 @@ SpringMeshTracker::SpringMeshTracker(const GreyImage& first, const MatrixRef& po
     fail_argument("options.order_axis must be a finite non-zero direction, got (", options.order_axis(0), ", ",
                   options.order_axis(1), ")");
   }
-  if (!(std::isfinite(options.anchor_slack) && options.anchor_slack >= 0)) {
-    fail_argument("options.anchor_slack must be a finite number of pixels >= 0, got ", options.anchor_slack);
+  if (options.anchor_slack.size() != 0 &&
+      (options.anchor_slack.size() != points.rows() || !options.anchor_slack.allFinite() ||
+       options.anchor_slack.minCoeff() < 0)) {
+    fail_argument("options.anchor_slack must hold ", points.rows(), " finite numbers of pixels >= 0 (one per "
+                  "point) or be empty, got ", options.anchor_slack.size(), " values");
   }
   if (options.anchor_precision.size() != 0 &&
       (options.anchor_precision.size() != points.rows() || !options.anchor_precision.allFinite() ||

@@ -1023,16 +1023,21 @@ TEST_CASE("tracker: anchors pull a point only beyond their slack") {
   CHECK(a.track(f1.view(), none).points == free_answer.points);
   RowMatrixXd near = none;
   near.row(3) << 160, 50;  // 4 px from where the data put the point
-  anchored.anchor_slack = 5.0;
+  anchored.anchor_slack = VectorXd::Constant(6, 5.0);
   SpringMeshTracker b(f0.view(), p, mesh, anchored);
   CHECK(b.track(f1.view(), near).points == free_answer.points);
   // Beyond the slack a stiff anchor holds the point at the slack's edge: |y - 56| = 1.
   RowMatrixXd far = none;
   far.row(3) << 160, 56;
-  anchored.anchor_slack = 1.0;
+  anchored.anchor_slack = VectorXd::Constant(6, 1.0);
   SpringMeshTracker c(f0.view(), p, mesh, anchored);
   const TrackerFrame held = c.track(f1.view(), far);
   CHECK(held.points(3, 1) == doctest::Approx(55).epsilon(0.01));
+  // The slack is per point: point 3 without any is held on its anchor, the others' slack aside.
+  anchored.anchor_slack = VectorXd::Constant(6, 5.0);
+  anchored.anchor_slack[3] = 0.0;
+  SpringMeshTracker tight(f0.view(), p, mesh, anchored);
+  CHECK(tight.track(f1.view(), far).points(3, 1) == doctest::Approx(56).epsilon(0.01));
   CHECK(std::abs(held.points(0, 1) - 50) < 0.5);  // the others still follow their data
   // Bad anchors and anchor options are refused with a reason.
   CHECK_THROWS_WITH_AS(c.track(f1.view(), RowMatrixXd::Zero(5, 2)), doctest::Contains("anchors"),
@@ -1044,8 +1049,10 @@ TEST_CASE("tracker: anchors pull a point only beyond their slack") {
   bad.anchor_precision = VectorXd::Ones(4);
   CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("anchor_precision"),
                        std::invalid_argument);
-  bad = anchored;
-  bad.anchor_slack = -1.0;
-  CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("anchor_slack"),
-                       std::invalid_argument);
+  for (const VectorXd& slack : {VectorXd(VectorXd::Constant(6, -1.0)), VectorXd(VectorXd::Ones(5))}) {
+    bad = anchored;
+    bad.anchor_slack = slack;
+    CHECK_THROWS_WITH_AS(SpringMeshTracker(f0.view(), p, mesh, bad), doctest::Contains("anchor_slack"),
+                         std::invalid_argument);
+  }
 }

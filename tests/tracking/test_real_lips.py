@@ -40,12 +40,12 @@ def test_detector_anchors_keep_reagans_lips_on_his_mouth(reagan):
 def test_anchored_mouth_corners_follow_the_mouths_width():
     """Obama's sentence 7, where the patches slid the mouth corners along the lip contour (width
     r 0.77 against the reference with the corners anchored as the other lips and searched against
-    their first frame): with stiffer corner anchors and no corner search, r >= 0.8."""
+    their first frame): with stiffer corner anchors without slack and no corner search, r >= 0.85."""
     (clip,) = [c for c in real.real_clips(speaker="obama") if c.key.endswith("sentence_7")]
     pts = track_video(clip.video, init="auto", progress=False).points
     width = np.linalg.norm(pts[:, 48] - pts[:, 54], axis=1) / np.linalg.norm(pts[:, 36] - pts[:, 45], axis=1)
     n = min(len(width), len(clip.width))
-    assert np.corrcoef(width[:n], clip.width[:n])[0, 1] >= 0.8
+    assert np.corrcoef(width[:n], clip.width[:n])[0, 1] >= 0.85
 
 
 def test_given_points_track_without_anchors(reagan):
@@ -57,6 +57,12 @@ def test_given_points_track_without_anchors(reagan):
     anchored = track_video(reagan.video, init=init, progress=False, passes=1, detector_anchors=True)
     np.testing.assert_array_equal(given.points, unanchored.points)
     assert np.abs(anchored.points - given.points).max() > 1.0
+    # the anchors' slack is per point; one number is every point's
+    one = track_video(reagan.video, init=init, progress=False, passes=1, detector_anchors=True, anchor_slack=1.5)
+    each = track_video(reagan.video, init=init, progress=False, passes=1, detector_anchors=True,
+                       anchor_slack=np.full(68, 1.5))
+    np.testing.assert_array_equal(one.points, each.points)
+    assert np.abs(one.points - anchored.points).max() > 0.1
 
 
 def test_anchors_need_a_68_point_face(reagan):

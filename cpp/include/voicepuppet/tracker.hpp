@@ -216,10 +216,11 @@ struct TrackerOptions {
   /// that frame (an independent detector's answer as a soft observation beside the patches and
   /// springs). Empty: no anchors.
   VectorXd anchor_precision;
-  /// px a point may stray from its anchor before the anchor pulls (>= 0): the energy is then
-  /// anchor_precision[i]·(|p_i − a_i| − anchor_slack)² beyond it and 0 within, so the patches
-  /// place a point within the detector's noise and the anchor only bounds their drift
-  double anchor_slack = 0.0;
+  /// #P px each point may stray from its anchor before the anchor pulls (>= 0), or empty (0 for
+  /// all): the energy is then anchor_precision[i]·(|p_i − a_i| − anchor_slack[i])² beyond it and 0
+  /// within, so the patches place a point within the detector's noise and the anchor only bounds
+  /// their drift; 0 is a plain spring to the anchor
+  VectorXd anchor_slack;
 };
 
 /// One frame's answer.

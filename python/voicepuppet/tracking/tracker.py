@@ -52,11 +52,12 @@ INNER_LIP_OVERLAP_IOD = 0.005
 #: anchors": chosen there, on the shared real clips, over sds of 0.003-0.1 and slacks of 0-0.045).
 ANCHOR_SIGMA_IOD = 0.005
 ANCHOR_SLACK_IOD = 0.01
-#: The outer mouth corners' anchors are stiffer (standard deviation ANCHOR_CORNER_SIGMA_IOD, the same
-#: slack), and the corners are then left out of the reference search: the mouth's width changes by
-#: a few hundredths of the inter-ocular distance in speech, which the patches, sliding along the
-#: lip contour, follow worse than dlib does (docs/tracking.md, "Detector anchors").
+#: The outer mouth corners' anchors are stiffer (standard deviation ANCHOR_CORNER_SIGMA_IOD, slack
+#: ANCHOR_CORNER_SLACK_IOD), and the corners are then left out of the reference search: the mouth's
+#: width changes by a few hundredths of the inter-ocular distance in speech, which the patches,
+#: sliding along the lip contour, follow worse than dlib does (docs/tracking.md, "Detector anchors").
 ANCHOR_CORNER_SIGMA_IOD = 0.001
+ANCHOR_CORNER_SLACK_IOD = 0.0
 
 __all__ = ["track_frames", "track_video", "VariableFrameRateWarning"]
 
@@ -210,9 +211,13 @@ def _track(frames: Callable[[], Iterable[np.ndarray]], init_points, *, fps: floa
         precision = np.zeros(68)
         precision[MOUTH] = 1.0 / (ANCHOR_SIGMA_IOD * iod) ** 2
         precision[list(OUTER_MOUTH_CORNERS)] = 1.0 / (ANCHOR_CORNER_SIGMA_IOD * iod) ** 2
+        slack = np.full(68, ANCHOR_SLACK_IOD * iod)
+        slack[list(OUTER_MOUTH_CORNERS)] = ANCHOR_CORNER_SLACK_IOD * iod
         options.setdefault("anchor_precision", precision)
-        options.setdefault("anchor_slack", ANCHOR_SLACK_IOD * iod)
+        options.setdefault("anchor_slack", slack)
         anchors = []
+    if np.ndim(options.get("anchor_slack", ())) == 0:  # one slack for every point
+        options["anchor_slack"] = np.full(len(init), float(options["anchor_slack"]))
     opts = _options(options)
     # The first pass's lip springs are guesses: their check on the data (spring_outlier) waits
     # for the springs re-estimated from a pass.
