@@ -47,8 +47,8 @@ from voicepuppet.puppet.model import Puppet
 from voicepuppet.puppet.training import TRAIN_DEFAULTS, check_option_names, training_feature_set
 from voicepuppet.render.export import mouth_cues
 
-__all__ = ["METRICS", "BASELINES", "TOOLS", "UNGUIDED", "MOST_PROBABLE", "COMPARE_MEASURES", "COMPARE_KEPT", "cross_validate",
-           "compare_training"]
+__all__ = ["METRICS", "BASELINES", "TOOLS", "UNGUIDED", "MOST_PROBABLE", "COMPARE_MEASURES", "COMPARE_KEPT",
+           "cross_validate", "compare_training"]
 
 #: measure -> (column title, better: "lower" or "higher")
 METRICS = {
