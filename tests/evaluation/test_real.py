@@ -129,16 +129,19 @@ def test_evaluate_corpus_real_on_the_command_line(cache, tmp_path, capsys):
 
 
 def test_the_ridge_row_is_regularised_as_the_puppets_guide(cache):
-    """With ``guide_alpha="per_coordinate"`` the evaluation's ridge chooses α per face coordinate
-    too: it is then the puppet's own guide, map for map."""
+    """With ``guide_alpha="per_coordinate"`` or ``"lips"`` the evaluation's ridge chooses α the
+    same way: it is then the puppet's own guide, map for map."""
     clips = real.real_clips(speaker="grid")[:3]
     track = real._tracker(cache, False, True)
-    for how in ("shared", "per_coordinate"):
+    alphas = {}
+    for how in ("shared", "lips", "per_coordinate"):
         m = real._train(clips, {"n_states": 6, "guide_alpha": how}, track)
         guide = m.puppets["voice puppet"].arrays["guide/map"]
         np.testing.assert_allclose(guide, m.ridge.W, rtol=1e-9, atol=1e-12)
         assert m.ridge.per_target == (how == "per_coordinate")
-    assert len(set(m.ridge.alpha)) > 1  # the coordinates' choices differ: one α could not give this map
+        assert (m.ridge.score is not None) == (how == "lips")
+        alphas[how] = m.ridge.alpha
+    assert len(set(alphas["per_coordinate"])) > 1  # the coordinates' choices differ: one α could not give this map
 
 
 def test_rhubarb_and_the_learned_peer_on_real_people(cache):

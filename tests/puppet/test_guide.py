@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from voicepuppet import _core
-from voicepuppet.puppet.guide import RidgeBaseline, context_stack
+from voicepuppet.face import FaceSpace
+from voicepuppet.layout import MOUTH
+from voicepuppet.puppet.guide import RidgeBaseline, context_stack, lips_score
 from voicepuppet.layout import RIGID
 from voicepuppet.puppet.guide import GUIDE_WEIGHTS, cross_fit
 from voicepuppet.puppet.model import Puppet, load
@@ -244,6 +246,56 @@ def test_the_guide_alpha_option_fits_the_guide_per_coordinate(data):
     assert TRAIN_DEFAULTS["guide_alpha"] == "shared"
     with pytest.raises(ValueError, match="guide_alpha must be one of"):
         Puppet.train([pts], features_list=[feats], guide_alpha="each", **OPTS)
+
+
+def test_a_scored_alpha_is_chosen_on_the_scored_columns():
+    """α chosen on ``(Ŷ − Y) @ score``: the identity scores as no score does; scoring only the
+    audible target picks the α of a ridge on that target alone (not the shared α, which the
+    noise target drags up), and the map is still fitted to every target at that α."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(400, 6))
+    audible = X @ rng.normal(size=6) + rng.normal(0, 0.3, 400)
+    noise = 0.2 * X[:, 0] + rng.normal(0, 5.0, 400)
+    Y = np.c_[audible, noise]
+    plain = RidgeBaseline(1).fit([X], [Y])
+    identity = RidgeBaseline(1, score=np.eye(2)).fit([X], [Y])
+    assert identity.alpha == plain.alpha
+    np.testing.assert_array_equal(identity.W, plain.W)
+    scored = RidgeBaseline(1, score=[[1.0], [0.0]]).fit([X], [Y])
+    alone = RidgeBaseline(1).fit([X], [Y[:, [0]]])
+    assert scored.alpha == alone.alpha != plain.alpha
+    at_alpha = RidgeBaseline(1, alphas=(scored.alpha,)).fit([X], [Y])
+    np.testing.assert_allclose(scored.W, at_alpha.W, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="not with per_target"):
+        RidgeBaseline(1, per_target=True, score=np.eye(2))
+    with pytest.raises(ValueError, match="3 rows for 2 face coordinates"):
+        RidgeBaseline(1, score=np.eye(3)).fit([X], [Y])
+
+
+def test_lips_score_is_the_map_from_face_coordinates_to_the_lips(data):
+    """``lips_score``: the lips' points of ``FaceSpace.shapes`` are their rest position plus
+    ``Y @ score`` for any face coordinates (the shapes are linear in them); other layouts refuse."""
+    (pts, _), _ = data
+    fs = FaceSpace.fit([pts], 0.98)
+    S = lips_score(fs)
+    assert S.shape == (fs.n_dims, 2 * len(MOUTH))
+    Y = np.random.default_rng(0).normal(size=(7, fs.n_dims))
+    rest = fs.shapes(np.zeros((1, fs.n_dims)))[0, MOUTH].ravel()
+    np.testing.assert_allclose(fs.shapes(Y)[:, MOUTH].reshape(7, -1), rest + Y @ S, rtol=1e-10, atol=1e-9)
+    with pytest.raises(ValueError, match="needs the 68-point layout"):
+        lips_score(FaceSpace.fit([pts[:, :30]], 0.98))
+
+
+def test_the_guide_alpha_option_lips_chooses_alpha_on_the_lips(data):
+    (pts, feats), _ = data
+    pup = Puppet.train([pts], features_list=[feats], guide_context=3, guide_alpha="lips", **OPTS)
+    Z, Y = pup.ridge_input(feats), pup.face_space.encode(pts)[0]
+    ridge = RidgeBaseline(3, score=lips_score(pup.face_space)).fit([Z], [Y])
+    np.testing.assert_allclose(pup.arrays["guide/map"], ridge.W, rtol=1e-10, atol=1e-12)
+    assert pup.metadata["training"]["guide"]["alpha"] == ridge.alpha
+    assert pup.metadata["training"]["options"]["guide_alpha"] == "lips"
+    with pytest.raises(ValueError, match="needs the 68-point layout"):
+        Puppet.train([pts[:, :30]], features_list=[feats], guide_alpha="lips", **OPTS)
 
 
 def test_file_round_trip_and_format_version(puppets, data, tmp_path):

@@ -211,7 +211,8 @@ def add_parser(sub) -> None:
                         "audio; a number fixes it")
     p.add_argument("--guide-alpha", choices=list(GUIDE_ALPHAS),
                    help="the guide's ridge regularisation, chosen by cross-validation: one for all face "
-                        "coordinates (shared, default) or one per coordinate (per_coordinate; docs/puppet.md)")
+                        "coordinates on their error (shared, default), one per coordinate (per_coordinate) or "
+                        "one for all on the error of the lips (lips; 68-point faces; docs/puppet.md)")
     p.add_argument("--seed", type=int, help="random seed (default 0)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run the HMM's E-steps on this Dask scheduler "
                    "(e.g. tcp://10.0.0.1:8786; docs/batch.md); same result as one process (default: all in "

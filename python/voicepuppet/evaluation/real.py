@@ -65,7 +65,7 @@ from voicepuppet.evaluation.learned import ConvRegressor
 from voicepuppet.evaluation.rhubarb import RECOGNIZERS, ShapeMap, frame_shapes
 from voicepuppet.evaluation.report import markdown_table
 from voicepuppet.layout import crossed_lips
-from voicepuppet.puppet.guide import RidgeBaseline
+from voicepuppet.puppet.guide import RidgeBaseline, lips_score
 from voicepuppet.puppet.model import Puppet, load
 from voicepuppet.puppet.sources import av_offsets, training_sequences
 from voicepuppet.puppet.sync import mouth_opening, shift_audio, speech_loudness
@@ -312,8 +312,9 @@ def _train(train: list, options: dict, track, learned: bool = False) -> _Models:
     main = puppets["voice puppet"]
     feats = [main.audio_features(a, n_out=len(p)) for p, a in zip(points, sounds)]
     faces = [main.face_space.encode(p)[0] for p in points]
-    per_target = main.metadata["training"]["options"]["guide_alpha"] == "per_coordinate"
-    ridge = RidgeBaseline(per_target=per_target).fit([main.ridge_input(f) for f in feats], faces)
+    alpha = main.metadata["training"]["options"]["guide_alpha"]
+    ridge = RidgeBaseline(per_target=alpha == "per_coordinate", score=lips_score(main.face_space) if alpha == "lips"
+                          else None).fit([main.ridge_input(f) for f in feats], faces)
     net = ConvRegressor(seed=options.get("seed", 0)).fit([main.ridge_input(f) for f in feats], faces) if learned else None
     loud = np.concatenate([speech_loudness(a, fps, len(p)) for p, a in zip(points, sounds)])
     opening = np.concatenate([mouth_opening(p) for p in points])

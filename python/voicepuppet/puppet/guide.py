@@ -27,6 +27,7 @@ import numpy as np
 
 from voicepuppet.audio import Standardizer
 from voicepuppet.blas import limited
+from voicepuppet.layout import MOUTH, N_POINTS
 
 RIDGE_CONTEXT = 5
 RIDGE_ALPHAS = tuple(10.0 ** np.arange(-2, 5))
@@ -53,6 +54,34 @@ def context_stack(A, k: int = RIDGE_CONTEXT) -> np.ndarray:
     return A[idx].reshape(T, -1)
 
 
+def lips_score(face_space) -> np.ndarray:
+    """The linear map from face coordinates to the lips' points of the normalised shapes they
+    make (:meth:`voicepuppet.face.FaceSpace.shapes`, 68-point layout: :data:`voicepuppet.layout.MOUTH`):
+    :class:`RidgeBaseline`'s ``score`` for an α chosen on the mouth (``guide_alpha="lips"``).
+
+    Parameters
+    ----------
+    face_space : voicepuppet.face.FaceSpace
+        A face space of the 68-point layout.
+
+    Returns
+    -------
+    ndarray, shape (K, 2·20)
+        Row k: how the lips' coordinates move per unit of face coordinate k.
+
+    Raises
+    ------
+    ValueError
+        The face space is not of the 68-point layout.
+    """
+    if face_space.n_points != N_POINTS:
+        raise ValueError(f"guide_alpha='lips' needs the {N_POINTS}-point layout (its lips are points "
+                         f"48-67); these faces have {face_space.n_points} points: use 'shared'")
+    K = face_space.n_dims
+    lips = face_space.shapes(np.vstack([np.zeros(K), np.eye(K)]))[:, MOUTH].reshape(K + 1, -1)
+    return lips[1:] - lips[0]
+
+
 class RidgeBaseline:
     """Ridge regression from context-stacked audio features to face coordinates.
 
@@ -69,10 +98,15 @@ class RidgeBaseline:
         for all, on their summed error). Coordinates differ in how much of them the audio
         predicts: one α, chosen where the summed error is lowest, over-shrinks those it predicts
         best when the others dominate the sum.
+    score : array_like, shape (K, M), optional
+        Choose the one α on the cross-validated error of ``(Ŷ − Y) @ score`` instead of ``Ŷ − Y``:
+        e.g. the lips' points of the shapes the face coordinates make (:func:`lips_score`), so
+        that α suits the mouth rather than the head's pose, which the audio hardly predicts and
+        which dominates the coordinates' summed error. Not with ``per_target``.
 
     Attributes
     ----------
-    k, alphas, n_folds, per_target
+    k, alphas, n_folds, per_target, score
         The constructor's arguments.
     alpha : float or ndarray of shape (K,)
         The α chosen by :meth:`fit` (one per face coordinate with ``per_target``).
@@ -82,8 +116,13 @@ class RidgeBaseline:
         The means of the context-stacked features and of the face coordinates, set by :meth:`fit`.
     """
 
-    def __init__(self, k: int = RIDGE_CONTEXT, alphas=RIDGE_ALPHAS, n_folds: int = 5, per_target: bool = False):
+    def __init__(self, k: int = RIDGE_CONTEXT, alphas=RIDGE_ALPHAS, n_folds: int = 5, per_target: bool = False,
+                 score=None):
         self.k, self.alphas, self.n_folds, self.per_target = int(k), tuple(alphas), int(n_folds), bool(per_target)
+        self.score = None if score is None else np.asarray(score, dtype=np.float64)
+        if self.score is not None and (per_target or self.score.ndim != 2 or not np.isfinite(self.score).all()):
+            raise ValueError("score must be a finite (K, M) matrix, and one α is chosen on it: not with per_target; "
+                             f"got shape {self.score.shape}" + (" with per_target" if per_target else ""))
 
     @staticmethod
     def _solve(G, B, alpha):
@@ -119,10 +158,13 @@ class RidgeBaseline:
         # Normal equations per fold once; a fold's training system is the total minus the fold.
         parts = [(Xc[f].T @ Xc[f], Xc[f].T @ Yc[f]) for f in folds]
         G, B = sum(p[0] for p in parts), sum(p[1] for p in parts)
-        sse = np.zeros((len(self.alphas), Y.shape[1]))  # per α and face coordinate
+        if self.score is not None and len(self.score) != Y.shape[1]:
+            raise ValueError(f"score has {len(self.score)} rows for {Y.shape[1]} face coordinates")
+        S = np.eye(Y.shape[1]) if self.score is None else self.score
+        sse = np.zeros((len(self.alphas), S.shape[1]))  # per α and scored column
         for i, alpha in enumerate(self.alphas):
             for f, (Gf, Bf) in zip(folds, parts):
-                sse[i] += np.sum((Xc[f] @ self._solve(G - Gf, B - Bf, alpha) - Yc[f]) ** 2, axis=0)
+                sse[i] += np.sum(((Xc[f] @ self._solve(G - Gf, B - Bf, alpha) - Yc[f]) @ S) ** 2, axis=0)
         if not self.per_target:
             self.alpha = self.alphas[int(np.argmin(sse.sum(axis=1)))]
             self.W = self._solve(G, B, self.alpha)
@@ -220,7 +262,7 @@ def sequence_runs(frames, sequence) -> list:
     return np.split(frames, cut)
 
 
-def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None, per_target: bool = False) -> np.ndarray:
+def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None, per_target: bool = False, score=None) -> np.ndarray:
     """Cross-fitted ridge predictions (T, K) of ``Y`` from the rows of ``X`` (T, C).
 
     The frames of each fold of :func:`cross_fit_folds` are predicted by a :class:`RidgeBaseline`
@@ -241,6 +283,8 @@ def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None, per_target: bool = F
         One label per sequence: sequences that are copies of one recording (:func:`cross_fit_folds`).
     per_target : bool
         α per face coordinate (:class:`RidgeBaseline`).
+    score : array_like, shape (K, M), optional
+        What α is chosen on (:class:`RidgeBaseline`).
 
     Returns
     -------
@@ -253,7 +297,7 @@ def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None, per_target: bool = F
     labels = None if groups is None else np.asarray(groups)
     for fold in cross_fit_folds(lengths, n_folds, labels):
         rest = np.setdiff1d(np.arange(len(X)), fold)
-        ridge = RidgeBaseline(0, per_target=per_target)
+        ridge = RidgeBaseline(0, per_target=per_target, score=score)
         if labels is None:
             ridge.fit([X[rest]], [Y[rest]])
         else:  # α's own folds keep the copies together too
@@ -265,12 +309,12 @@ def cross_fit(X, Y, lengths, n_folds: int = 5, groups=None, per_target: bool = F
 
 
 def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, what: str, option: str, groups=None,
-                   per_target: bool = False):
+                   per_target: bool = False, score=None):
     """The ridge from ±k frames of the first ``columns`` of ``standardized`` (T, A') to ``face``
     (T, K), its arguments checked (``option`` names the context in errors, ``what`` the map):
     ``(Y, k, yhat, full)``, the face as float, k, the cross-fitted predictions (T, K) and the
     :class:`RidgeBaseline` fitted on all frames (rows context-stacked per sequence, edges
-    repeated); ``per_target``: α per face coordinate."""
+    repeated); ``per_target``: α per face coordinate; ``score``: what one α is chosen on."""
     Z = np.asarray(standardized, dtype=np.float64)
     Y = np.asarray(face, dtype=np.float64)
     lengths = np.asarray(lengths, dtype=np.int64)
@@ -289,9 +333,9 @@ def _context_ridge(standardized, face, lengths, *, context, columns, n_folds, wh
     bounds = np.concatenate([[0], np.cumsum(lengths)])
     # Context is stacked per sequence (edges repeated), then frames go to folds.
     X = np.vstack([context_stack(Z[a:b], k) for a, b in zip(bounds[:-1], bounds[1:])])
-    full = RidgeBaseline(0, per_target=per_target)
+    full = RidgeBaseline(0, per_target=per_target, score=score)
     full.fit([X], [Y], folds=None if groups is None else cross_fit_folds(lengths, full.n_folds, groups))
-    return Y, k, cross_fit(X, Y, lengths, n_folds, groups, per_target), full
+    return Y, k, cross_fit(X, Y, lengths, n_folds, groups, per_target, score), full
 
 
 #: The guide's fixed weight λ (training option ``guide_weight`` given as a number; the default
@@ -306,13 +350,14 @@ GUIDE_WEIGHT = 4.0
 #: 128 and 256 added on 2026-12-02, "The top of the guide's weight grid").
 GUIDE_WEIGHTS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0)
 
-#: How the guide's ridge regularises (training option ``guide_alpha``): one α for all face
-#: coordinates, or one per coordinate, each chosen by cross-validation (:class:`RidgeBaseline`).
-GUIDE_ALPHAS = ("shared", "per_coordinate")
+#: How the guide's ridge regularises (training option ``guide_alpha``), each α chosen by
+#: cross-validation (:class:`RidgeBaseline`): one α for all face coordinates on their summed
+#: error, one per coordinate, or one for all on the error of the lips' points (:func:`lips_score`).
+GUIDE_ALPHAS = ("shared", "per_coordinate", "lips")
 
 
 def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_folds: int = 5,
-              weight: float = GUIDE_WEIGHT, groups=None, alpha: str = "shared"):
+              weight: float = GUIDE_WEIGHT, groups=None, alpha: str = "shared", score=None):
     """Fit the guide: the ridge's prediction ŷ of the face from ±k frames of audio and the
     covariance R of its cross-fitted residuals, used as evidence in the trajectory solve
     (``+ λ Σ_t (y_t − ŷ_t)ᵀ R⁻¹ (y_t − ŷ_t)``, ``cpp/include/voicepuppet/puppet.hpp``).
@@ -336,9 +381,11 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
         λ written as ``guide/weight`` (>= 0).
     groups : array of labels, optional
         One per sequence: sequences that are copies of one recording (:func:`cross_fit_folds`).
-    alpha : {"shared", "per_coordinate"}
-        One ridge α for all face coordinates, or one per coordinate (:data:`GUIDE_ALPHAS`,
-        :class:`RidgeBaseline`'s ``per_target``).
+    alpha : {"shared", "per_coordinate", "lips"}
+        One ridge α for all face coordinates, one per coordinate, or one chosen on the error of
+        the lips (:data:`GUIDE_ALPHAS`, :class:`RidgeBaseline`'s ``per_target`` and ``score``).
+    score : array (K, M), optional
+        With ``alpha="lips"``: the face space's :func:`lips_score` (required then).
 
     Returns
     -------
@@ -354,9 +401,12 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
     """
     if alpha not in GUIDE_ALPHAS:
         raise ValueError(f"the guide's alpha must be one of {GUIDE_ALPHAS}, got {alpha!r}")
+    if (alpha == "lips") != (score is not None):
+        raise ValueError("the guide's alpha 'lips' is chosen on a score (lips_score of the face space), "
+                         f"and only it: got alpha={alpha!r} with{'out' if score is None else ''} a score")
     Y, k, yhat, full = _context_ridge(standardized, face, lengths, context=context, columns=columns,
                                       n_folds=n_folds, what="the guide", option="guide_context", groups=groups,
-                                      per_target=alpha == "per_coordinate")
+                                      per_target=alpha == "per_coordinate", score=score)
     res = Y - yhat
     R = np.cov(res, rowvar=False, bias=True).reshape(Y.shape[1], Y.shape[1])
     arrays = {"guide/map": np.ascontiguousarray(full.W),

@@ -25,7 +25,7 @@ from voicepuppet.hmm.entropic import EntropicHMM, anneal_schedule
 from voicepuppet.hmm.diagnostics import diagnostics
 from voicepuppet.hmm.gaussian import GaussianHMM
 from voicepuppet.puppet.guide import (GUIDE_ALPHAS, GUIDE_WEIGHT, GUIDE_WEIGHTS, GUIDES, VOCAL_FEATURES,
-                                     cross_fit_folds, fit_guide, fit_projection, sequence_runs)
+                                     cross_fit_folds, fit_guide, fit_projection, lips_score, sequence_runs)
 
 __all__ = ["TrainOptions", "TRAIN_DEFAULTS", "VOCAL_COVARIANCES", "TRAINED_MOTION_GAIN", "check_option_names",
            "train", "training_feature_set", "remap"]
@@ -93,9 +93,10 @@ class TrainOptions:
     guide_weight : "cv" or float, default "cv"
         The guide's weight: chosen from :data:`voicepuppet.puppet.guide.GUIDE_WEIGHTS` by
         cross-validation on the training audio, or a number >= 0.
-    guide_alpha : {"shared", "per_coordinate"}, default "shared"
+    guide_alpha : {"shared", "per_coordinate", "lips"}, default "shared"
         The guide's ridge regularisation, chosen by cross-validation: one α for all face
-        coordinates, or one per coordinate.
+        coordinates, one per coordinate, or one for all chosen on the error of the lips' points
+        (68-point layout).
     min_covar : float, default 0.1
         Facial variance floor, times the mean data variance.
     init : {"kmeans", "frames"}, default "kmeans"
@@ -301,7 +302,9 @@ def train(points_list, audio_list=None, *, features_list=None, fps: float = 29.9
                        "iterations": len(hmm.history_),  # states and arcs (ints) from diag
                        **{key: v if isinstance(v, int) else float(v)
                           for key, v in diag.items() if np.isscalar(v)}})
-    vocal, vocal_info = _fit_vocal_side(A, Y, lengths, gammas, opt, columns=raw[0].shape[1], noisy=noisy)
+    score = lips_score(fs) if opt["guide"] == "ridge" and opt["guide_alpha"] == "lips" else None
+    vocal, vocal_info = _fit_vocal_side(A, Y, lengths, gammas, opt, columns=raw[0].shape[1], noisy=noisy,
+                                        score=score)
     arrays.update(vocal)
     metadata = {"format": "voicepuppet puppet", "created_by": f"voicepuppet {__version__}",
                 "fps": float(fps), "n_points": int(points_list[0].shape[1]),
@@ -312,7 +315,7 @@ def train(points_list, audio_list=None, *, features_list=None, fps: float = 29.9
     metadata["training"].update(vocal_info)
     if opt["guide"] == "ridge" and opt["guide_weight"] == "cv":
         lam, mse, mse_raw, gain = _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas,
-                                                                opt, noisy=noisy, progress=progress)
+                                                                opt, noisy=noisy, score=score, progress=progress)
         arrays["guide/weight"] = np.array([lam])
         arrays["face/motion_gain"] = gain
         metadata["training"]["guide"]["weight"] = lam
@@ -371,14 +374,15 @@ def _training_band(fset, sounds):
     return vaudio.FeatureSet(fset.features, {**fset.options, "band_hz": edge}, fset.name)
 
 
-def _fit_vocal_side(A, Y, lengths, gammas, opt: dict, *, columns: int, noisy=()) -> tuple[dict, dict]:
+def _fit_vocal_side(A, Y, lengths, gammas, opt: dict, *, columns: int, noisy=(), score=None) -> tuple[dict, dict]:
     """Everything of a puppet that maps audio to the facial states, given the facial HMMs'
     occupancies ``gammas`` (one (T, N) per part) of the training frames: the guide (option
     ``guide``), the projection (``vocal_features``) and each part's vocal Gaussians (§4.3).
     ``A`` are the standardised features (T, A'), ``Y`` the face coordinates of all parts and
     ``columns`` the features' count without deltas; ``noisy`` holds the same frames' features
     in each noise condition (option ``noise_snrs``, :func:`_noisy_conditions`), which the vocal
-    Gaussians also learn from with the same occupancies. Returns (arrays, metadata entries)."""
+    Gaussians also learn from with the same occupancies; ``score``: the guide's α is chosen on it
+    (``guide_alpha="lips"``: :func:`lips_score`). Returns (arrays, metadata entries)."""
     arrays, info = {}, {}
     if opt["guide"] == "ridge":
         # The ridge baseline's map (features without deltas, its own alpha) and the covariance
@@ -389,7 +393,7 @@ def _fit_vocal_side(A, Y, lengths, gammas, opt: dict, *, columns: int, noisy=())
         k = len(noisy) + 1
         guide, info["guide"] = fit_guide(np.vstack([A, *noisy]), np.vstack([Y] * k), list(lengths) * k,
                                          context=int(opt["guide_context"]), columns=columns, weight=weight,
-                                         alpha=opt["guide_alpha"],
+                                         alpha=opt["guide_alpha"], score=score,
                                          groups=np.tile(np.arange(len(lengths)), k) if noisy else None)
         arrays.update(guide)
     V = A
@@ -440,7 +444,7 @@ def _noisy_conditions(sounds, lengths, fps, fset, opt, standardize) -> list:
     return out
 
 
-def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt, *, noisy=(),
+def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, opt, *, noisy=(), score=None,
                                   progress: bool = False) -> tuple[float, list, list, np.ndarray]:
     """λ of :data:`GUIDE_WEIGHTS` with the least squared error of the face's motion on held-out
     training audio (training option ``guide_weight="cv"``).
@@ -471,7 +475,7 @@ def _cross_validated_guide_weight(metadata, arrays, raw, A, Y, lengths, gammas, 
         rest_lengths = [len(r) for r in sequence_runs(rest, seq)]
         try:
             vocal, _ = _fit_vocal_side(A[rest], Y[rest], rest_lengths, [g[rest] for g in gammas], opt,
-                                       columns=raw[0].shape[1], noisy=[N[rest] for N in noisy])
+                                       columns=raw[0].shape[1], noisy=[N[rest] for N in noisy], score=score)
         except ValueError as exc:  # a fold too small for what the puppet fits: say which step
             raise ValueError(f"choosing the guide's weight by cross-validation on {len(A)} training "
                              f"frames: {exc}; or fix the weight (guide_weight={GUIDE_WEIGHT:g})") from None
