@@ -126,8 +126,11 @@ def main(argv=None) -> int:
     needed = float(np.average([(0.7 ** 2 - r["spread"] ** 2 + 2 * r["r"] * r["spread"]) / (2 * 0.7) for r in ridge],
                               weights=w))
     print(f"r a mouth of spread 0.7 needs for the ridge's RMSE: {needed:.3f}")
-    if args.json:
-        Path(args.json).write_text(json.dumps({"rows": rows, "summary": summary, "needed_r_at_0.7": needed}, indent=1) + "\n")
+    if args.json:  # whole or not at all
+        out = Path(args.json)
+        tmp = out.with_name(out.name + ".part")
+        tmp.write_text(json.dumps({"rows": rows, "summary": summary, "needed_r_at_0.7": needed}, indent=1) + "\n")
+        tmp.replace(out)
     return 0
 
 

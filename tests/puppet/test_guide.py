@@ -266,7 +266,7 @@ def test_a_scored_alpha_is_chosen_on_the_scored_columns():
     assert scored.alpha == alone.alpha != plain.alpha
     at_alpha = RidgeBaseline(1, alphas=(scored.alpha,)).fit([X], [Y])
     np.testing.assert_allclose(scored.W, at_alpha.W, rtol=1e-12, atol=1e-12)
-    with pytest.raises(ValueError, match="not with per_target"):
+    with pytest.raises(ValueError, match="without per_target"):
         RidgeBaseline(1, per_target=True, score=np.eye(2))
     with pytest.raises(ValueError, match="3 rows for 2 face coordinates"):
         RidgeBaseline(1, score=np.eye(3)).fit([X], [Y])

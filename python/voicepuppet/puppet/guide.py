@@ -120,9 +120,10 @@ class RidgeBaseline:
                  score=None):
         self.k, self.alphas, self.n_folds, self.per_target = int(k), tuple(alphas), int(n_folds), bool(per_target)
         self.score = None if score is None else np.asarray(score, dtype=np.float64)
-        if self.score is not None and (per_target or self.score.ndim != 2 or not np.isfinite(self.score).all()):
-            raise ValueError("score must be a finite (K, M) matrix, and one α is chosen on it: not with per_target; "
-                             f"got shape {self.score.shape}" + (" with per_target" if per_target else ""))
+        if self.score is not None and per_target:
+            raise ValueError("score chooses one α for all face coordinates: give it without per_target")
+        if self.score is not None and (self.score.ndim != 2 or not np.isfinite(self.score).all()):
+            raise ValueError(f"score must be a finite (K, M) matrix, got shape {self.score.shape}")
 
     @staticmethod
     def _solve(G, B, alpha):
@@ -402,8 +403,8 @@ def fit_guide(standardized, face, lengths, *, context: int, columns: int, n_fold
     if alpha not in GUIDE_ALPHAS:
         raise ValueError(f"the guide's alpha must be one of {GUIDE_ALPHAS}, got {alpha!r}")
     if (alpha == "lips") != (score is not None):
-        raise ValueError("the guide's alpha 'lips' is chosen on a score (lips_score of the face space), "
-                         f"and only it: got alpha={alpha!r} with{'out' if score is None else ''} a score")
+        raise ValueError("the guide's alpha 'lips' needs score (lips_score of the face space), and only it "
+                         f"takes one; got alpha={alpha!r}, score {'missing' if score is None else 'given'}")
     Y, k, yhat, full = _context_ridge(standardized, face, lengths, context=context, columns=columns,
                                       n_folds=n_folds, what="the guide", option="guide_context", groups=groups,
                                       per_target=alpha == "per_coordinate", score=score)

@@ -277,6 +277,7 @@ def train(points_list, audio_list=None, *, features_list=None, fps: float = 29.9
 
     fs = FaceSpace.fit(points_list, opt["n_components"], max_components=opt["max_components"],
                        parts=opt["parts"])
+    score = lips_score(fs) if opt["guide"] == "ridge" and opt["guide_alpha"] == "lips" else None
     Y = np.vstack([fs.encode(p)[0] for p in points_list])
     arrays = {"fps": np.array([float(fps)]), "audio/mean": std.mean, "audio/std": std.std,
               "audio/delta_width": np.array([w], dtype=np.int64)}
@@ -302,7 +303,6 @@ def train(points_list, audio_list=None, *, features_list=None, fps: float = 29.9
                        "iterations": len(hmm.history_),  # states and arcs (ints) from diag
                        **{key: v if isinstance(v, int) else float(v)
                           for key, v in diag.items() if np.isscalar(v)}})
-    score = lips_score(fs) if opt["guide"] == "ridge" and opt["guide_alpha"] == "lips" else None
     vocal, vocal_info = _fit_vocal_side(A, Y, lengths, gammas, opt, columns=raw[0].shape[1], noisy=noisy,
                                         score=score)
     arrays.update(vocal)
