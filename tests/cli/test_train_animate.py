@@ -257,6 +257,14 @@ def test_guide_switches(workdir, tmp_path, capsys):
     assert k2.metadata["training"]["options"]["guide_alpha"] == "per_coordinate"
     assert len(k2.metadata["training"]["guide"]["alpha"]) == k2.face_space.n_dims
     assert default.metadata["training"]["options"]["guide_alpha"] == "shared"
+    assert main(common + ["-o", str(tmp_path / "one.vpp"), "--max-components", "1"]) == 0
+    one = load(tmp_path / "one.vpp")
+    assert one.metadata["training"]["options"]["max_components"] == 1
+    assert one.face_space.n_dims == 1 < default.face_space.n_dims  # the cap bound
+    capsys.readouterr()
+    assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-alpha", "lips"]) == 2  # 10-point faces
+    assert "needs the 68-point layout" in capsys.readouterr().err
+    assert not (tmp_path / "bad.vpp").exists()
     # --guide-weight 0 on the default (guided) puppet is the unguided puppet's animation
     assert main(["animate", str(d / "p.vpp"), str(d / "test.wav"), "-o", str(tmp_path / "zero.npz"),
                  "--guide-weight", "0", "--quiet"]) == 0
@@ -274,6 +282,10 @@ def test_guide_switches(workdir, tmp_path, capsys):
     assert "--guide-alpha" in capsys.readouterr().err
     assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-context", "101"]) == 2
     assert "guide_context" in capsys.readouterr().err
+    # options are checked before any tracking: a missing video is never reached
+    assert main(["train", str(tmp_path / "absent.mp4"), "-o", str(tmp_path / "bad.vpp"), "--max-components", "0",
+                 "--quiet"]) == 2
+    assert "max_components must be an integer >= 1" in capsys.readouterr().err
     assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-weight", "auto"]) == 2
     assert "--guide-weight must be 'cv' or a number" in capsys.readouterr().err
     assert main(common + ["-o", str(tmp_path / "bad.vpp"), "--guide-weight", "-2"]) == 2

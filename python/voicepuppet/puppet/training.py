@@ -164,6 +164,10 @@ class TrainOptions:
         if self.guide not in GUIDES:
             raise ValueError(f"guide must be one of {GUIDES}, got {self.guide!r}")
         _check_context(self.guide_context, "guide_context", "the guide's ridge")
+        mc = self.max_components
+        if isinstance(mc, bool) or not isinstance(mc, (int, np.integer)) or mc < 1:
+            raise ValueError(f"max_components must be an integer >= 1 (components of the face basis per part), "
+                             f"got {mc!r}")
         if self.guide_alpha not in GUIDE_ALPHAS:
             raise ValueError(f"guide_alpha must be one of {GUIDE_ALPHAS}, got {self.guide_alpha!r}")
         gw = self.guide_weight
