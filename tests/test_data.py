@@ -9,6 +9,7 @@ from voicepuppet import synth
 from voicepuppet.phonemes import labels as phonemes
 from voicepuppet import data as samples
 from voicepuppet.cli.main import main
+from voicepuppet.evaluation.corpus import _label_readers, split_clip
 from voicepuppet.synth.speech import recording_utterance
 
 DURATIONS = {"arctic_a0009": 3.10, "arctic_a0007": 4.00, "librivox_0870": 7.10, "librivox_0880": 2.99,
@@ -104,3 +105,15 @@ def test_the_performer_speaks_the_real_recordings(tmp_path):
         if p.label != "_":
             speech |= (t >= p.start) & (t < p.end)
     assert gap[speech].mean() > 2 * gap[~speech].mean()
+    # who reads each sequence: the Sonnet's reader up to the cut in the silence around her reading's end
+    # (which may fall a little before the end of its recording, in its trailing silence)
+    seqs = split_clip(corpus.train, name="train")
+    seqs += [split_clip(c, min_pause=1e9, name=f"test_{i:02d}")[0] for i, c in enumerate(corpus.test)]
+    _label_readers(seqs, corpus)
+    by = {r.name: r.speaker for r in samples.real_recordings()}
+    first = [s for s in seqs if s.meta["reader"] == by["sonnet_1"]]
+    assert seqs[:len(first)] == first and len(first) < len(seqs) - 2
+    read = sum(len(s.points) for s in first) / corpus.fps
+    assert DURATIONS["sonnet_1"] - 1.0 <= read <= DURATIONS["sonnet_1"] + 0.6
+    assert {s.meta["reader"] for s in seqs[len(first):-2]} == {by["librivox_0870"]}
+    assert [s.meta["reader"] for s in seqs[-2:]] == [by[n] for n in synth.REAL_TEST]

@@ -622,3 +622,50 @@ def test_cross_validation_baselines_refuse_bad_features():
         ev.cross_validate(seqs, k=2, peers=False, features=[f[:-1] for f in feats], progress=False)
     with pytest.raises(ValueError, match="sequence s0 has no audio; the voice puppet needs it"):
         ev.cross_validate(seqs, k=2, peers=False, progress=False)
+
+
+def test_evaluate_folds_readers_leaves_a_voice_out(tmp_path, monkeypatch, capsys):
+    """``--folds readers``: the three folds of ``reader_folds`` (each reader left out, then the
+    held-out speakers), named in the JSON and tabled fold by fold; only with ``--speech real``."""
+    seqs = planted_sequences(np.random.default_rng(5), n_seq=6, T=40)
+    names = ["train_00", "train_01", "train_02", "train_03", "test_00", "test_01"]
+    for s, name, reader in zip(seqs, names, "AABBCD"):
+        s.name, s.meta = name, {"reader": reader}
+    monkeypatch.setattr(corpus, "synth_sequences", lambda *a, **k: seqs)
+    md, js = tmp_path / "r.md", tmp_path / "r.json"
+    assert main(["evaluate", "--speech", "real", "--folds", "readers", "--peers", "--no-puppet", "--components", "3",
+                 "-o", str(md), "--json", str(js), "-q"]) == 0
+    res = json.loads(js.read_text())
+    assert res["config"]["fold_labels"] == ["A → B", "B → A", "both → held out (CMU ARCTIC)"]
+    assert res["config"]["folds"] == [["train_02", "train_03"], ["train_00", "train_01"], ["test_00", "test_01"]]
+    assert all(len(m["err"]["folds"]) == 3 for m in res["models"].values())
+    text = md.read_text()
+    assert "| Err (eq. 7), fold by fold | A → B | B → A | both → held out (CMU ARCTIC) |" in text
+    assert "3 folds that leave a voice out (A → B; B → A;" in text and "--folds readers" in res["command"]
+    capsys.readouterr()
+    assert main(["evaluate", "--folds", "readers", "--peers", "--no-puppet", "-q"]) == 2
+    assert "add --speech real" in capsys.readouterr().err
+    assert main(["evaluate", "--folds", "five", "--peers", "--no-puppet", "-q"]) == 2
+    assert "--folds takes k (an integer >= 2) or 'readers', got 'five'" in capsys.readouterr().err
+
+
+def test_a_variant_may_adapt_at_animate_time(monkeypatch):
+    """A variant's ``adapt`` options reach ``Puppet.animate`` of the test audio, not training;
+    other unknown options are still refused."""
+    rng = np.random.default_rng(6)
+    seqs = planted_sequences(rng, n_seq=4, T=60)
+    feats = [rng.normal(size=(len(s.points), 4)) for s in seqs]
+    seen = []
+    animate = ev.Puppet.animate
+
+    def spy(self, *a, **k):
+        seen.append(k.get("adapt"))
+        return animate(self, *a, **k)
+
+    monkeypatch.setattr(ev.Puppet, "animate", spy)
+    res = ev.compare_training(seqs, {"adapted": {"adapt": "full", "adapt_tau": 10.0, "n_states": 3},
+                                     "plain": {"n_states": 3}}, k=2, features=feats)
+    assert "full" in seen and None in seen
+    assert res["config"]["options"]["adapted"]["adapt"] == "full"
+    with pytest.raises(ValueError, match=r"unknown training options \['adapt_rate'\]"):
+        ev.compare_training(seqs, {"a": {"adapt_rate": 3}, "b": {}}, k=2, features=feats)

@@ -82,6 +82,23 @@ def _report(args, result: dict, command: str, text: str) -> int:
     return 0
 
 
+def _folds(args, seqs) -> tuple:
+    """``--folds``: k seeded folds, or ``readers`` (real speech: leave a voice out,
+    :func:`voicepuppet.evaluation.corpus.reader_folds`) -> (k, folds or None, fold labels or None)."""
+    from voicepuppet.evaluation.corpus import reader_folds
+
+    if args.folds == "readers":
+        if args.speech != "real" or args.data:
+            raise ValueError("--folds readers leaves a voice out of the real-speech performer: add --speech real")
+        folds = reader_folds(seqs)
+        a, b = (seqs[int(f[0][0])].meta["reader"] for f in folds[:2])
+        return len(folds), folds, [f"{a} → {b}", f"{b} → {a}", "both → held out (CMU ARCTIC)"]
+    try:
+        return int(args.folds), None, None
+    except ValueError:
+        raise ValueError(f"--folds takes k (an integer >= 2) or 'readers', got {args.folds!r}") from None
+
+
 def _parse_variant(text: str):
     """``NAME`` or ``NAME:key=value,key=value`` -> (name, training options); values are JSON
     (numbers, true/false, quoted strings) or plain strings."""
@@ -109,10 +126,13 @@ def _run_comparison(args, seqs, n_comp) -> int:
         raise ValueError(f"--compare-training needs at least two differently named variants, got {given}")
     for opts in variants.values():
         opts.setdefault("n_states", args.states)
-    result = crossval.compare_training(seqs, variants, k=args.folds, seed=args.seed, n_components=n_comp,
+    k, folds, labels = _folds(args, seqs)
+    result = crossval.compare_training(seqs, variants, k=k, seed=args.seed, n_components=n_comp, folds=folds,
                                          progress=not args.quiet)
     command = _command(args) + " --compare-training" + "".join(
         f" --variant {shlex.quote(v)}" for v in (args.variant or []))
+    if labels:
+        result["config"]["fold_labels"] = labels
     text = report.format_comparison(result)
     return _report(args, result, command, text)
 
@@ -199,10 +219,13 @@ def _run(args) -> int:
                          f"{args.components!r}") from None
     if args.compare_training:
         return _run_comparison(args, seqs, n_comp)
+    k, folds, labels = _folds(args, seqs)
     with _rhubarb_said():
-        result = crossval.cross_validate(seqs, k=args.folds, seed=args.seed, peers=args.peers,
+        result = crossval.cross_validate(seqs, k=k, seed=args.seed, peers=args.peers,
                                          puppet=not args.no_puppet, n_components=n_comp, n_states=args.states,
-                                         progress=not args.quiet, **tools)
+                                         folds=folds, progress=not args.quiet, **tools)
+    if labels:
+        result["config"]["fold_labels"] = labels
     return _report(args, result, _command(args), report.format_table(result))
 
 
@@ -251,7 +274,10 @@ def add_parser(sub) -> None:
                         "speakers held out; voicepuppet.synth.make_real_corpus)")
     p.add_argument("--train-seconds", type=float, help="performer training speech (s; default 60, espeak only)")
     p.add_argument("--n-test", type=int, help="performer held-out espeak-ng sentences (default 3, espeak only)")
-    p.add_argument("--folds", type=int, default=10, help="k of k-fold cross-validation (default 10)")
+    p.add_argument("--folds", default="10", metavar="K|readers",
+                   help="k of k-fold cross-validation (default 10); readers (with --speech real): leave a "
+                        "voice out, training on one reader and testing on the other both ways, then on both "
+                        "and testing on the held-out CMU ARCTIC speakers (a table per fold)")
     p.add_argument("--seed", type=int, default=0, help="seeds the corpus, the folds and the models (default 0)")
     p.add_argument("--corpus-seed", type=int, metavar="N",
                    help="seed of the performer corpus alone (default: --seed), e.g. a second partition "

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import soundfile
 
 from voicepuppet import _core
 from voicepuppet import data as samples
@@ -27,7 +28,7 @@ from voicepuppet._files import atomic_path, write_npz
 from voicepuppet.phonemes import labels as phonemes
 from voicepuppet.tracking import tracker as tracking
 
-__all__ = ["TRAIN_ON", "BILABIALS", "Sequence", "learnt_points", "with_landmark_noise", "bilabial_mask",
+__all__ = ["TRAIN_ON", "BILABIALS", "Sequence", "learnt_points", "with_landmark_noise", "bilabial_mask", "reader_folds",
            "bilabial_frames", "split_clip", "tracked_landmarks", "synth_sequences", "load_sequences"]
 
 #: where the models' training landmarks come from (``--train-on``)
@@ -374,7 +375,63 @@ def synth_sequences(out_dir=None, train_seconds: float = 60.0, n_test: int = 3, 
     seqs = split_clip(corpus.train, name="train", train_points=fit_of(corpus.train))
     for i, clip in enumerate(corpus.test):
         seqs += split_clip(clip, min_pause=1e9, name=f"test_{i:02d}", train_points=fit_of(clip))
+    if speech == "real":
+        _label_readers(seqs, corpus)
     return seqs
+
+
+def _label_readers(seqs: list, corpus) -> None:
+    """Each real-speech sequence's ``meta["reader"]``: who reads it (:attr:`voicepuppet.data.Recording.speaker`).
+    The training clip is the first of :data:`voicepuppet.synth.REAL_TRAIN` (one reader) and then
+    the others (a second reader), with a pause between them where :func:`split_clip` cuts; the
+    held-out clips are :data:`voicepuppet.synth.REAL_TEST` in order."""
+    first, *rest = samples.real_recordings(synth.REAL_TRAIN)
+    if len({r.speaker for r in rest}) != 1 or rest[0].speaker == first.speaker:
+        raise RuntimeError(f"the real-speech training clip is not two readers, the first alone: "
+                           f"{[r.speaker for r in (first, *rest)]}")
+    # The cut between the readers lies in the silence around the end of the first reading (its own
+    # trailing silence, then the pause): a sequence is the first reader's if its middle is before that end.
+    end = soundfile.info(first.wav).duration
+    start = 0
+    for s in seqs:
+        if s.name.startswith("train"):
+            s.meta["reader"] = first.speaker if (start + len(s.points) / 2) / s.fps < end else rest[0].speaker
+            start += len(s.points)
+    tests = [s for s in seqs if not s.name.startswith("train")]
+    for s, r in zip(tests, samples.real_recordings(synth.REAL_TEST)):
+        s.meta["reader"] = r.speaker
+
+
+def reader_folds(sequences) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Folds that leave a voice out, over real-speech sequences (:func:`synth_sequences` with
+    ``speech="real"``): train on one training reader and test on the other, both ways, then
+    train on both and test on the held-out speakers (``test_*``, CMU ARCTIC).
+
+    Parameters
+    ----------
+    sequences : list of Sequence
+        With ``meta["reader"]`` on every training sequence (``train_*``): two readers.
+
+    Returns
+    -------
+    list of (train, test)
+        Three pairs of sorted int64 index arrays: reader A → B, B → A, both → held out.
+
+    Raises
+    ------
+    ValueError
+        Training sequences without a reader, not two readers, or no held-out sequence.
+    """
+    train = [i for i, s in enumerate(sequences) if s.name.startswith("train")]
+    held = np.array([i for i, s in enumerate(sequences) if not s.name.startswith("train")], dtype=np.int64)
+    readers = [sequences[i].meta.get("reader") for i in train]
+    names = list(dict.fromkeys(readers))
+    if None in names or len(names) != 2 or not len(held):
+        raise ValueError(f"leaving a voice out needs training sequences of two readers (meta['reader']) and "
+                         f"held-out ones: got readers {names} and {len(held)} held out; use the real-speech "
+                         f"sequences (synth_sequences(speech='real'))")
+    a, b = (np.array([i for i, r in zip(train, readers) if r == n], dtype=np.int64) for n in names)
+    return [(a, b), (b, a), (np.array(train, dtype=np.int64), held)]
 
 
 def load_sequences(folder, alphabet: str = "arpabet") -> list[Sequence]:

@@ -36,7 +36,7 @@ from voicepuppet.animation import Animation
 from voicepuppet.blas import limited
 from voicepuppet.evaluation import metrics
 from voicepuppet.evaluation.corpus import bilabial_mask, learnt_points
-from voicepuppet.evaluation.folds import kfold, over_folds
+from voicepuppet.evaluation.folds import check_folds, kfold, over_folds
 from voicepuppet.evaluation.learned import ConvRegressor
 from voicepuppet.evaluation.rhubarb import RECOGNIZERS, ShapeMap, cue_agreement, frame_shapes
 from voicepuppet.evaluation.split import decoding_entropy_rate, facial_states, sequence_features
@@ -48,7 +48,11 @@ from voicepuppet.puppet.training import TRAIN_DEFAULTS, check_option_names, trai
 from voicepuppet.render.export import mouth_cues
 
 __all__ = ["METRICS", "BASELINES", "TOOLS", "UNGUIDED", "MOST_PROBABLE", "COMPARE_MEASURES", "COMPARE_KEPT",
-           "cross_validate", "compare_training"]
+           "ANIMATE_OPTIONS", "cross_validate", "compare_training"]
+
+#: Options of :meth:`voicepuppet.puppet.model.Puppet.animate` a variant of :func:`compare_training`
+#: may set beside its training options: test-time adaptation of the input's vocal features.
+ANIMATE_OPTIONS = ("adapt", "adapt_tau", "adapt_iter")
 
 #: measure -> (column title, better: "lower" or "higher")
 METRICS = {
@@ -185,7 +189,7 @@ def _tool_fold(cues, tr_idx, te_idx, Ytr, Yte, fs, preds_puppet, fps, shut) -> t
 @limited
 def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
                    puppet: bool = True, n_components=0.98, n_states: int = 40,
-                   features=None, rhubarb=None, learned: bool = False, progress: bool = True) -> dict:
+                   features=None, rhubarb=None, learned: bool = False, folds=None, progress: bool = True) -> dict:
     """k-fold cross-validation by sequence of the voice puppet, its baselines and the phoneme peers.
 
     Models and each fold's face space learn from the training sequences' :func:`learnt_points`
@@ -225,6 +229,9 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         Evaluate the learned peer (row ``learned``; with the puppet): a
         :class:`voicepuppet.evaluation.learned.ConvRegressor` per fold from the features as the
         fold's puppet standardises them to the training face coordinates (needs PyTorch).
+    folds : list of (train, test), optional
+        These folds instead of ``k`` seeded ones (:func:`voicepuppet.evaluation.folds.check_folds`;
+        e.g. :func:`voicepuppet.evaluation.corpus.reader_folds`, which leave a voice out).
     progress : bool
         Show a progress bar over folds and models (default True).
 
@@ -263,7 +270,7 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         def features_of(i):
             return features_at(i, fset)
 
-    folds = kfold(len(seqs), k, seed)
+    folds = kfold(len(seqs), k, seed) if folds is None else check_folds(folds, len(seqs))
     tools = [t for t, on in zip(TOOLS, (rhubarb is not None, learned)) if on]
     names = (["voice-puppet", *BASELINES, *tools] if puppet else []) + (list(dpds.MODELS) if peers else [])
     per_fold: dict = {n: [] for n in names}
@@ -321,7 +328,7 @@ def cross_validate(sequences, *, k: int = 10, seed: int = 0, peers: bool = True,
         per_fold["rhubarb"] = by_recognizer[best]
 
     result = {"models": {}, "differences": {}, "config": {
-        "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
+        "k": len(folds), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
         "fps": fps, "n_components": n_components, "n_states": int(n_states),
         "separate_training_landmarks": any(s.train_points is not None for s in seqs),
         "folds": [[seqs[i].name for i in te] for _, te in folds]}}
@@ -373,7 +380,7 @@ COMPARE_KEPT = ("states", "arcs", "guide_weight")
 
 @limited
 def compare_training(sequences, variants: dict, *, baseline: str | None = None, k: int = 10,
-                     seed: int = 0, n_components=0.98, features=None, progress: bool = False) -> dict:
+                     seed: int = 0, n_components=0.98, features=None, folds=None, progress: bool = False) -> dict:
     """Paired k-fold comparison of puppet training options on the same folds.
 
     In every fold (:func:`voicepuppet.evaluation.folds.kfold` by sequence) each variant is a
@@ -397,7 +404,8 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     sequences : list of voicepuppet.evaluation.crossval.Sequence
         With audio (``samples``, ``rate``).
     variants : dict
-        name -> dict of :data:`voicepuppet.puppet.training.TRAIN_DEFAULTS` overrides (``seed`` is set here).
+        name -> dict of :data:`voicepuppet.puppet.training.TRAIN_DEFAULTS` overrides (``seed`` is set
+        here), and of :data:`ANIMATE_OPTIONS` with which the variant animates the test audio.
     baseline : str, optional
         The variant the others are paired against (default: the last one).
     k, seed : int
@@ -407,6 +415,8 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     features : list of arrays (T_s, A), optional
         Raw audio features of each sequence, one row per frame, instead of computing them from
         the sequences' audio (then every variant uses these).
+    folds : list of (train, test), optional
+        These folds instead of ``k`` seeded ones (as in ``cross_validate``).
     progress : bool
         Show a progress bar over folds and variants (default False).
 
@@ -433,7 +443,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     if baseline not in variants:
         raise ValueError(f"baseline {baseline!r} is not one of the variants {names}")
     for name, opts in variants.items():
-        check_option_names(opts, f"variant {name!r}")
+        check_option_names({k: v for k, v in opts.items() if k not in ANIMATE_OPTIONS}, f"variant {name!r}")
     if not seqs:
         raise ValueError("no sequences to compare on")
     fit = [learnt_points(s) for s in seqs]  # refuses train_points of the wrong shape up front
@@ -443,7 +453,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
                                         variants[name].get("audio_level", TRAIN_DEFAULTS["audio_level"]))
              for name in names}
 
-    folds = kfold(len(seqs), k, seed)
+    folds = kfold(len(seqs), k, seed) if folds is None else check_folds(folds, len(seqs))
     per_fold: dict = {n: [] for n in names}
     bar = tqdm(total=len(folds) * len(names), desc="paired comparison", unit="model", disable=not progress)
     for fi, (tr, te) in enumerate(folds):
@@ -453,12 +463,13 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
         for name in names:
             bar.set_postfix(fold=fi + 1, variant=name)
             opts = dict(variants[name], seed=seed)
+            animate = {k: opts.pop(k) for k in ANIMATE_OPTIONS if k in opts}
             puppet = Puppet.train([fit[i] for i in tr], features_list=[features_of(i, fsets[name]) for i in tr],
                                   fps=fps, **opts)
             voice, states, rates = [], [], []
             for i, y in zip(te, Yte):
                 f = features_of(i, fsets[name])
-                voice.append(_as_face(puppet.animate(features=f, fps=fps).animation.points, len(y), fs))
+                voice.append(_as_face(puppet.animate(features=f, fps=fps, **animate).animation.points, len(y), fs))
                 s = facial_states(puppet, seqs[i].points)
                 states.append(_as_face(puppet.animate(states=s, fps=fps).animation.points, len(y), fs))
                 rates.append((decoding_entropy_rate(puppet, f), len(y)))
@@ -476,7 +487,7 @@ def compare_training(sequences, variants: dict, *, baseline: str | None = None, 
     measures = [m for m in COMPARE_MEASURES + COMPARE_KEPT
                 if over_folds([(i, r[m]) for i, r in enumerate(per_fold[baseline]) if m in r], len(folds), m)]
     out = {"variants": {}, "differences": {}, "config": {
-        "k": int(k), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
+        "k": len(folds), "seed": int(seed), "sequences": len(seqs), "frames": int(sum(len(s.points) for s in seqs)),
         "fps": fps, "n_components": n_components, "baseline": baseline,
         "separate_training_landmarks": any(s.train_points is not None for s in seqs),
         "options": {n: dict(variants[n]) for n in names},

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["kfold", "mean_ci", "fold_summary"]
+__all__ = ["kfold", "check_folds", "mean_ci", "fold_summary"]
 
 
 def kfold(n_sequences: int, k: int = 10, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -51,6 +51,42 @@ def kfold(n_sequences: int, k: int = 10, seed: int = 0) -> list[tuple[np.ndarray
     for i, test in enumerate(folds):
         train = np.concatenate([f for j, f in enumerate(folds) if j != i])
         out.append((np.sort(train).astype(np.int64), np.sort(test).astype(np.int64)))
+    return out
+
+
+def check_folds(folds, n_sequences: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Folds given as they are (e.g. :func:`voicepuppet.evaluation.corpus.reader_folds`), checked.
+
+    Parameters
+    ----------
+    folds : sequence of (train, test)
+        Index arrays into ``n_sequences`` sequences; the test sets need not partition them.
+    n_sequences : int
+        Number of sequences ``S``.
+
+    Returns
+    -------
+    list of (train, test)
+        Sorted int64 index arrays.
+
+    Raises
+    ------
+    ValueError
+        Fewer than two folds, an empty side, an index outside ``0..S-1`` or repeated, or a
+        sequence on both sides of a fold.
+    """
+    out = []
+    for j, pair in enumerate(folds):
+        train, test = (np.sort(np.asarray(side, dtype=np.int64).ravel()) for side in pair)
+        for name, side in (("train", train), ("test", test)):
+            if not len(side) or side.min() < 0 or side.max() >= n_sequences or len(np.unique(side)) != len(side):
+                raise ValueError(f"fold {j}: its {name} sequences must be distinct indices in 0..{n_sequences - 1}, "
+                                 f"at least one; got {side.tolist()}")
+        if np.intersect1d(train, test).size:
+            raise ValueError(f"fold {j}: sequences {np.intersect1d(train, test).tolist()} are in training and test")
+        out.append((train, test))
+    if len(out) < 2:
+        raise ValueError(f"give two or more folds, got {len(out)}")
     return out
 
 

@@ -141,10 +141,12 @@ def format_table(result: dict) -> str:
             ["paired difference (fold by fold)"] + [METRICS[m][0] for m in dcols],
             ((f"{a} − {label(b)}", *(format_difference(d[m]) if m in d else "—" for m in dcols))
              for a, by in diffs.items() for b, d in by.items()))
+    if c.get("fold_labels"):
+        lines += _per_fold(result["models"], c["fold_labels"], [m for m in ("err", "lve") if m in cols])
     if rhubarb:
         lines += [""] + _cue_tables(rhubarb)
     lines.append("")
-    lines.append(f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} "
+    lines.append(f"{_how_folded(c)} ({c['sequences']} sequences, {c['frames']} "
                  f"frames at {c['fps']:.4g} fps, seed {c['seed']}); mean over folds ± half-width of the "
                  f"95% confidence interval (Student's t). Face coordinates: FaceSpace per fold "
                  f"(n_components={c['n_components']}). Log-likelihoods are per frame of the test data under "
@@ -196,6 +198,24 @@ def _cue_tables(rhubarb: dict) -> list[str]:
     return lines
 
 
+def _how_folded(config: dict) -> str:
+    """How a cross-validation's folds were made, for the line under its tables."""
+    if config.get("fold_labels"):
+        return f"{config['k']} folds that leave a voice out ({'; '.join(config['fold_labels'])})"
+    return f"{config['k']}-fold cross-validation by sequence"
+
+
+def _per_fold(entries: dict, labels: list, measures: list) -> list[str]:
+    """Tables of ``measures`` fold by fold (rows: the entries, columns: the folds' ``labels``)."""
+    lines = []
+    for m in measures:
+        title = METRICS[m][0] if m in METRICS else m
+        lines += [""] + markdown_table([f"{title}, fold by fold"] + list(labels),
+                                       ((name, *(f"{v:.4g}" for v in e[m]["folds"]))
+                                        for name, e in entries.items() if m in e and len(e[m]["folds"]) == len(labels)))
+    return lines
+
+
 def write_results(result: dict, md_path=None, json_path=None, command: str = "", text: str | None = None) -> None:
     """Write the table (Markdown) and the full result (JSON), each atomically.
 
@@ -244,7 +264,9 @@ def format_comparison(result: dict) -> str:
                                    ((f"{name} − {base}", *(format_difference(row[m]) for m in measures))
                                     for name, row in result["differences"].items()))
     c = result["config"]
-    lines += ["", f"{c['k']}-fold cross-validation by sequence ({c['sequences']} sequences, {c['frames']} frames "
+    if c.get("fold_labels"):
+        lines += _per_fold(result["variants"], c["fold_labels"], [m for m in ("err", "lve") if m in measures])
+    lines += ["", f"{_how_folded(c)} ({c['sequences']} sequences, {c['frames']} frames "
               f"at {c['fps']:.4g} fps, seed {c['seed']}); variants: mean over folds ± half-width of the 95% "
               f"interval; differences: mean [95% interval] of the per-fold differences (Student's t, "
               f"{c['k'] - 1} degrees of freedom). Lower is better for every measure; "

@@ -5,7 +5,7 @@ The vocal Gaussians of Brand's remap (§4.3) may live in any audio-feature space
 coordinates y_t from the standardised audio features of frames t−k .. t+k (the map of the ridge
 baseline, :class:`RidgeBaseline`): K ≤ 12 dimensions that carry what the
 face needs and little of the voice, instead of 48 that carry the voice too (docs/results.md,
-"vocal Gaussians on a learned projection of the audio").
+"Voices never heard").
 
 The training ŷ are **cross-fitted**: each training fold's ŷ is predicted by a map fitted without
 it, so the vocal Gaussians see ŷ as noisy as novel audio gives them. The map stored in the

@@ -454,9 +454,9 @@ class Puppet:
             inverse covariance of its residuals): None (default) the file's — chosen at training
             by cross-validation on the training audio (files of earlier versions carry 4, the
             first guided ones 1) — 0 Brand's unguided solve, any λ >= 0. A positive value needs a guided
-            puppet (:attr:`guided`). The choice is made on the voices of the training audio; a
-            voice the puppet never heard may want a larger λ (docs/results.md, "The guide's
-            weight chosen at training by cross-validation").
+            puppet (:attr:`guided`). The choice is made on the voices of the training audio; on a
+            voice never heard puppets of a fixed λ keep the lips closer, at a higher Err
+            (docs/results.md, "The guide's weight for voices never heard").
             Given states without audio are synthesised unguided.
         full_motion : bool
             Widen the trajectory's motion (default True): each face coordinate's deviation from
