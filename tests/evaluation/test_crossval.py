@@ -647,6 +647,11 @@ def test_evaluate_folds_readers_leaves_a_voice_out(tmp_path, monkeypatch, capsys
     assert "add --speech real" in capsys.readouterr().err
     assert main(["evaluate", "--folds", "five", "--peers", "--no-puppet", "-q"]) == 2
     assert "--folds takes k (an integer >= 2) or 'readers', got 'five'" in capsys.readouterr().err
+    data = tmp_path / "data"
+    data.mkdir()
+    write_user_data(data, seqs)
+    assert main(["evaluate", "--data", str(data), "--folds", "readers", "--peers", "--no-puppet", "-q"]) == 2
+    assert "with --data give k" in capsys.readouterr().err
 
 
 def test_a_variant_may_adapt_at_animate_time(monkeypatch):

@@ -88,7 +88,9 @@ def _folds(args, seqs) -> tuple:
     from voicepuppet.evaluation.corpus import reader_folds
 
     if args.folds == "readers":
-        if args.speech != "real" or args.data:
+        if args.data:
+            raise ValueError("--folds readers leaves a voice out of the real-speech performer; with --data give k")
+        if args.speech != "real":
             raise ValueError("--folds readers leaves a voice out of the real-speech performer: add --speech real")
         folds = reader_folds(seqs)
         a, b = (seqs[int(f[0][0])].meta["reader"] for f in folds[:2])
