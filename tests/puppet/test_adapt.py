@@ -309,7 +309,7 @@ def test_animate_switch_and_live_refuses(tmp_path, capsys):
 
 def test_a_guided_puppets_guide_reads_the_inputs_own_features(guided):
     """The transform adapts the decoder's input; the guide's ŷ reads the input's own z (feeding
-    it A z + b was measured and not adopted: docs/results.md, "Adaptation reaching the guide").
+    it A z + b was measured and not adopted: docs/puppet.md, "Tried and dropped").
     The face is Brand's solve of the decoded states with the evidence ŷ(z), recomposed from the
     parts; τ = ∞ is no adaptation bit for bit, guide included."""
     from voicepuppet import _core

@@ -444,7 +444,7 @@ class Puppet:
             puppet) to each part's vocal HMM before decoding (``cpp/include/voicepuppet/adapt.hpp``): an
             affine transform A z + b found by EM with the puppet's own state posteriors, against
             a prior of ``adapt_tau`` frames of the puppet's voice. None (default): the features as
-            they are. Measured in docs/results.md ("test-time adaptation"): not the default.
+            they are. Measured in docs/results.md ("Voices never heard"): not the default.
         adapt_tau : float
             The prior's weight in frames (> 0; ``inf``: no adaptation, bit-identical to None).
         adapt_iter : int
